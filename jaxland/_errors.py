@@ -1,0 +1,19 @@
+"""Errors jaxland raises: each names what was wrong, the value, and the rule."""
+
+from __future__ import annotations
+
+
+class JaxlandError(Exception):
+    """Base class of jaxland's errors."""
+
+
+class ConfigError(JaxlandError, ValueError):
+    """A parameter, scene or solver value breaks its rule."""
+
+    def __init__(self, field: str, value, rule: str):
+        self.field, self.value, self.rule = field, value, rule
+        super().__init__(f"{field} = {value!r}: {rule}")
+
+
+class SimulationError(JaxlandError, RuntimeError):
+    """The integration failed numerically (non-finite state or energy growth)."""

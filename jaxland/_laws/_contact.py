@@ -1,0 +1,96 @@
+"""Foot-ground contact: bi-stiffness normal spring with a permanent pit, tangential stick/slip.
+
+Normal (paper section 2.2, Eq. 4): loading on the virgin line with stiffness k, restitution with
+k_r = k / (1 - gamma). We write it as a rate-independent elastic-plastic law with one memory, the
+deepest penetration d_max reached (penetration d is measured below the original ground surface):
+
+    F_s = max(0, k_r (d - gamma d_max)),   d_max <- max(d_max, d).
+
+At d = d_max this is k d (compression); below d_max it is the restitution line, which ends at the
+pit depth gamma d_max. A fraction gamma of the stored energy is lost per loading (energetic
+restitution coefficient sqrt(1 - gamma)), and a later impact starts from the pit, reloading along
+k_r until it passes the old depth. Nothing is reset on lift-off (resets make losses
+discontinuous, DESIGN.md section 6). Damping multiplies by (1 + chi d_dot), d_dot the penetration
+rate, floored at 0 so the ground never pulls.
+
+Tangential (paper sections 2.2.2-2.2.4): two springs k_tan on the tangent plane between the foot
+and an anchor point on the ground. Stick while k_tan |u| <= mu F_n (the paper's energy test
+E_x + E_y < mu^2 (k/k_tan) E_zs (1 + chi z_dot)^2 is the same inequality), otherwise slip: the
+anchor is dragged so that k_tan |u| = mu F_n (a return map, exact for Coulomb's law). Off the
+ground F_n = 0, so the anchor follows the foot.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._params import Ground
+
+
+def safe_norm(x, axis=-1):
+    """Euclidean norm with a finite gradient at zero (double-where)."""
+    n2 = jnp.sum(x * x, axis=axis)
+    pos = n2 > 0.0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+
+
+class NormalOut(eqx.Module):
+    force: jnp.ndarray  # N, ground normal force on the foot, >= 0
+    spring_force: jnp.ndarray  # N, F_s before damping
+    d_max: jnp.ndarray  # m, deepest penetration reached (updated memory)
+    pit_depth: jnp.ndarray  # m, gamma d_max
+    elastic_energy: jnp.ndarray  # J
+    plastic_energy: jnp.ndarray  # J, dissipated by ground plasticity so far, gamma k d_max^2 / 2
+    damping_power: jnp.ndarray  # W, dissipated by contact damping (>= 0)
+
+
+def normal_contact(d, d_dot, d_max_prev, ground: Ground) -> NormalOut:
+    """Normal ground force [N] at penetration ``d`` [m] (below the original surface) and
+    penetration rate ``d_dot`` [m/s], with memory ``d_max_prev`` [m]."""
+    d_max = jnp.maximum(d_max_prev, d)
+    k_r = ground.k / (1.0 - ground.gamma)
+    e = jnp.maximum(d - ground.gamma * d_max, 0.0)
+    f_s = k_r * e
+    factor = jnp.maximum(1.0 + ground.chi * d_dot, 0.0)
+    f_n = f_s * factor
+    return NormalOut(
+        force=f_n,
+        spring_force=f_s,
+        d_max=d_max,
+        pit_depth=ground.gamma * d_max,
+        elastic_energy=0.5 * k_r * e**2,
+        plastic_energy=0.5 * ground.gamma * ground.k * d_max**2,
+        damping_power=(f_n - f_s) * d_dot,
+    )
+
+
+class TangentialOut(eqx.Module):
+    force: jnp.ndarray  # N, (2,) tangential force on the foot
+    anchor: jnp.ndarray  # m, (2,) updated anchor (stick point) on the ground
+    slipping: jnp.ndarray  # bool, Coulomb limit reached
+    slip: jnp.ndarray  # m, distance the anchor moved (slip) in this evaluation
+    elastic_energy: jnp.ndarray  # J
+    slip_energy: jnp.ndarray  # J, dissipated by this slip increment
+
+
+def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground) -> TangentialOut:
+    """Tangential force [N] on the foot at tangent-plane position ``foot_t`` (2,) [m], given the
+    previous anchor (2,) [m] and the current normal force [N]."""
+    u_trial = foot_t - anchor_prev
+    n = safe_norm(u_trial)
+    limit = ground.mu * normal_force
+    slipping = ground.k_tan * n > limit
+    scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(slipping, n, 1.0)), 1.0)
+    u = u_trial * scale
+    anchor = foot_t - u
+    f = -ground.k_tan * u
+    slip = n * (1.0 - scale)
+    return TangentialOut(
+        force=f,
+        anchor=anchor,
+        slipping=slipping & (normal_force > 0.0),
+        slip=slip,
+        elastic_energy=0.5 * ground.k_tan * jnp.sum(u * u),
+        slip_energy=ground.k_tan * n * scale * slip,
+    )

@@ -1,0 +1,185 @@
+"""Parameters of the vehicle, as pytrees (``eqx.Module``), separate from any state.
+
+Every field carries its SI unit, its source (paper table/equation, or our assumption with the
+reasoning) and the rule a valid value obeys, in ``metadata``. The TOML format, ``jaxland
+config`` and the validation messages are all generated from that metadata, so the docs and the
+checks cannot drift apart.
+
+Symbols follow the paper (Table 2, section 2.3): k, gamma, chi, mu, k_tan, D_b, k_b1, k_b3,
+x_L1..x_L4. Lengths are metres, forces newtons, angles radians inside the code (degrees in TOML).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+
+__all__ = ["Honeycomb", "Leg", "Ground", "Vehicle", "field_info"]
+
+
+def _f64(x):
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+def _param(unit: str, doc: str, source: str, rule: str, *, toml: str, to_si: float = 1.0):
+    """A float64 parameter field with its unit, source, validity rule and TOML key."""
+    return eqx.field(
+        converter=_f64,
+        metadata=dict(unit=unit, doc=doc, source=source, rule=rule, toml=toml, to_si=to_si),
+    )
+
+
+def field_info(module_cls) -> list[dataclasses.Field]:
+    """The documented parameter fields of a parameter Module class (in declaration order)."""
+    return [f for f in dataclasses.fields(module_cls) if "unit" in f.metadata]
+
+
+class Honeycomb(eqx.Module):
+    """Two-stage aluminium-honeycomb buffer in the main strut (paper section 2.3, Fig. 5).
+
+    Virgin curve: elastic ``k_b1`` up to ``x_L1 = F1 / k_b1``, ideal plateau ``F1`` (the paper's
+    k_b2 = 0) to ``x_L2``, elastic ``k_b3`` to ``x_L3 = x_L2 + (F2 - F1) / k_b3``, ideal plateau
+    ``F2`` (k_b4 = 0) to ``x_L4``, then bottoming out on ``k_bottom``. Unloading and reloading
+    follow the stack's elastic law from the plastic set reached (see ``jaxland._honeycomb``).
+    """
+
+    k_b1: jnp.ndarray = _param(
+        "N/m", "elastic stiffness of the primary honeycomb stage",
+        "our assumption: F1 / x_L1 with the paper's x_L1 = 0.47 mm (Table 2)", "> 0",
+        toml="k_b1_N_per_m")
+    F1: jnp.ndarray = _param(
+        "N", "plateau (mean crush) force of the primary honeycomb",
+        "our calibration: Wierzbicki (1983) crush stress 6.6 sigma_0 (t/D)^(5/3) on Table 1's "
+        "98 mm section, with sigma_0 chosen to reproduce the paper's 66.5 mm first-impact stroke",
+        "> 0", toml="F1_N")
+    x_L2: jnp.ndarray = _param(
+        "m", "stroke at the end of the primary plateau (primary honeycomb fully crushed)",
+        "paper Table 2 (57.60 mm)", "> x_L1", toml="x_L2_mm", to_si=1e-3)
+    k_b3: jnp.ndarray = _param(
+        "N/m", "elastic stiffness of the secondary honeycomb stage",
+        "our assumption: (F2 - F1) / (x_L3 - x_L2) with the paper's x_L3 - x_L2 = 0.63 mm",
+        "> 0", toml="k_b3_N_per_m")
+    F2: jnp.ndarray = _param(
+        "N", "plateau (mean crush) force of the secondary honeycomb",
+        "our calibration: Wierzbicki (1983) with Table 1's cell size and foil, same sigma_0 as F1",
+        "> F1", toml="F2_N")
+    x_L4: jnp.ndarray = _param(
+        "m", "stroke at the end of the secondary plateau (both stages crushed; bottoming out)",
+        "paper Table 2 (183.23 mm)", "> x_L3", toml="x_L4_mm", to_si=1e-3)
+    k_bottom: jnp.ndarray = _param(
+        "N/m", "stiffness of the fully crushed stack (bottoming out) beyond x_L4",
+        "our assumption: a stiff stop, 1e8 N/m; reaching it is reported as bottoming out", "> 0",
+        toml="k_bottom_N_per_m")
+    bonded: bool = eqx.field(
+        static=True, default=False,
+        metadata=dict(doc="True: the crushed honeycomb is bonded to rod and sleeve and pulls "
+                      "elastically below its plastic set (the paper's simulation). False "
+                      "(default): it never pulls; the rod slides free down to the top-out stop "
+                      "(the paper's experiment, section 3.2)", toml="bonded"))
+
+    @property
+    def x_L1(self):
+        """Stroke at the end of the primary elastic stage, F1 / k_b1 [m]."""
+        return self.F1 / self.k_b1
+
+    @property
+    def x_L3(self):
+        """Stroke at the end of the secondary elastic stage, x_L2 + (F2 - F1) / k_b3 [m]."""
+        return self.x_L2 + (self.F2 - self.F1) / self.k_b3
+
+
+class Leg(eqx.Module):
+    """Inverted-triangle leg geometry and strut properties (paper Table 2, Figs 1 and 7).
+
+    In the leg's vertical plane (r radial outward, z up, origin at the body centre of mass): main
+    strut joint ``P = (R, -H1)``, auxiliary strut joint ``A = (R, -H1 - H2)``, the main strut of
+    rest length ``L_h0`` points outward and down at ``theta_b`` below the horizontal, and the foot
+    sits at its end. The auxiliary strut's rest length is derived, |F0 - A|, so the leg is
+    unstressed at rest (the paper's rounded 2.04 m would pre-load it).
+    """
+
+    R: jnp.ndarray = _param("m", "radial offset of both strut joints from the body axis",
+                            "paper Table 2", "> 0", toml="R_m")
+    H1: jnp.ndarray = _param("m", "depth of the main-strut joint P below the body centre of mass",
+                             "paper Table 2", ">= 0", toml="H1_m")
+    H2: jnp.ndarray = _param("m", "depth of the auxiliary-strut joint A below P",
+                             "paper Table 2", "> 0", toml="H2_m")
+    L_h0: jnp.ndarray = _param("m", "rest length of the main strut, joint P to foot",
+                               "paper Table 2", "> 0", toml="L_h0_m")
+    theta_b: jnp.ndarray = _param(
+        "rad", "main strut angle below the horizontal", "paper Table 2 (58.70 deg)",
+        "in (0, 90) deg", toml="theta_b_deg", to_si=math.pi / 180.0)
+    h: jnp.ndarray = _param(
+        "m", "lateral half-spacing of the two auxiliary struts (used by 3-D models only)",
+        "paper Table 2, our reading (DESIGN.md section 2)", ">= 0", toml="h_m")
+    k_a: jnp.ndarray = _param(
+        "N/m", "axial stiffness of the auxiliary strut (massless spring)",
+        "our assumption: 5e6 N/m, a steel tube of a few cm^2 over 2 m; the paper gives none",
+        "> 0", toml="k_a_N_per_m")
+    k_topout: jnp.ndarray = _param(
+        "N/m", "stiffness of the main strut's top-out stop (no extension beyond L_h0)",
+        "our assumption: 1e7 N/m, a stiff mechanical stop", "> 0", toml="k_topout_N_per_m")
+    D_b: jnp.ndarray = _param(
+        "s/m", "structural damping of the main strut, F_bd = D_b v_b F_bh",
+        "paper Table 2 and section 3.1", ">= 0", toml="D_b_s_per_m")
+
+    @property
+    def joint_P(self):
+        """Main-strut joint (r, z) in the leg plane relative to the body CoM [m]."""
+        return jnp.stack([self.R, -self.H1])
+
+    @property
+    def joint_A(self):
+        """Auxiliary-strut joint (r, z) relative to the body CoM [m]."""
+        return jnp.stack([self.R, -self.H1 - self.H2])
+
+    @property
+    def foot_rest(self):
+        """Foot position (r, z) relative to the body CoM with the leg at rest [m]."""
+        return self.joint_P + self.L_h0 * jnp.stack([jnp.cos(self.theta_b), -jnp.sin(self.theta_b)])
+
+    @property
+    def L_a0(self):
+        """Rest length of the auxiliary strut, |F0 - A| [m] (derived)."""
+        return jnp.linalg.norm(self.foot_rest - self.joint_A)
+
+
+class Ground(eqx.Module):
+    """Foot-ground contact (paper section 2.2, Eqs 4-14, Table 2)."""
+
+    k: jnp.ndarray = _param("N/m", "normal contact stiffness in compression (virgin loading)",
+                            "paper Table 2", "> 0", toml="k_N_per_m")
+    gamma: jnp.ndarray = _param(
+        "1", "fraction of the stored normal energy lost per loading (restitution stiffness "
+        "k / (1 - gamma); energetic restitution coefficient sqrt(1 - gamma))",
+        "paper Table 2", "in [0, 1)", toml="gamma")
+    chi: jnp.ndarray = _param("s/m", "normal contact damping, factor (1 + chi * d_dot)",
+                              "paper Table 2", ">= 0", toml="chi_s_per_m")
+    mu: jnp.ndarray = _param("1", "Coulomb friction coefficient foot-ground",
+                             "paper Table 2", ">= 0", toml="mu")
+    k_tan: jnp.ndarray = _param("N/m", "stiffness of each of the two tangential springs",
+                                "paper Table 2", "> 0", toml="k_tan_N_per_m")
+
+
+class Vehicle(eqx.Module):
+    """The whole vehicle: masses, gravity, and one leg design shared by all legs."""
+
+    m_body: jnp.ndarray = _param(
+        "kg", "mass of the main body (incl. upper struts), m1", "paper section 3.1", "> 0",
+        toml="m_body_kg")
+    m_foot: jnp.ndarray = _param("kg", "mass of one foot with the lower main strut, m2",
+                                 "paper section 3.1", "> 0", toml="m_foot_kg")
+    g: jnp.ndarray = _param("m/s^2", "gravitational acceleration", "standard gravity",
+                            "> 0", toml="g_mps2")
+    leg: Leg = eqx.field(default=None)
+    honeycomb: Honeycomb = eqx.field(default=None)
+    ground: Ground = eqx.field(default=None)
+    n_legs: int = eqx.field(static=True, default=4)
+
+    @property
+    def m_quarter(self):
+        """Body mass carried by one leg in a symmetric landing, m1 / n_legs [kg]."""
+        return self.m_body / self.n_legs

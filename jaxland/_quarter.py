@@ -1,0 +1,172 @@
+"""Quarter model of a symmetric vertical landing: the paper's experiment (DESIGN.md section 4).
+
+A quarter of the body mass moves vertically; one planar inverted-triangle leg carries it; the
+foot is a 2-DOF point mass in the leg plane. In a symmetric landing the horizontal loads of
+opposite legs cancel on the body, so this is exact for the full vehicle.
+
+Coordinates (world frame, ground at z = 0, r radial outward from the vehicle axis):
+    q = (z_body, r_foot, z_foot)  [m],  v = dq/dt  [m/s].
+
+Forces (paper Eqs 1-2): main strut F_strut along u = (foot - P)/|foot - P| (compression pushes
+the foot away from P), auxiliary strut F_a along a = (foot - A)/|foot - A|, ground normal N and
+tangential F_t on the foot, gravity on both. The body takes the vertical reactions.
+
+State machine (paper Fig. 2) as masks, recorded per sample in ``phase``: 1 = air (no contact,
+buffer unloaded), 2 = touchdown (contact and buffering), 3 = impact only, 4 = buffering only.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from ._laws import aux_strut, honeycomb, normal_contact, safe_norm, strut_force, tangential_contact
+from ._params import Vehicle
+from ._scene import Scene
+
+N_DOF = 3
+
+# Dissipation channels integrated from their power (the others are closed forms of the memory).
+RATE_CHANNELS = ("diss_struct_damping_J", "diss_ground_damping_J")
+
+
+class QuarterState(eqx.Module):
+    """Integrator state of the quarter model (all SI)."""
+
+    t: jnp.ndarray  # s
+    q: jnp.ndarray  # (3,) m: z_body, r_foot, z_foot
+    v: jnp.ndarray  # (3,) m/s
+    x_max: jnp.ndarray  # m, largest buffer stroke reached (honeycomb memory)
+    d_max: jnp.ndarray  # m, deepest foot penetration reached (ground memory)
+    anchor: jnp.ndarray  # (2,) m, tangential stick point (radial, lateral) on the ground
+    diss_rate: jnp.ndarray  # (2,) J, accumulated RATE_CHANNELS
+    diss_slip: jnp.ndarray  # J, accumulated friction slip dissipation
+    slip_distance: jnp.ndarray  # m, accumulated slip path of the foot
+
+
+def mass(vehicle: Vehicle):
+    """Diagonal mass of the generalised coordinates [kg]."""
+    return jnp.stack([vehicle.m_quarter, vehicle.m_foot, vehicle.m_foot])
+
+
+def initial_state(vehicle: Vehicle, scene: Scene) -> QuarterState:
+    """Leg at rest, feet ``scene.drop_height`` above the ground, falling at ``sink_speed``."""
+    foot = vehicle.leg.foot_rest
+    z_foot = scene.drop_height
+    q = jnp.stack([z_foot - foot[1], foot[0], z_foot])
+    v = -scene.sink_speed * jnp.ones(3)
+    zero = jnp.zeros(())
+    return QuarterState(
+        t=zero, q=q, v=v, x_max=zero, d_max=zero, anchor=jnp.stack([foot[0], zero]),
+        diss_rate=jnp.zeros(len(RATE_CHANNELS)), diss_slip=zero, slip_distance=zero,
+    )
+
+
+def evaluate(vehicle: Vehicle, s: QuarterState):
+    """Forces at state ``s``.
+
+    Returns ``(force (3,), state with updated memory, record, rate_power (2,), energy)`` where
+    ``record`` is a dict of named scalar outputs (CSV columns, units in the names) and ``energy``
+    the ledger at this state excluding the rate-integrated channels.
+    """
+    leg, hc, gr = vehicle.leg, vehicle.honeycomb, vehicle.ground
+    z_b, r_f, z_f = s.q[0], s.q[1], s.q[2]
+    vz_b, vr_f, vz_f = s.v[0], s.v[1], s.v[2]
+    foot = jnp.stack([r_f, z_f])
+    v_rel = jnp.stack([vr_f, vz_f - vz_b])
+
+    # Main strut: stroke, stroke rate, honeycomb with memory, structural damping, top-out.
+    d_p = foot - jnp.stack([leg.R, z_b - leg.H1])
+    length = safe_norm(d_p)
+    u = d_p / length
+    x_b = leg.L_h0 - length
+    v_b = -jnp.dot(u, v_rel)
+    hco = honeycomb(x_b, s.x_max, hc)
+    st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
+
+    # Auxiliary strut.
+    d_a = foot - jnp.stack([leg.R, z_b - leg.H1 - leg.H2])
+    length_a = safe_norm(d_a)
+    a = d_a / length_a
+    ax = aux_strut(length_a, leg.L_a0, leg.k_a)
+
+    # Ground: normal with pit memory, tangential stick/slip (3-D law, lateral axis unused here).
+    nc = normal_contact(-z_f, -vz_f, s.d_max, gr)
+    tc = tangential_contact(jnp.stack([r_f, 0.0]), s.anchor, nc.force, gr)
+
+    m_q, m_f, g = vehicle.m_quarter, vehicle.m_foot, vehicle.g
+    f_foot = st.force * u + ax.force * a + jnp.stack([tc.force[0], nc.force - m_f * g])
+    f_body = -(st.force * u[1] + ax.force * a[1]) - m_q * g
+    force = jnp.stack([f_body, f_foot[0], f_foot[1]])
+
+    new = eqx.tree_at(
+        lambda x: (x.x_max, x.d_max, x.anchor, x.diss_slip, x.slip_distance),
+        s,
+        (hco.x_max, nc.d_max, tc.anchor, s.diss_slip + tc.slip_energy,
+         s.slip_distance + tc.slip),
+    )
+
+    contact = nc.force > 0.0
+    buffering = hco.force > 0.0
+    phase = jnp.where(contact, jnp.where(buffering, 2.0, 3.0), jnp.where(buffering, 4.0, 1.0))
+    kinetic = 0.5 * (m_q * vz_b**2 + m_f * (vr_f**2 + vz_f**2))
+    potential = g * (m_q * z_b + m_f * z_f)
+    energy = dict(
+        kinetic_J=kinetic,
+        potential_J=potential,
+        elastic_honeycomb_J=hco.elastic_energy + st.topout_energy,
+        elastic_aux_J=ax.elastic_energy,
+        elastic_ground_J=nc.elastic_energy,
+        elastic_tangential_J=tc.elastic_energy,
+        diss_crush_J=hco.crush_energy,
+        diss_ground_plastic_J=nc.plastic_energy,
+        diss_slip_J=new.diss_slip,
+    )
+    record = dict(
+        body_z_m=z_b,
+        body_vz_mps=vz_b,
+        foot_r_m=r_f,
+        foot_z_m=z_f,
+        foot_vr_mps=vr_f,
+        foot_vz_mps=vz_f,
+        stroke_m=x_b,
+        stroke_max_m=hco.x_max,
+        plastic_set_m=hco.plastic_set,
+        buffer_velocity_mps=v_b,
+        honeycomb_force_N=hco.force,
+        damping_force_N=st.damping_force,
+        strut_force_N=st.force,
+        aux_force_N=ax.force,
+        normal_force_N=nc.force,
+        tangential_force_N=tc.force[0],
+        pit_depth_m=nc.pit_depth,
+        slip_indicator=jnp.where(contact, jnp.where(tc.slipping, 1.0, 0.0), 0.5),
+        slip_distance_m=new.slip_distance,
+        phase=phase,
+        **energy,
+    )
+    rate_power = jnp.stack([st.damping_power, nc.damping_power])
+    return force, new, record, rate_power, energy
+
+
+def accel_record(acc):
+    """Named acceleration outputs [m/s^2] from the generalised accelerations."""
+    return dict(body_az_mps2=acc[0], foot_ar_mps2=acc[1], foot_az_mps2=acc[2])
+
+
+def peak_values(record, acc):
+    """Quantities whose running maximum over all steps is kept (full step resolution)."""
+    return dict(
+        peak_normal_force_N=record["normal_force_N"],
+        peak_tangential_force_N=jnp.abs(record["tangential_force_N"]),
+        peak_strut_force_N=record["strut_force_N"],
+        peak_honeycomb_force_N=record["honeycomb_force_N"],
+        peak_aux_force_N=jnp.abs(record["aux_force_N"]),
+        peak_buffer_velocity_mps=record["buffer_velocity_mps"],
+        peak_body_accel_mps2=jnp.abs(acc[0]),
+        peak_foot_accel_mps2=safe_norm(acc[1:]),
+    )
+
+
+def contact_flag(record):
+    return record["normal_force_N"] > 0.0
