@@ -257,7 +257,8 @@ def vehicle_to_toml(veh: Vehicle | None = None) -> str:
             lines.append(f"{md['toml']} = {_fmt(float(getattr(mod, f.name)) / md['to_si'])}"
                          f"  # {md['doc']} [{unit}]; {md['source']}; rule {md['rule']}")
         if section == "honeycomb":
-            lines.append(f"bonded = {_fmt(mod.bonded)}  # {Honeycomb.__dataclass_fields__['bonded'].metadata['doc']}")
+            bonded_doc = Honeycomb.__dataclass_fields__["bonded"].metadata["doc"]
+            lines.append(f"bonded = {_fmt(mod.bonded)}  # {bonded_doc}")
             lines.append(f"# derived: x_L1 = F1/k_b1 = {float(mod.x_L1) * 1e3:.4f} mm, "
                          f"x_L3 = x_L2 + (F2-F1)/k_b3 = {float(mod.x_L3) * 1e3:.4f} mm")
             lines.append("# Instead of F1_N/F2_N you may give the cell data and let jaxland derive")

@@ -78,7 +78,8 @@ def stable_step(vehicle: Vehicle):
 def energy_scale(vehicle: Vehicle, scene: Scene):
     """Energy the landing has to absorb, generously bounded [J]: the scale of ledger checks."""
     m = vehicle.m_body + vehicle.n_legs * vehicle.m_foot
-    return m * (0.5 * scene.sink_speed**2 + vehicle.g * (scene.drop_height + 3.0 * vehicle.honeycomb.x_L4))
+    height = scene.drop_height + 3.0 * vehicle.honeycomb.x_L4
+    return m * (0.5 * scene.sink_speed**2 + vehicle.g * height)
 
 
 def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
@@ -137,7 +138,8 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     carry, traj = jax.lax.scan(save_block, carry0, None, length=solver.n_saves)
     s_end, peaks, ev_t, ev_n, _, res_max, fail_t = carry
     _, _, rec_end, _, en_end = model.evaluate(vehicle, s_end)
-    dissipated = sum(v for k, v in en_end.items() if k.startswith("diss_")) + jnp.sum(s_end.diss_rate)
+    dissipated = sum(v for k, v in en_end.items() if k.startswith("diss_"))
+    dissipated = dissipated + jnp.sum(s_end.diss_rate)
     summary = dict(
         **peaks,
         max_stroke_m=s_end.x_max,
