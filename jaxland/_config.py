@@ -231,7 +231,8 @@ def _fmt(val) -> str:
         return "true" if val else "false"
     if isinstance(val, int):
         return str(val)
-    return repr(float(val))
+    text = f"{float(val):.12g}"
+    return text if any(c in text for c in ".e") else text + ".0"
 
 
 def vehicle_to_toml(veh: Vehicle | None = None) -> str:

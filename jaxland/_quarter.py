@@ -29,6 +29,18 @@ N_DOF = 3
 # Dissipation channels integrated from their power (the others are closed forms of the memory).
 RATE_CHANNELS = ("diss_struct_damping_J", "diss_ground_damping_J")
 
+# Trajectory columns in CSV order (units in the names; phase and slip_indicator are codes).
+COLUMNS = (
+    "time_s", "body_z_m", "body_vz_mps", "body_az_mps2",
+    "foot_r_m", "foot_z_m", "foot_vr_mps", "foot_vz_mps", "foot_ar_mps2", "foot_az_mps2",
+    "stroke_m", "stroke_max_m", "plastic_set_m", "buffer_velocity_mps",
+    "honeycomb_force_N", "damping_force_N", "strut_force_N", "aux_force_N",
+    "normal_force_N", "tangential_force_N", "pit_depth_m", "slip_indicator", "slip_distance_m",
+    "phase", "kinetic_J", "potential_J", "elastic_honeycomb_J", "elastic_aux_J",
+    "elastic_ground_J", "elastic_tangential_J", "diss_crush_J", "diss_ground_plastic_J",
+    "diss_slip_J", *RATE_CHANNELS, "energy_residual_J",
+)
+
 
 class QuarterState(eqx.Module):
     """Integrator state of the quarter model (all SI)."""
@@ -54,7 +66,7 @@ def initial_state(vehicle: Vehicle, scene: Scene) -> QuarterState:
     foot = vehicle.leg.foot_rest
     z_foot = scene.drop_height
     q = jnp.stack([z_foot - foot[1], foot[0], z_foot])
-    v = -scene.sink_speed * jnp.ones(3)
+    v = -scene.sink_speed * jnp.array([1.0, 0.0, 1.0])
     zero = jnp.zeros(())
     return QuarterState(
         t=zero, q=q, v=v, x_max=zero, d_max=zero, anchor=jnp.stack([foot[0], zero]),

@@ -172,7 +172,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
                           "symplectic Euler for this vehicle (stiffest spring and strut damping "
                           "on the foot); use dt <= that")
     traj, summary = _landing_jit(vehicle, scene, solver)
-    traj = {k: np.asarray(v) for k, v in traj.items()}
+    traj = {k: np.asarray(traj[k]) for k in _quarter.COLUMNS}
     if bool(summary["failed"]):
         raise SimulationError(
             f"integration failed at t = {float(summary['failure_time_s']):.6g} s (non-finite "

@@ -1,0 +1,155 @@
+"""The ``jaxland`` command: ``config``, ``simulate``, ``bench``.
+
+Exit codes: 0 success, 2 invalid input (the message names field, value and rule), 3 numerical
+failure of the integration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from ._errors import ConfigError, SimulationError
+
+
+def _cmd_config(args) -> int:
+    from ._config import load_vehicle, vehicle_to_toml
+
+    veh = load_vehicle(args.config) if args.config else None
+    sys.stdout.write(vehicle_to_toml(veh))
+    return 0
+
+
+def _fmt(v, scale=1.0, unit="", nd=4):
+    return "-" if v is None else f"{v * scale:.{nd}g} {unit}".strip()
+
+
+def _print_summary(o: dict) -> None:
+    rows = [
+        ("touchdown", _fmt(o["touchdown_time_s"], 1, "s")),
+        ("impacts (start-end, s)", ", ".join(
+            f"{i['start_s']:.3f}-{'end' if i['end_s'] is None else format(i['end_s'], '.3f')}"
+            for i in o["impacts"][:5]) + (" ..." if o["n_impacts"] > 5 else "")),
+        ("first-impact stroke", _fmt(o["first_impact_stroke_m"], 1e3, "mm")),
+        ("max / final stroke", f"{o['max_stroke_m'] * 1e3:.4g} / {o['final_stroke_m'] * 1e3:.4g} mm"),
+        ("secondary honeycomb engaged", str(o["secondary_honeycomb_engaged"])),
+        ("bottomed out", str(o["bottomed_out"])),
+        ("peak ground normal force", _fmt(o["peak_normal_force_N"], 1e-3, "kN")),
+        ("peak ground tangential force", _fmt(o["peak_tangential_force_N"], 1e-3, "kN")),
+        ("peak strut (buffer) force", _fmt(o["peak_strut_force_N"], 1e-3, "kN")),
+        ("peak buffer velocity", _fmt(o["peak_buffer_velocity_mps"], 1, "m/s")),
+        ("peak body / foot acceleration",
+         f"{o['peak_body_accel_mps2']:.4g} / {o['peak_foot_accel_mps2']:.4g} m/s^2"),
+        ("foot slip distance", _fmt(o["slip_distance_m"], 1e3, "mm")),
+        ("energy dissipated", _fmt(o["energy_dissipated_J"], 1, "J")),
+        ("energy ledger closure", f"{o['energy_closure_max_J']:.3g} J "
+                                  f"({o['energy_closure_rel']:.2e} of dissipated)"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    for name, val in rows:
+        print(f"  {name:<{width}}  {val}")
+
+
+def _cmd_simulate(args) -> int:
+    from ._config import load_vehicle, paper_vehicle, vehicle_to_toml
+    from ._scene import Scene
+    from ._simulate import simulate
+
+    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    if args.touchdown_speed is not None:
+        if args.drop_height is not None or args.sink_speed is not None:
+            raise ConfigError("--touchdown-speed", args.touchdown_speed,
+                              "give either --touchdown-speed or --drop-height/--sink-speed")
+        scene = Scene.from_touchdown_speed(args.touchdown_speed)
+    else:
+        scene = Scene(drop_height=0.2 if args.drop_height is None else args.drop_height,
+                      sink_speed=0.0 if args.sink_speed is None else args.sink_speed)
+    result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt)
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+    try:  # write everything into a staging folder, then move it into place
+        result.to_csv(staging / "trajectory.csv")
+        result.to_json(staging / "summary.json")
+        (staging / "vehicle.toml").write_text(vehicle_to_toml(vehicle))
+        if not args.no_plots:
+            from ._plots import plot_landing
+
+            hc = vehicle.honeycomb
+            bps = {f"x_L{i}": float(getattr(hc, f"x_L{i}")) for i in (1, 2, 3, 4)}
+            plot_landing(result.trajectory, result.outcomes, staging / "figures",
+                         breakpoints_m=bps)
+        for path in sorted(staging.rglob("*")):
+            if path.is_file():
+                dest = out / path.relative_to(staging)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                path.replace(dest)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    print(f"jaxland simulate: quarter model, drop {float(scene.drop_height):g} m, "
+          f"sink {float(scene.sink_speed):g} m/s, dt {args.dt:g} s, {args.t_end:g} s")
+    _print_summary(result.outcomes)
+    print(f"wrote {out}/trajectory.csv, summary.json, vehicle.toml"
+          + ("" if args.no_plots else ", figures/*.png"))
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from ._bench import run_benchmark
+
+    result = run_benchmark(Path(args.out), quick=args.quick, batch=args.batch)
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="jaxland", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    c = sub.add_parser("config", help="print the vehicle configuration (default: the paper's) "
+                                      "as commented TOML")
+    c.add_argument("--config", help="a vehicle TOML to validate and print in full")
+    c.set_defaults(func=_cmd_config)
+
+    s = sub.add_parser("simulate", help="simulate one landing, write CSV, summary and figures")
+    s.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
+    s.add_argument("--drop-height", type=float, help="foot clearance at release [m] (default 0.2)")
+    s.add_argument("--sink-speed", type=float, help="downward speed at release [m/s] (default 0)")
+    s.add_argument("--touchdown-speed", type=float,
+                   help="start at touchdown with this downward speed [m/s]")
+    s.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
+    s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
+    s.add_argument("--save-dt", type=float, default=1e-4,
+                   help="output sample interval [s] (default 1e-4)")
+    s.add_argument("--out", default="out/simulate", help="output folder (default out/simulate)")
+    s.add_argument("--no-plots", action="store_true", help="skip the figures")
+    s.set_defaults(func=_cmd_simulate)
+
+    b = sub.add_parser("bench", help="time compile, one landing and a vmapped batch; "
+                                     "write JSON and a plot")
+    b.add_argument("--out", default="benchmarks/results", help="output folder")
+    b.add_argument("--batch", type=int, default=1000, help="largest vmapped batch (default 1000)")
+    b.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
+    b.set_defaults(func=_cmd_bench)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ConfigError as err:
+        print(f"jaxland: error: {err}", file=sys.stderr)
+        return 2
+    except SimulationError as err:
+        print(f"jaxland: numerical failure: {err}", file=sys.stderr)
+        return 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

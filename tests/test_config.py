@@ -1,0 +1,104 @@
+"""Configuration: round trips, the bundled paper file, and every refused input."""
+
+import tomllib
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import jaxland as jl
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _leaves(v):
+    return [float(x) for x in jax.tree.leaves(v)]
+
+
+def test_paper_vehicle_geometry_matches_design_reading():
+    """DESIGN.md section 2: foot rest at (2.257, -2.976) m, auxiliary rest length 2.032 m."""
+    leg = jl.paper_vehicle().leg
+    np.testing.assert_allclose(np.asarray(leg.foot_rest), [2.257, -2.976], atol=1e-3)
+    np.testing.assert_allclose(float(leg.L_a0), 2.032, atol=1e-3)
+
+
+def test_toml_round_trip_and_bundled_file():
+    text = jl.vehicle_to_toml()
+    again = jl.vehicle_from_dict(tomllib.loads(text))
+    assert _leaves(again) == _leaves(jl.paper_vehicle())
+    assert (ROOT / "data" / "paper_vehicle.toml").read_text() == text, (
+        "data/paper_vehicle.toml is stale: regenerate with `jaxland config > data/paper_vehicle.toml`")
+
+
+def test_partial_config_and_cells_derivation(tmp_path):
+    path = tmp_path / "v.toml"
+    path.write_text("[ground]\nmu = 0.3\n\n[honeycomb.cells]\nflow_stress_Pa = 250e6\n")
+    veh = jl.load_vehicle(path)
+    assert float(veh.ground.mu) == 0.3
+    expected = jl.plateau_force(8.66e-3, 0.07e-3, 0.098, 250e6)
+    np.testing.assert_allclose(float(veh.honeycomb.F1), float(expected))
+
+
+BAD = [
+    ({"body": {"m_body_kg": -5.0}}, "body.m_body_kg", "-5.0", "> 0"),
+    ({"body": {"m_foot_kg": 0.0}}, "body.m_foot_kg", "0.0", "> 0"),
+    ({"ground": {"gamma": 1.0}}, "ground.gamma", "1.0", "[0, 1)"),
+    ({"ground": {"gamma": -0.1}}, "ground.gamma", "-0.1", "[0, 1)"),
+    ({"ground": {"mu": -0.2}}, "ground.mu", "-0.2", ">= 0"),
+    ({"ground": {"k_N_per_m": float("nan")}}, "ground.k_N_per_m", "nan", "> 0"),
+    ({"leg": {"D_b_s_per_m": -1.0}}, "leg.D_b_s_per_m", "-1.0", ">= 0"),
+    ({"leg": {"theta_b_deg": 95.0}}, "leg.theta_b_deg", "95", "(0, 90)"),
+    ({"leg": {"L_h0_m": 1.6}}, "leg.L_h0_m", "1.6", "below the auxiliary joint"),
+    ({"honeycomb": {"x_L2_mm": 0.3}}, "honeycomb.x_L2_mm", "0.3", "breakpoints must increase"),
+    ({"honeycomb": {"x_L4_mm": 58.0}}, "honeycomb.x_L4_mm", "58", "breakpoints must increase"),
+    ({"honeycomb": {"F2_N": 4000.0}}, "honeycomb.F2_N", "4000", "must exceed F1_N"),
+    ({"honeycomb": {"bonded": 1}}, "honeycomb.bonded", "1", "true or false"),
+    ({"honeycomb": {"F1_N": 5000.0, "cells": {"flow_stress_Pa": 3e8}}}, "honeycomb.cells", "",
+     "not both"),
+    ({"honeycomb": {"cells": {"flow_stress_Pa": -3e8}}}, "honeycomb.cells.flow_stress_Pa", "-3",
+     "> 0"),
+    ({"ground": {"friction": 0.5}}, "ground.friction", "0.5", "unknown key"),
+    ({"wheels": {"n": 3}}, "wheels", "", "unknown section"),
+    ({"ground": {"mu": "high"}}, "ground.mu", "high", "must be a number"),
+    ({"body": {"n_legs": 2}}, "body.n_legs", "2", ">= 3"),
+]
+
+
+@pytest.mark.parametrize("data,field,value,rule", BAD, ids=[b[1] + ":" + b[3] for b in BAD])
+def test_bad_config_is_refused_by_name(data, field, value, rule):
+    with pytest.raises(jl.ConfigError) as err:
+        jl.vehicle_from_dict(data)
+    msg = str(err.value)
+    assert msg.startswith(field), msg
+    assert value in msg and rule in msg, msg
+
+
+def test_bad_toml_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[ground\nmu = 1")
+    with pytest.raises(jl.ConfigError, match="not valid TOML"):
+        jl.load_vehicle(bad)
+    with pytest.raises(jl.ConfigError, match="does not exist"):
+        jl.load_vehicle(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize("kwargs,field", [
+    (dict(drop_height=-0.1), "scene.drop_height"),
+    (dict(drop_height=float("nan")), "scene.drop_height"),
+    (dict(sink_speed=-1.0), "scene.sink_speed"),
+])
+def test_bad_scene_is_refused(kwargs, field):
+    with pytest.raises(jl.ConfigError, match=field.replace(".", r"\.")):
+        jl.Scene(**kwargs).validate()
+
+
+def test_bad_solver_is_refused():
+    with pytest.raises(jl.ConfigError, match=r"solver\.dt"):
+        jl.simulate(dt=-1e-5)
+    with pytest.raises(jl.ConfigError, match=r"solver\.save_dt"):
+        jl.simulate(dt=1e-5, save_dt=1e-6)
+    limit = float(jl.stable_step(jl.paper_vehicle()))
+    with pytest.raises(jl.ConfigError, match="stability limit") as err:
+        jl.simulate(dt=2 * limit, save_dt=10 * limit)
+    assert f"{limit:.3g}" in str(err.value)
