@@ -137,10 +137,12 @@ def _time_panel(ax, lnd, title, ylabel, curves, xlabel=True):
 def _slip_twin(ax, lnd):
     """Slip indicator (1 slip, 0 stick, 0.5 air) on a right-hand axis, legend merged."""
     tw = ax.twinx()
-    tw.plot(lnd.t, lnd.d["slip_indicator"], color="0.45", lw=0.8, drawstyle="steps-post",
+    tw.plot(lnd.t, lnd.d["slip_indicator"], color="0.6", lw=0.7, drawstyle="steps-post",
             label="slip indicator")
     tw.set(ylim=(-0.1, 1.1), yticks=[0, 0.5, 1], ylabel="slip indicator [-]")
     tw.set_yticklabels(["0 stick", "0.5 air", "1 slip"], fontsize="small")
+    ax.set_zorder(tw.get_zorder() + 1)  # data lines above the indicator
+    ax.patch.set_visible(False)
     lines = ax.get_lines() + tw.get_lines()
     ax.legend(lines, [ln.get_label() for ln in lines], fontsize="small", loc="upper right")
 
@@ -175,27 +177,31 @@ def _fig10(fig, lnd):
 
     d = lnd.d
     fig.suptitle("Paper Fig. 10: foot position  (shaded: impacts)", fontsize="large")
-    ax_a, ax_b = fig.subplots(1, 2, width_ratios=[1.4, 1])
-    tan = (d["foot_r_m"] - lnd.r_td) * MM
-    _time_panel(ax_a, lnd, "(a) normal and tangential position", "position [mm]",
-                [("normal (foot height)", d["foot_z_m"] * MM),
-                 ("tangential (from touchdown)", tan),
-                 ("ground surface (−pit depth)", -d["pit_depth_m"] * MM)])
+    ax = fig.subplot_mosaic([["n", "p"], ["t", "p"]], width_ratios=[1.4, 1])
+    ax["t"].sharex(ax["n"])
+    z, pit, tan = d["foot_z_m"] * MM, d["pit_depth_m"] * MM, (d["foot_r_m"] - lnd.r_td) * MM
+    _time_panel(ax["n"], lnd, "(a) normal position (foot height)", "position [mm]",
+                [("foot", z), ("ground surface (−pit depth)", -pit)], xlabel=False)
+    low = min(z.min(), -pit.max())
+    if lnd.impacts and low < 0 and z.max() > -4 * low:  # zoom on the contact, not the drop
+        ax["n"].set_ylim(1.3 * low, -4 * low)
+        ax["n"].annotate(f"zoomed on contact: the foot starts at {z[0]:.0f} mm", (0.99, 0.97),
+                         xycoords="axes fraction", ha="right", va="top", fontsize="small")
+    _time_panel(ax["t"], lnd, "(a) tangential position (from touchdown)", "position [mm]",
+                [("foot", tan)])
     # (b) the path from just before touchdown on, coloured by time (the drop above is a line).
-    t0 = lnd.impacts[0][0] if lnd.impacts else lnd.t[0]
-    i0 = max(int(np.searchsorted(lnd.t, t0)) - 20, 0)
-    xy = np.column_stack([tan[i0:], d["foot_z_m"][i0:] * MM])
+    i0 = max(int(np.searchsorted(lnd.t, lnd.impacts[0][0])) - 20, 0) if lnd.impacts else 0
+    xy = np.column_stack([tan[i0:], z[i0:]])
     lc = LineCollection(np.stack([xy[:-1], xy[1:]], axis=1), array=lnd.t[i0:-1],
                         cmap="viridis", lw=1.2)
-    ax_b.add_collection(lc)
-    ax_b.autoscale_view()
-    ax_b.axhline(0.0, color="0.3", lw=0.8, ls="--", label="undisturbed ground")
-    ax_b.axhline(-d["pit_depth_m"].max() * MM, color="tab:brown", lw=0.8, ls=":",
-                 label="deepest pit")
-    fig.colorbar(lc, ax=ax_b, label="time [s]")
-    _style(ax_b, "(b) foot path from touchdown", "tangential position [mm]",
+    ax["p"].add_collection(lc)
+    ax["p"].autoscale_view()
+    ax["p"].axhline(0.0, color="0.3", lw=0.8, ls="--", label="undisturbed ground")
+    ax["p"].axhline(-pit.max(), color="tab:brown", lw=0.8, ls=":", label="deepest pit (plastic)")
+    fig.colorbar(lc, ax=ax["p"], label="time [s]")
+    _style(ax["p"], "(b) foot path from touchdown", "tangential position [mm]",
            "normal position [mm]")
-    ax_b.legend(fontsize="small")
+    ax["p"].legend(fontsize="small")
 
 
 def _fig12(fig, lnd):
@@ -214,18 +220,33 @@ def _fig13(fig, lnd):
     _time_panel(ax[1], lnd, "(b) buffer stroke", "stroke [mm]",
                 [("stroke", d["stroke_m"] * MM), ("max stroke", d["stroke_max_m"] * MM),
                  ("plastic set", d["plastic_set_m"] * MM)])
-    top = max(d["stroke_max_m"].max() * MM, 1e-3)
-    for name, x in lnd.breakpoints.items():
-        label = f"{name} = {x * MM:.2f} mm"
-        if x * MM <= 1.15 * top:
-            ax[1].axhline(x * MM, color="0.4", lw=0.7, ls="--")
-            ax[1].annotate(label, (1.0, x * MM), xycoords=("axes fraction", "data"),
-                           xytext=(-4, 2), textcoords="offset points", ha="right",
-                           fontsize="x-small", color="0.3")
+    _breakpoint_lines(ax[1], lnd.breakpoints, d["stroke_max_m"].max())
+
+
+def _breakpoint_lines(ax, breakpoints, top):
+    """Dashed lines at the honeycomb stage limits [m] drawn in mm; limits closer than 3 % of
+    the scale share one label; those far above the largest stroke ``top`` [m] are listed."""
+    scale = 1.15 * max(top, 1e-6)
+    shown = sorted((x, k) for k, x in breakpoints.items() if x <= scale)
+    off = [f"{k} = {x * MM:.2f} mm" for k, x in breakpoints.items() if x > scale]
+    groups = []
+    for x, k in shown:
+        if groups and x - groups[-1][-1][0] < 0.03 * scale:
+            groups[-1].append((x, k))
         else:
-            ax[1].annotate(label + " (off scale)", (1.0, 1.0), xycoords="axes fraction",
-                           xytext=(-4, -10 * (1 + len(ax[1].texts))), textcoords="offset points",
-                           ha="right", fontsize="x-small", color="0.3")
+            groups.append([(x, k)])
+    for i, g in enumerate(groups):
+        for j, (x, _) in enumerate(g):
+            ax.axhline(x * MM, color="0.4", lw=0.7, ls="--",
+                       label="honeycomb breakpoints" if i == j == 0 else None)
+        label = ", ".join(k for _, k in g) + " = " + ", ".join(f"{x * MM:.2f}" for x, _ in g)
+        ax.annotate(label + " mm", (0.99, g[-1][0] * MM), xycoords=("axes fraction", "data"),
+                    xytext=(0, 2), textcoords="offset points", ha="right", va="bottom",
+                    fontsize="x-small", color="0.3")
+    if off:
+        ax.plot([], [], " ", label="off scale: " + ", ".join(off))
+    if breakpoints:
+        ax.legend(fontsize="small")
 
 
 def _fig14(fig, lnd):

@@ -25,6 +25,9 @@ from ._params import Vehicle
 from ._scene import Scene
 
 N_DOF = 3
+# Honeycomb force above which the state machine calls the buffer active [N]; round-off in free
+# fall leaves forces of ~1e-6 N on an unloaded leg.
+BUFFERING_THRESHOLD_N = 1e-3
 
 # Dissipation channels integrated from their power (the others are closed forms of the memory).
 RATE_CHANNELS = ("diss_struct_damping_J", "diss_ground_damping_J")
@@ -119,7 +122,7 @@ def evaluate(vehicle: Vehicle, s: QuarterState):
     )
 
     contact = nc.force > 0.0
-    buffering = hco.force > 0.0
+    buffering = hco.force > BUFFERING_THRESHOLD_N
     phase = jnp.where(contact, jnp.where(buffering, 2.0, 3.0), jnp.where(buffering, 4.0, 1.0))
     kinetic = 0.5 * (m_q * vz_b**2 + m_f * (vr_f**2 + vz_f**2))
     potential = g * (m_q * z_b + m_f * z_f)
