@@ -9,7 +9,7 @@ headless and leaves no global figure state behind. Each PNG is written atomicall
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,8 +47,8 @@ class _Landing:
 
 def plot_landing(trajectory: dict, outcomes: dict, out_dir, *,
                  breakpoints_m: dict | None = None) -> list[Path]:
-    """Write the paper's Figs 9-16 (10 and 12-16; Fig. 11 is not drawn) for one landing as PNGs
-    in ``out_dir`` (created if needed) and return their paths, in figure order.
+    """Write the paper's Figs 9, 10 and 12-16 (Fig. 11, the foot phase portraits, is not drawn)
+    for one landing as PNGs in ``out_dir`` (created if needed); return their paths in order.
 
     ``trajectory`` maps column names (units in the names, as ``Landing.trajectory``) to 1-D
     arrays; ``outcomes`` is ``Landing.outcomes`` (``impacts`` intervals are shaded on time plots).
@@ -95,10 +95,11 @@ def _validate(trajectory, outcomes, breakpoints_m) -> _Landing:
 
 
 def _save(fig, path: Path) -> Path:
-    """Render ``fig`` to ``path`` via a temp file in the same folder, then rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png.tmp")
+    """Render ``fig`` to ``path`` via a temp file in the same folder, then rename (the temp file
+    is opened like any new file, so the PNG gets the usual umask permissions, not 0600)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
-        with os.fdopen(fd, "wb") as fh:
+        with open(tmp, "xb") as fh:
             fig.savefig(fh, format="png", dpi=DPI)
         os.replace(tmp, path)
     except BaseException:

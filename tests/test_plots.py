@@ -59,7 +59,10 @@ def test_writes_one_png_per_figure(tmp_path):
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == sorted(names)  # no temps
 
 
-def test_no_impacts_and_no_breakpoints(tmp_path):
+def test_no_impacts_and_no_breakpoints(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    monkeypatch.setattr(Figure, "savefig", lambda self, fh, **kw: fh.write(b"\x89PNG"))  # fast
     traj, _ = synthetic_landing()
     assert len(plot_landing(traj, {}, tmp_path)) == 7
 
