@@ -11,6 +11,8 @@ class ConfigError(JaxlandError, ValueError):
     """A parameter, scene or solver value breaks its rule."""
 
     def __init__(self, field: str, value, rule: str):
+        if hasattr(value, "item") and getattr(value, "ndim", 1) == 0:
+            value = value.item()  # numpy scalar -> plain Python number in the message
         self.field, self.value, self.rule = field, value, rule
         super().__init__(f"{field} = {value!r}: {rule}")
 

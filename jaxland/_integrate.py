@@ -24,6 +24,7 @@ from ._params import Vehicle
 from ._scene import Scene
 
 N_EVENTS = 256  # capacity of the contact on/off log (later transitions are counted, not stored)
+UNROLL = 2  # inner-loop unroll factor (2 was ~15 % faster than 1, 4-16 no better; CPU)
 ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
 
 
@@ -46,11 +47,18 @@ class Solver(eqx.Module):
     def n_steps(self) -> int:
         return self.n_saves * self.save_every
 
-    def validate(self) -> Solver:
+    def validate_values(self) -> Solver:
+        """Each setting on its own: a finite number > 0."""
         for name in ("dt", "t_end", "save_dt"):
             val = getattr(self, name)
-            if not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+            if isinstance(val, bool) or not (
+                    isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
                 raise ConfigError(f"solver.{name}", val, "must be a finite number > 0 s")
+        return self
+
+    def validate(self) -> Solver:
+        """All settings, and how they relate."""
+        self.validate_values()
         if self.save_dt < self.dt:
             raise ConfigError("solver.save_dt", self.save_dt, f"must be >= dt = {self.dt} s")
         if self.t_end / self.dt > 5e8:
@@ -128,7 +136,7 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
         for i, name in enumerate(model.RATE_CHANNELS):
             out[name] = s.diss_rate[i]
         out["energy_residual_J"] = sum(energy.values()) + jnp.sum(s.diss_rate) - e0
-        carry, _ = jax.lax.scan(step, carry, None, length=solver.save_every)
+        carry, _ = jax.lax.scan(step, carry, None, length=solver.save_every, unroll=UNROLL)
         return carry, out
 
     carry0 = (

@@ -157,10 +157,10 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
 
 
 def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
-             dt: float = 1e-5, t_end: float = 1.2, save_dt: float = 1e-4) -> Landing:
+             dt: float = 1e-5, t_end: float = 1.2, save_dt: float | None = None) -> Landing:
     """Simulate one symmetric landing of ``vehicle`` (default: the paper's) in ``scene``
     (default: the paper's 0.2 m drop) with symplectic Euler at step ``dt`` [s] for ``t_end`` [s],
-    sampling the trajectory every ``save_dt`` [s].
+    sampling the trajectory every ``save_dt`` [s] (default: max(1e-4 s, dt)).
 
     Raises ``ConfigError`` for invalid inputs or a step above the stability limit and
     ``SimulationError`` if the integration blows up.
@@ -169,12 +169,16 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     vehicle = paper_vehicle() if vehicle is None else vehicle
     scene.validate()
     validate_vehicle(vehicle)
-    solver = Solver(dt=float(dt), t_end=float(t_end), save_dt=float(save_dt)).validate()
+    if save_dt is None and isinstance(dt, (int, float)):
+        save_dt = max(1e-4, dt)
+    solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt)
+    solver.validate_values()
     limit = float(stable_step(vehicle))
     if dt > limit:
         raise ConfigError("solver.dt", dt, f"exceeds the stability limit {limit:.3g} s of "
                           "symplectic Euler for this vehicle (stiffest spring and strut damping "
                           "on the foot); use dt <= that")
+    solver.validate()
     traj, summary = _landing_jit(vehicle, scene, solver)
     traj = {k: np.asarray(traj[k]) for k in _quarter.COLUMNS}
     if bool(summary["failed"]):

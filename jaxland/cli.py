@@ -35,7 +35,8 @@ def _print_summary(o: dict) -> None:
             f"{i['start_s']:.3f}-{'end' if i['end_s'] is None else format(i['end_s'], '.3f')}"
             for i in o["impacts"][:5]) + (" ..." if o["n_impacts"] > 5 else "")),
         ("first-impact stroke", _fmt(o["first_impact_stroke_m"], 1e3, "mm")),
-        ("max / final stroke", f"{o['max_stroke_m'] * 1e3:.4g} / {o['final_stroke_m'] * 1e3:.4g} mm"),
+        ("max / final stroke",
+         f"{o['max_stroke_m'] * 1e3:.4g} / {o['final_stroke_m'] * 1e3:.4g} mm"),
         ("secondary honeycomb engaged", str(o["secondary_honeycomb_engaged"])),
         ("bottomed out", str(o["bottomed_out"])),
         ("peak ground normal force", _fmt(o["peak_normal_force_N"], 1e-3, "kN")),
@@ -124,8 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start at touchdown with this downward speed [m/s]")
     s.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
     s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
-    s.add_argument("--save-dt", type=float, default=1e-4,
-                   help="output sample interval [s] (default 1e-4)")
+    s.add_argument("--save-dt", type=float, default=None,
+                   help="output sample interval [s] (default max(1e-4, dt))")
     s.add_argument("--out", default="out/simulate", help="output folder (default out/simulate)")
     s.add_argument("--no-plots", action="store_true", help="skip the figures")
     s.set_defaults(func=_cmd_simulate)

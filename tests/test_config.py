@@ -28,7 +28,7 @@ def test_toml_round_trip_and_bundled_file():
     again = jl.vehicle_from_dict(tomllib.loads(text))
     assert _leaves(again) == _leaves(jl.paper_vehicle())
     assert (ROOT / "data" / "paper_vehicle.toml").read_text() == text, (
-        "data/paper_vehicle.toml is stale: regenerate with `jaxland config > data/paper_vehicle.toml`")
+        "stale: regenerate with `jaxland config > data/paper_vehicle.toml`")
 
 
 def test_partial_config_and_cells_derivation(tmp_path):

@@ -1,0 +1,125 @@
+"""``jaxland bench``: compile time and run time of one landing and of vmapped batches, and the
+cost of gradients, written as JSON plus a plot. Timings are medians of repeats after compile,
+measured side by side in one run (the machines are noisy); they are never asserted by tests.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._config import paper_vehicle
+from ._integrate import Solver
+from ._scene import Scene
+from ._simulate import landing
+
+
+def _timeit(fn, repeats):
+    out = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        out.append(time.perf_counter() - t0)
+    return statistics.median(out)
+
+
+def _compile_and_time(fn, args, repeats):
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    return compile_s, _timeit(lambda: compiled(*args), repeats)
+
+
+def _params(v):
+    return (v.leg.D_b, v.honeycomb.k_b1, v.honeycomb.F1, v.honeycomb.F2, v.ground.k,
+            v.ground.gamma)
+
+
+def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> dict:
+    """Run the benchmark and write ``bench_landing.json`` and ``bench_landing.png``."""
+    vehicle = paper_vehicle()
+    t_end = 0.3 if quick else 1.2
+    solver = Solver(dt=1e-5, t_end=t_end, save_dt=1e-3)
+    repeats = 2 if quick else 5
+    scene = Scene()
+
+    def one(s):
+        return landing(vehicle, s, solver)[1]["max_stroke_m"]
+
+    compile_s, run_s = _compile_and_time(one, (scene,), repeats)
+
+    sizes = [s for s in (1, 10, 100, 1000, 10000) if s <= (10 if quick else batch)]
+    batched = []
+    for n in sizes:
+        heights = jnp.linspace(0.05, 0.5, n)
+        scenes = Scene(drop_height=heights, sink_speed=jnp.zeros(n))
+        c_s, r_s = _compile_and_time(jax.vmap(one), (scenes,), 1 if n >= 1000 else repeats)
+        batched.append(dict(batch=n, compile_s=c_s, run_s=r_s, landings_per_s=n / r_s))
+
+    def stroke_of(theta):
+        new = tuple(p * jnp.exp(t) for p, t in zip(_params(vehicle), theta))
+        return landing(eqx.tree_at(_params, vehicle, new), scene, solver)[1]["max_stroke_m"]
+
+    th0 = jnp.zeros(6)
+    jf_compile, jf_run = _compile_and_time(jax.jacfwd(stroke_of), (th0,), repeats)
+    gr_compile, gr_run = _compile_and_time(jax.grad(stroke_of), (th0,), repeats)
+
+    result = dict(
+        scene="paper 0.2 m drop, quarter model, symplectic Euler",
+        dt_s=solver.dt, t_end_s=t_end, n_steps=solver.n_steps,
+        machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
+                     jax=jax.__version__, backend=jax.default_backend(),
+                     devices=[str(d) for d in jax.devices()]),
+        single=dict(compile_s=compile_s, run_s=run_s,
+                    ns_per_step=run_s / solver.n_steps * 1e9),
+        batched=batched,
+        gradients=dict(jacfwd_6_params=dict(compile_s=jf_compile, run_s=jf_run,
+                                            ratio_to_forward=jf_run / run_s),
+                       grad_6_params=dict(compile_s=gr_compile, run_s=gr_run,
+                                          ratio_to_forward=gr_run / run_s)),
+        quick=quick,
+    )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "bench_landing.json").write_text(json.dumps(result, indent=2) + "\n")
+    _plot(result, out_dir / "bench_landing.png")
+    return result
+
+
+def _plot(result: dict, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 4), layout="constrained")
+    ax1, ax2 = fig.subplots(1, 2)
+    b = result["batched"]
+    n = np.array([r["batch"] for r in b])
+    ax1.loglog(n, [r["landings_per_s"] for r in b], "o-", label="vmapped batch")
+    ax1.axhline(1.0 / result["single"]["run_s"], color="k", ls=":", label="one landing, jit")
+    ax1.set_xlabel("batch size [landings]")
+    ax1.set_ylabel("throughput [landings/s]")
+    ax1.set_title(f"{result['t_end_s']:g} s landings at dt = {result['dt_s']:g} s")
+    ax1.legend()
+    labels = ["forward", "jacfwd (6)", "grad (6)"]
+    runs = [result["single"]["run_s"], result["gradients"]["jacfwd_6_params"]["run_s"],
+            result["gradients"]["grad_6_params"]["run_s"]]
+    comps = [result["single"]["compile_s"], result["gradients"]["jacfwd_6_params"]["compile_s"],
+             result["gradients"]["grad_6_params"]["compile_s"]]
+    x = np.arange(3)
+    ax2.bar(x - 0.2, np.array(runs) * 1e3, 0.4, label="run [ms]")
+    ax2.bar(x + 0.2, np.array(comps) * 1e3, 0.4, label="compile [ms]")
+    ax2.set_xticks(x, labels)
+    ax2.set_yscale("log")
+    ax2.set_ylabel("time [ms]")
+    ax2.set_title("one landing: run and compile time")
+    ax2.legend()
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    os.replace(tmp, path)

@@ -1,0 +1,72 @@
+"""The `jaxland` command: config, simulate (files, errors, nothing half-written), bench."""
+
+import csv
+import json
+import subprocess
+import sys
+import tomllib
+
+import pytest
+
+import jaxland as jl
+from jaxland import _quarter
+from jaxland.cli import main
+
+
+def test_config_prints_loadable_toml(capsys):
+    assert main(["config"]) == 0
+    text = capsys.readouterr().out
+    veh = jl.vehicle_from_dict(tomllib.loads(text))
+    assert float(veh.honeycomb.F1) == float(jl.paper_vehicle().honeycomb.F1)
+
+
+def test_console_script_entry_point():
+    out = subprocess.run([sys.executable, "-m", "jaxland.cli", "config"], capture_output=True,
+                         text=True, check=True)
+    assert "[honeycomb]" in out.stdout
+
+
+def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["simulate", "--drop-height", "0.1", "--t-end", "0.35", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "first-impact stroke" in printed and "energy ledger closure" in printed
+    with (out / "trajectory.csv").open() as fh:
+        rows = list(csv.reader(fh))
+    assert tuple(rows[0]) == _quarter.COLUMNS
+    assert len(rows) == 1 + 3500
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["drop_height_m"] == 0.1 and summary["max_stroke_m"] > 0.01
+    jl.load_vehicle(out / "vehicle.toml")
+    figs = sorted(p.name for p in (out / "figures").glob("*.png"))
+    assert figs == ["fig09_foot_velocity.png", "fig10_foot_position.png",
+                    "fig12_foot_acceleration.png", "fig13_buffer.png", "fig14_body.png",
+                    "fig15_forces.png", "fig16_energy.png"]
+    assert not list(out.glob(".staging-*"))
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--drop-height", "-1"], "scene.drop_height = -1.0"),
+    (["--touchdown-speed", "2", "--drop-height", "0.1"], "give either"),
+    (["--dt", "1e-3"], "stability limit"),
+])
+def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
+    out = tmp_path / "run"
+    assert main(["simulate", "--out", str(out), "--t-end", "0.05", *args]) == 2
+    assert needle in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_simulate_refuses_bad_config_file(tmp_path, capsys):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[ground]\ngamma = 1.5\n")
+    assert main(["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "ground.gamma = 1.5" in err and "[0, 1)" in err
+
+
+def test_bench_quick_writes_json_and_plot(tmp_path):
+    assert main(["bench", "--quick", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "bench_landing.json").read_text())
+    assert data["single"]["run_s"] > 0 and data["batched"][-1]["batch"] == 10
+    assert (tmp_path / "bench_landing.png").read_bytes().startswith(b"\x89PNG")
