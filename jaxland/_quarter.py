@@ -180,6 +180,8 @@ def peak_values(record, acc):
         peak_buffer_velocity_mps=record["buffer_velocity_mps"],
         peak_body_accel_mps2=jnp.abs(acc[0]),
         peak_foot_accel_mps2=safe_norm(acc[1:]),
+        peak_foot_accel_normal_mps2=jnp.abs(acc[2]),
+        peak_foot_accel_tangential_mps2=jnp.abs(acc[1]),
     )
 
 

@@ -1,0 +1,34 @@
+# jaxland: two commands on a fresh machine with Python 3.11.
+#   make demo   simulate the paper's 0.2 m drop: out/paper-drop/{trajectory.csv,summary.json,figures/}
+#   make test   run the test suite
+# Both create .venv and install jaxland from pyproject.toml on first use.
+
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+STAMP := $(VENV)/.installed-stamp
+
+.PHONY: demo test bench paper lint clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(VENV)/bin/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/jaxland simulate --out out/paper-drop
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q
+
+bench: $(STAMP)
+	$(VENV)/bin/jaxland bench --out benchmarks/results
+
+paper: $(STAMP)
+	$(VENV)/bin/python benchmarks/paper_reproduction.py
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+clean:
+	rm -rf $(VENV) out .pytest_cache
