@@ -24,7 +24,7 @@ from ._params import Vehicle
 from ._scene import Scene
 
 N_EVENTS = 256  # capacity of the contact on/off log (later transitions are counted, not stored)
-UNROLL = 2  # inner-loop unroll factor (2 was ~15 % faster than 1, 4-16 no better; CPU)
+UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
 ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
 
 

@@ -20,7 +20,14 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from ._laws import aux_strut, honeycomb, normal_contact, safe_norm, strut_force, tangential_contact
+from ._laws import (
+    aux_strut,
+    honeycomb,
+    normal_contact,
+    safe_hypot,
+    strut_force,
+    tangential_contact,
+)
 from ._params import Vehicle
 from ._scene import Scene
 
@@ -53,7 +60,7 @@ class QuarterState(eqx.Module):
     v: jnp.ndarray  # (3,) m/s
     x_max: jnp.ndarray  # m, largest buffer stroke reached (honeycomb memory)
     d_max: jnp.ndarray  # m, deepest foot penetration reached (ground memory)
-    anchor: jnp.ndarray  # (2,) m, tangential stick point (radial, lateral) on the ground
+    anchor: jnp.ndarray  # m, tangential stick point on the ground (radial; lateral is 0)
     diss_rate: jnp.ndarray  # (2,) J, accumulated RATE_CHANNELS
     diss_slip: jnp.ndarray  # J, accumulated friction slip dissipation
     slip_distance: jnp.ndarray  # m, accumulated slip path of the foot
@@ -72,7 +79,7 @@ def initial_state(vehicle: Vehicle, scene: Scene) -> QuarterState:
     v = -scene.sink_speed * jnp.array([1.0, 0.0, 1.0])
     zero = jnp.zeros(())
     return QuarterState(
-        t=zero, q=q, v=v, x_max=zero, d_max=zero, anchor=jnp.stack([foot[0], zero]),
+        t=zero, q=q, v=v, x_max=zero, d_max=zero, anchor=foot[0],
         diss_rate=jnp.zeros(len(RATE_CHANNELS)), diss_slip=zero, slip_distance=zero,
     )
 
@@ -87,37 +94,38 @@ def evaluate(vehicle: Vehicle, s: QuarterState):
     leg, hc, gr = vehicle.leg, vehicle.honeycomb, vehicle.ground
     z_b, r_f, z_f = s.q[0], s.q[1], s.q[2]
     vz_b, vr_f, vz_f = s.v[0], s.v[1], s.v[2]
-    foot = jnp.stack([r_f, z_f])
-    v_rel = jnp.stack([vr_f, vz_f - vz_b])
-
+    # Written on scalar components throughout: XLA then fuses the step into few kernels.
     # Main strut: stroke, stroke rate, honeycomb with memory, structural damping, top-out.
-    d_p = foot - jnp.stack([leg.R, z_b - leg.H1])
-    length = safe_norm(d_p)
-    u = d_p / length
+    dr = r_f - leg.R
+    dz = z_f - (z_b - leg.H1)
+    length = safe_hypot(dr, dz)
+    u_r, u_z = dr / length, dz / length
     x_b = leg.L_h0 - length
-    v_b = -jnp.dot(u, v_rel)
+    v_b = -(u_r * vr_f + u_z * (vz_f - vz_b))
     hco = honeycomb(x_b, s.x_max, hc)
     st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
 
     # Auxiliary strut.
-    d_a = foot - jnp.stack([leg.R, z_b - leg.H1 - leg.H2])
-    length_a = safe_norm(d_a)
-    a = d_a / length_a
+    dz_a = z_f - (z_b - leg.H1 - leg.H2)
+    length_a = safe_hypot(dr, dz_a)
+    a_r, a_z = dr / length_a, dz_a / length_a
     ax = aux_strut(length_a, leg.L_a0, leg.k_a)
 
     # Ground: normal with pit memory, tangential stick/slip (3-D law, lateral axis unused here).
     nc = normal_contact(-z_f, -vz_f, s.d_max, gr)
-    tc = tangential_contact(jnp.stack([r_f, 0.0]), s.anchor, nc.force, gr)
+    zero = jnp.zeros_like(r_f)
+    tc = tangential_contact((r_f, zero), (s.anchor, zero), nc.force, gr)
 
     m_q, m_f, g = vehicle.m_quarter, vehicle.m_foot, vehicle.g
-    f_foot = st.force * u + ax.force * a + jnp.stack([tc.force[0], nc.force - m_f * g])
-    f_body = -(st.force * u[1] + ax.force * a[1]) - m_q * g
-    force = jnp.stack([f_body, f_foot[0], f_foot[1]])
+    f_foot_r = st.force * u_r + ax.force * a_r + tc.force[0]
+    f_foot_z = st.force * u_z + ax.force * a_z + nc.force - m_f * g
+    f_body = -(st.force * u_z + ax.force * a_z) - m_q * g
+    force = jnp.stack([f_body, f_foot_r, f_foot_z])
 
     new = eqx.tree_at(
         lambda x: (x.x_max, x.d_max, x.anchor, x.diss_slip, x.slip_distance),
         s,
-        (hco.x_max, nc.d_max, tc.anchor, s.diss_slip + tc.slip_energy,
+        (hco.x_max, nc.d_max, tc.anchor[0], s.diss_slip + tc.slip_energy,
          s.slip_distance + tc.slip),
     )
 
@@ -179,7 +187,7 @@ def peak_values(record, acc):
         peak_aux_force_N=jnp.abs(record["aux_force_N"]),
         peak_buffer_velocity_mps=record["buffer_velocity_mps"],
         peak_body_accel_mps2=jnp.abs(acc[0]),
-        peak_foot_accel_mps2=safe_norm(acc[1:]),
+        peak_foot_accel_mps2=safe_hypot(acc[1], acc[2]),
         peak_foot_accel_normal_mps2=jnp.abs(acc[2]),
         peak_foot_accel_tangential_mps2=jnp.abs(acc[1]),
     )

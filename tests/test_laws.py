@@ -168,21 +168,22 @@ def test_single_mass_rebound_matches_closed_form(gamma):
 def test_tangential_stick_and_slip_3d():
     k_tan, mu = float(GR.k_tan), float(GR.mu)
     N = 1000.0
-    anchor = _x(0.0, 0.0)
-    small = _x(1e-3, 2e-3)  # |F| = 157 N < mu N = 500 N: stick
-    out = laws.tangential_contact(small, anchor, N, GR)
-    np.testing.assert_allclose(out.force, -k_tan * small)
+    anchor = (0.0, 0.0)
+    small = np.array([1e-3, 2e-3])  # |F| = 157 N < mu N = 500 N: stick
+    out = laws.tangential_contact(tuple(small), anchor, N, GR)
+    np.testing.assert_allclose(np.array(out.force), -k_tan * small)
     assert not bool(out.slipping) and float(out.slip) == 0.0
-    big = _x(0.03, -0.04)  # |u| = 0.05, k|u| = 3500 N > 500 N: slip
-    out = laws.tangential_contact(big, anchor, N, GR)
-    np.testing.assert_allclose(float(jnp.linalg.norm(out.force)), mu * N, rtol=1e-12)
-    np.testing.assert_allclose(out.force / jnp.linalg.norm(out.force), -big / 0.05, rtol=1e-12)
+    big = np.array([0.03, -0.04])  # |u| = 0.05, k|u| = 3500 N > 500 N: slip
+    out = laws.tangential_contact(tuple(big), anchor, N, GR)
+    f = np.array(out.force)
+    np.testing.assert_allclose(np.linalg.norm(f), mu * N, rtol=1e-12)
+    np.testing.assert_allclose(f / np.linalg.norm(f), -big / 0.05, rtol=1e-12)
     assert bool(out.slipping)
     np.testing.assert_allclose(float(out.slip), 0.05 - mu * N / k_tan, rtol=1e-12)
     np.testing.assert_allclose(float(out.slip_energy), mu * N * float(out.slip), rtol=1e-12)
-    air = laws.tangential_contact(big, anchor, 0.0, GR)
-    np.testing.assert_allclose(air.force, 0.0)
-    np.testing.assert_allclose(air.anchor, big)  # off the ground the anchor follows the foot
+    air = laws.tangential_contact(tuple(big), anchor, 0.0, GR)
+    np.testing.assert_allclose(np.array(air.force), 0.0)
+    np.testing.assert_allclose(np.array(air.anchor), big)  # off the ground it follows the foot
 
 
 # ---------------------------------------------------------------------------- gradient safety
@@ -202,8 +203,9 @@ def test_honeycomb_gradients_finite_at_breakpoints(x, x_max):
 def test_contact_gradients_finite_at_zero_and_boundaries(d, d_max):
     def f(d, d_max, foot, gr):
         n = laws.normal_contact(d, 0.1, d_max, gr)
-        t = laws.tangential_contact(foot, jnp.zeros(2), n.force, gr)
-        return n.force + n.elastic_energy + jnp.sum(t.force) + t.elastic_energy + t.slip_energy
+        t = laws.tangential_contact((foot[0], foot[1]), (0.0, 0.0), n.force, gr)
+        return n.force + n.elastic_energy + t.force[0] + t.force[1] + t.elastic_energy \
+            + t.slip_energy
 
     for foot in (_x(0.0, 0.0), _x(1e-3, 0.0), _x(0.5, 0.2)):
         g = jax.grad(f, argnums=(0, 1, 2, 3))(_x(d)[0], _x(d_max)[0], foot, GR)

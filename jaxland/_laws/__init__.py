@@ -11,7 +11,7 @@ from ._contact import (
     NormalOut as NormalOut,
     TangentialOut as TangentialOut,
     normal_contact as normal_contact,
-    safe_norm as safe_norm,
+    safe_hypot as safe_hypot,
     tangential_contact as tangential_contact,
 )
 from ._honeycomb import (

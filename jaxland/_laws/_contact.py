@@ -28,9 +28,9 @@ import jax.numpy as jnp
 from .._params import Ground
 
 
-def safe_norm(x, axis=-1):
-    """Euclidean norm with a finite gradient at zero (double-where)."""
-    n2 = jnp.sum(x * x, axis=axis)
+def safe_hypot(x, y):
+    """sqrt(x^2 + y^2) with a finite gradient at zero, on separate components (no reduction)."""
+    n2 = x * x + y * y
     pos = n2 > 0.0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
 
@@ -66,31 +66,35 @@ def normal_contact(d, d_dot, d_max_prev, ground: Ground) -> NormalOut:
 
 
 class TangentialOut(eqx.Module):
-    force: jnp.ndarray  # N, (2,) tangential force on the foot
-    anchor: jnp.ndarray  # m, (2,) updated anchor (stick point) on the ground
-    slipping: jnp.ndarray  # bool, Coulomb limit reached
+    force: tuple  # N, (f_x, f_y) tangential force on the foot
+    anchor: tuple  # m, (x, y) updated anchor (stick point) on the ground
+    slipping: jnp.ndarray  # bool, Coulomb limit reached while in contact
     slip: jnp.ndarray  # m, distance the anchor moved (slip) in this evaluation
     elastic_energy: jnp.ndarray  # J
     slip_energy: jnp.ndarray  # J, dissipated by this slip increment
 
 
 def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground) -> TangentialOut:
-    """Tangential force [N] on the foot at tangent-plane position ``foot_t`` (2,) [m], given the
-    previous anchor (2,) [m] and the current normal force [N]."""
-    u_trial = foot_t - anchor_prev
-    n = safe_norm(u_trial)
+    """Tangential force [N] on the foot at tangent-plane position ``foot_t = (x, y)`` [m], given
+    the previous anchor ``(x, y)`` [m] and the current normal force [N].
+
+    Tangent-plane vectors are (x, y) pairs of arrays rather than arrays of shape (2,): written on
+    components, the law fuses with the rest of a step (a (2,)-vector form with its norm
+    reduction made the whole landing ~4x slower on CPU).
+    """
+    ux = foot_t[0] - anchor_prev[0]
+    uy = foot_t[1] - anchor_prev[1]
+    n = safe_hypot(ux, uy)
     limit = ground.mu * normal_force
     slipping = ground.k_tan * n > limit
     scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(slipping, n, 1.0)), 1.0)
-    u = u_trial * scale
-    anchor = foot_t - u
-    f = -ground.k_tan * u
+    ux, uy = ux * scale, uy * scale
     slip = n * (1.0 - scale)
     return TangentialOut(
-        force=f,
-        anchor=anchor,
+        force=(-ground.k_tan * ux, -ground.k_tan * uy),
+        anchor=(foot_t[0] - ux, foot_t[1] - uy),
         slipping=slipping & (normal_force > 0.0),
         slip=slip,
-        elastic_energy=0.5 * ground.k_tan * jnp.sum(u * u),
+        elastic_energy=0.5 * ground.k_tan * (ux * ux + uy * uy),
         slip_energy=ground.k_tan * n * scale * slip,
     )
