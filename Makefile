@@ -4,6 +4,9 @@
 # Both create .venv and install jaxland from pyproject.toml on first use.
 
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
+ifeq ($(strip $(PYTHON)),)
+$(error no python3.11 or python3 on PATH: install Python 3.11 (with venv), or run make PYTHON=/path/to/python)
+endif
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 

@@ -21,13 +21,18 @@ from ._errors import (
 )
 from ._integrate import Solver as Solver, stable_step as stable_step
 from ._params import Ground as Ground, Honeycomb as Honeycomb, Leg as Leg, Vehicle as Vehicle
-from ._scene import Scene as Scene
-from ._simulate import Landing as Landing, landing as landing, simulate as simulate
+from ._scene import Scene as Scene, load_scene as load_scene, scene_from_dict as scene_from_dict
+from ._simulate import (
+    Landing as Landing,
+    choose_model as choose_model,
+    landing as landing,
+    simulate as simulate,
+)
 
 __all__ = [
     "laws", "load_vehicle", "paper_vehicle", "validate_vehicle", "vehicle_from_dict",
     "vehicle_to_toml", "plateau_force", "ConfigError", "JaxlandError", "SimulationError",
-    "Solver", "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "Landing",
-    "landing", "simulate",
+    "Solver", "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "load_scene",
+    "scene_from_dict", "Landing", "choose_model", "landing", "simulate",
 ]
 __version__ = "0.1.0"

@@ -44,6 +44,22 @@ def _params(v):
             v.ground.gamma)
 
 
+def _model_timings(vehicle, solver, model, sizes, repeats):
+    scene = Scene()
+
+    def one(s):
+        return landing(vehicle, s, solver, model)[1]["max_stroke_m"]
+
+    compile_s, run_s = _compile_and_time(one, (scene,), repeats)
+    batched = []
+    for n in sizes:
+        scenes = Scene.batch(drop_height=jnp.linspace(0.05, 0.5, n))
+        c_s, r_s = _compile_and_time(jax.vmap(one), (scenes,), 1 if n >= 1000 else repeats)
+        batched.append(dict(batch=n, compile_s=c_s, run_s=r_s, landings_per_s=n / r_s))
+    single = dict(compile_s=compile_s, run_s=run_s, ns_per_step=run_s / solver.n_steps * 1e9)
+    return single, batched
+
+
 def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> dict:
     """Run the benchmark and write ``bench_landing.json`` and ``bench_landing.png``."""
     vehicle = paper_vehicle()
@@ -51,37 +67,32 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
     solver = Solver(dt=1e-5, t_end=t_end, save_dt=1e-3)
     repeats = 2 if quick else 5
     scene = Scene()
-
-    def one(s):
-        return landing(vehicle, s, solver)[1]["max_stroke_m"]
-
-    compile_s, run_s = _compile_and_time(one, (scene,), repeats)
-
-    sizes = [s for s in (1, 10, 100, 1000, 10000) if s <= (10 if quick else batch)]
-    batched = []
-    for n in sizes:
-        heights = jnp.linspace(0.05, 0.5, n)
-        scenes = Scene(drop_height=heights, sink_speed=jnp.zeros(n))
-        c_s, r_s = _compile_and_time(jax.vmap(one), (scenes,), 1 if n >= 1000 else repeats)
-        batched.append(dict(batch=n, compile_s=c_s, run_s=r_s, landings_per_s=n / r_s))
+    largest = 10 if quick else batch
+    sizes = [s for s in (1, 10, 100, 1000, 10000) if s <= largest]
+    single, batched = _model_timings(vehicle, solver, "quarter", sizes, repeats)
+    full_sizes = [s for s in sizes if s <= (10 if quick else 100)]
+    full_single, full_batched = _model_timings(vehicle, solver, "full", full_sizes, repeats)
 
     def stroke_of(theta):
         new = tuple(p * jnp.exp(t) for p, t in zip(_params(vehicle), theta))
-        return landing(eqx.tree_at(_params, vehicle, new), scene, solver)[1]["max_stroke_m"]
+        return landing(eqx.tree_at(_params, vehicle, new), scene, solver,
+                       "quarter")[1]["max_stroke_m"]
 
     th0 = jnp.zeros(6)
+    run_s = single["run_s"]
     jf_compile, jf_run = _compile_and_time(jax.jacfwd(stroke_of), (th0,), repeats)
     gr_compile, gr_run = _compile_and_time(jax.grad(stroke_of), (th0,), repeats)
 
     result = dict(
-        scene="paper 0.2 m drop, quarter model, symplectic Euler",
+        scene="paper 0.2 m drop (symmetric), symplectic Euler; quarter and full 3-D model",
         dt_s=solver.dt, t_end_s=t_end, n_steps=solver.n_steps,
         machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
                      jax=jax.__version__, backend=jax.default_backend(),
                      devices=[str(d) for d in jax.devices()]),
-        single=dict(compile_s=compile_s, run_s=run_s,
-                    ns_per_step=run_s / solver.n_steps * 1e9),
+        single=single,
         batched=batched,
+        full_model=dict(single=full_single, batched=full_batched,
+                        cost_ratio_single=full_single["run_s"] / run_s),
         gradients=dict(jacfwd_6_params=dict(compile_s=jf_compile, run_s=jf_run,
                                             ratio_to_forward=jf_run / run_s),
                        grad_6_params=dict(compile_s=gr_compile, run_s=gr_run,
@@ -99,10 +110,12 @@ def _plot(result: dict, path: Path) -> None:
 
     fig = Figure(figsize=(10, 4), layout="constrained")
     ax1, ax2 = fig.subplots(1, 2)
-    b = result["batched"]
-    n = np.array([r["batch"] for r in b])
-    ax1.loglog(n, [r["landings_per_s"] for r in b], "o-", label="vmapped batch")
-    ax1.axhline(1.0 / result["single"]["run_s"], color="k", ls=":", label="one landing, jit")
+    for label, res in (("quarter", result), ("full 3-D", result["full_model"])):
+        b = res["batched"]
+        line, = ax1.loglog([r["batch"] for r in b], [r["landings_per_s"] for r in b], "o-",
+                           label=f"{label}: vmapped batch")
+        ax1.axhline(1.0 / res["single"]["run_s"], color=line.get_color(), ls=":",
+                    label=f"{label}: one landing, jit")
     ax1.set_xlabel("batch size [landings]")
     ax1.set_ylabel("throughput [landings/s]")
     ax1.set_title(f"{result['t_end_s']:g} s landings at dt = {result['dt_s']:g} s")

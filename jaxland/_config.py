@@ -33,7 +33,8 @@ PAPER_CELLS = dict(
 )
 # Effective foil flow stress sigma_0 that makes the 0.2 m drop reproduce the paper's 66.5 mm
 # first-impact stroke (with D_b = 1.5 s/m from Table 2). Calibrated by
-# benchmarks/calibrate_paper.py; for comparison, Al 5052-H38 foil has sigma_0 ~ 270 MPa.
+# `python benchmarks/paper_reproduction.py --calibrate` (310.2 MPa); for comparison, Al 5052-H38
+# foil has sigma_0 ~ 270 MPa.
 PAPER_FLOW_STRESS_PA = 310e6
 PAPER_CELLS["flow_stress_Pa"] = PAPER_FLOW_STRESS_PA
 
@@ -55,7 +56,10 @@ def _cells_to_forces(cells: dict) -> tuple[float, float]:
 def _paper_dict() -> dict:
     f1, f2 = _cells_to_forces(PAPER_CELLS)
     return {
-        "body": dict(m_body_kg=1120.0, m_foot_kg=1.0, g_mps2=9.81, n_legs=4),
+        "body": dict(m_body_kg=1120.0, m_foot_kg=1.0, g_mps2=9.81,
+                     I_xx_kg_m2=round(1120.0 * (3 * 0.6**2 + 3.2**2) / 12.0, 3),
+                     I_yy_kg_m2=round(1120.0 * (3 * 0.6**2 + 3.2**2) / 12.0, 3),
+                     I_zz_kg_m2=round(1120.0 * 0.6**2 / 2.0, 3), n_legs=4),
         "leg": dict(R_m=0.60, H1_m=0.25, H2_m=1.55, L_h0_m=3.19, theta_b_deg=58.70, h_m=0.092,
                     k_a_N_per_m=5e6, k_topout_N_per_m=1e7, D_b_s_per_m=1.5),
         "honeycomb": dict(
@@ -106,6 +110,8 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
                 raise ConfigError(f"{section}.{key}", val, "must be a number")
             merged[section][key] = val
     cells = data.get("honeycomb", {}).get("cells")
+    if cells is not None and not isinstance(cells, dict):
+        raise ConfigError("honeycomb.cells", cells, "must be a table ([honeycomb.cells])")
     if cells is not None:
         given = {"F1_N", "F2_N"} & set(data["honeycomb"])
         if given:
@@ -122,10 +128,16 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         merged["honeycomb"]["F1_N"], merged["honeycomb"]["F2_N"] = _cells_to_forces(full)
     body = merged["body"]
     n_legs = body["n_legs"]
-    if isinstance(n_legs, bool) or not isinstance(n_legs, int) or n_legs < 3:
-        raise ConfigError("body.n_legs", n_legs, "must be an integer >= 3")
+    if isinstance(n_legs, bool) or not isinstance(n_legs, int) or not 3 <= n_legs <= 12:
+        raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
+    for section in ("body", "leg", "honeycomb", "ground"):
+        for key, val in merged[section].items():
+            if isinstance(val, int) and not isinstance(val, bool) and abs(val) > 1e300:
+                raise ConfigError(f"{section}.{key}", val, "is too large for a float")
     veh = Vehicle(
         m_body=float(body["m_body_kg"]), m_foot=float(body["m_foot_kg"]), g=float(body["g_mps2"]),
+        I_xx=float(body["I_xx_kg_m2"]), I_yy=float(body["I_yy_kg_m2"]),
+        I_zz=float(body["I_zz_kg_m2"]),
         leg=_build(Leg, "leg", merged["leg"]),
         honeycomb=_build(Honeycomb, "honeycomb", merged["honeycomb"]),
         ground=_build(Ground, "ground", merged["ground"]),
@@ -217,6 +229,10 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
                               f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4")
     leg = veh.leg
     L, th, H2 = _concrete(leg.L_h0), _concrete(leg.theta_b), _concrete(leg.H2)
+    if x4 is not None and L is not None and np.any(~(x4 < L)):
+        raise ConfigError("honeycomb.x_L4_mm", float(np.max(x4)) * 1e3,
+                          f"the buffer stroke must be shorter than the main strut, "
+                          f"L_h0 = {float(np.min(L)) * 1e3:.4g} mm")
     if all(x is not None for x in (L, th, H2)) and np.any(~(L * np.sin(th) > H2 * 1.05)):
         raise ConfigError("leg.L_h0_m", float(np.min(L)),
                           "the foot must lie clearly below the auxiliary joint A "

@@ -7,13 +7,18 @@ point) by return maps; then v_{n+1} = v_n + dt M^-1 f, q_{n+1} = q_n + dt v_{n+1
 order, explicit, and its stability limit is set by the stiffest spring and the strut damping on
 the 1 kg foot (``stable_step``).
 
-A model is any namespace with ``mass``, ``initial_state``, ``evaluate``, ``accel_record``,
-``peak_values``, ``contact_flag`` and ``RATE_CHANNELS`` (see ``jaxland._quarter``).
+A model is any namespace with ``initial_state``, ``evaluate`` (generalised accelerations at a
+state, with the memories advanced), ``drift`` (positions from the new velocities: plain
+q + dt v, or a rotation update for an attitude), ``energy_scale``, ``accel_record``,
+``peak_values``, ``contact_flag``, ``apply_scene``, ``final_summary``, ``RATE_CHANNELS``
+and ``COLUMNS``
+(see ``jaxland._quarter`` and ``jaxland._vehicle3d``).
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 
 import equinox as eqx
 import jax
@@ -52,7 +57,7 @@ class Solver(eqx.Module):
         for name in ("dt", "t_end", "save_dt"):
             val = getattr(self, name)
             if isinstance(val, bool) or not (
-                    isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
+                    isinstance(val, numbers.Real) and math.isfinite(val) and val > 0):
                 raise ConfigError(f"solver.{name}", val, "must be a finite number > 0 s")
         return self
 
@@ -61,33 +66,44 @@ class Solver(eqx.Module):
         self.validate_values()
         if self.save_dt < self.dt:
             raise ConfigError("solver.save_dt", self.save_dt, f"must be >= dt = {self.dt} s")
-        if self.t_end / self.dt > 5e8:
+        if self.save_dt > self.t_end:
+            raise ConfigError("solver.save_dt", self.save_dt, f"must be <= t_end = {self.t_end} s")
+        ratio = self.save_dt / self.dt
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+            raise ConfigError("solver.save_dt", self.save_dt,
+                              f"must be a whole multiple of dt = {self.dt} s")
+        if self.n_steps > 5e8:
             raise ConfigError("solver.dt", self.dt, "t_end/dt must be <= 5e8 steps")
         return self
 
 
-def stable_step(vehicle: Vehicle):
-    """Estimated stability limit of explicit symplectic Euler on the foot [s].
+def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
+                bottomed: bool = False):
+    """Estimated stability limit of explicit symplectic Euler [s].
 
-    The foot (mass m2) is held by the honeycomb's stiffest elastic stage, the auxiliary strut, the
-    ground in restitution (k / (1 - gamma)) and the tangential spring at once: omega^2 = sum k / m2.
-    The strut damping D_b F_bh acts on it as a viscous coefficient c = D_b F2 / m2 at the second
-    plateau. For x'' = -omega^2 x - c x' symplectic Euler is stable while
+    The lightest mass (the foot, m2) is held at once by the stiffest elastic element of the strut
+    (k_b1, k_b3, the top-out stop, and k_bottom once the stack has bottomed out), the auxiliary
+    struts, the ground in restitution (k / (1 - gamma)) and the tangential spring:
+    omega^2 = sum k / m2. The strut damping D_b F_bh and the ground damping chi F_n act on it as a
+    viscous coefficient c = (D_b F_bh + chi F_n) / m2; both grow with the force, so the limit
+    depends on the landing. For x'' = -omega^2 x - c x' symplectic Euler is stable while
     dt^2 omega^2 + 2 dt c <= 4, i.e. dt <= (sqrt(c^2 + 4 omega^2) - c) / omega^2
     (= 2/omega without damping, 2/c without stiffness).
+
+    Without forces given, the a-priori limit assumes the second plateau F2 for both; after a run,
+    pass the peak honeycomb and normal forces it reached (and whether it bottomed out).
     """
     hc, leg, gr = vehicle.honeycomb, vehicle.leg, vehicle.ground
-    k_sum = (jnp.maximum(hc.k_b1, hc.k_b3) + leg.k_a + gr.k / (1.0 - gr.gamma) + gr.k_tan)
-    w2 = k_sum / vehicle.m_foot
-    c = leg.D_b * hc.F2 / vehicle.m_foot
-    return (jnp.sqrt(c**2 + 4.0 * w2) - c) / w2
-
-
-def energy_scale(vehicle: Vehicle, scene: Scene):
-    """Energy the landing has to absorb, generously bounded [J]: the scale of ledger checks."""
-    m = vehicle.m_body + vehicle.n_legs * vehicle.m_foot
-    height = scene.drop_height + 3.0 * vehicle.honeycomb.x_L4
-    return m * (0.5 * scene.sink_speed**2 + vehicle.g * height)
+    k_el = jnp.maximum(jnp.maximum(hc.k_b1, hc.k_b3), leg.k_topout)
+    if bottomed:
+        k_el = jnp.maximum(k_el, hc.k_bottom)
+    k_sum = k_el + leg.k_a + gr.k / (1.0 - gr.gamma) + gr.k_tan
+    m = jnp.minimum(vehicle.m_foot, vehicle.m_quarter)
+    f_hc = hc.F2 if honeycomb_force is None else jnp.maximum(hc.F2, honeycomb_force)
+    f_n = hc.F2 if normal_force is None else jnp.maximum(hc.F2, normal_force)
+    w2 = k_sum / m
+    c = (leg.D_b * f_hc + gr.chi * f_n) / m
+    return jnp.min((jnp.sqrt(c**2 + 4.0 * w2) - c) / w2)
 
 
 def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
@@ -98,17 +114,16 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     resolution (peaks, memories, event log, ledger closure, failure flag).
     """
     dt = solver.dt
-    m = model.mass(vehicle)
+    vehicle = model.apply_scene(vehicle, scene)  # scene-level friction and honeycomb scatter
     s0 = model.initial_state(vehicle, scene)
-    _, _, rec0, _, en0 = model.evaluate(vehicle, s0)
+    acc0, _, rec0, _, en0 = model.evaluate(vehicle, s0, scene)
     e0 = sum(en0.values()) + jnp.sum(s0.diss_rate)
-    e_scale = energy_scale(vehicle, scene)
-    peaks0 = jax.tree.map(lambda x: jnp.full_like(x, -jnp.inf), model.peak_values(rec0, m))
+    e_scale = model.energy_scale(vehicle, scene)
+    peaks0 = jax.tree.map(lambda x: jnp.full_like(x, -jnp.inf), model.peak_values(rec0, acc0))
 
     def step(carry, _):
         s, peaks, ev_t, ev_n, prev_c, res_max, fail_t = carry
-        f, s_m, rec, power, energy = model.evaluate(vehicle, s)
-        acc = f / m
+        acc, s_m, rec, power, energy = model.evaluate(vehicle, s, scene)
         residual = sum(energy.values()) + jnp.sum(s.diss_rate) - e0
         peaks = jax.tree.map(jnp.maximum, peaks, model.peak_values(rec, acc))
         contact = model.contact_flag(rec)
@@ -117,11 +132,12 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
         ev_t = ev_t.at[idx].set(jnp.where(changed & (ev_n < N_EVENTS), s.t, ev_t[idx]))
         ev_n = ev_n + changed.astype(ev_n.dtype)
         res_max = jnp.maximum(res_max, jnp.abs(residual))
-        state_ok = jnp.all(jnp.isfinite(s.q)) & jnp.all(jnp.isfinite(s.v))
+        state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x))
+                                      for x in jax.tree.leaves((s.q, s.v))]))
         bad = ~state_ok | ~(jnp.abs(residual) <= ENERGY_TOLERANCE * e_scale)
         fail_t = jnp.where(bad & (fail_t < 0.0), s.t, fail_t)
-        v1 = s.v + dt * acc
-        q1 = s.q + dt * v1
+        v1 = jax.tree.map(lambda v, a: v + dt * a, s.v, acc)
+        q1 = model.drift(s.q, v1, dt)
         s1 = eqx.tree_at(
             lambda x: (x.t, x.q, x.v, x.diss_rate), s_m,
             (s.t + dt, q1, v1, s.diss_rate + dt * power),
@@ -130,8 +146,7 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
 
     def save_block(carry, _):
         s = carry[0]
-        f, _, rec, _, energy = model.evaluate(vehicle, s)
-        acc = f / m
+        acc, _, rec, _, energy = model.evaluate(vehicle, s, scene)
         out = dict(time_s=s.t, **rec, **model.accel_record(acc))
         for i, name in enumerate(model.RATE_CHANNELS):
             out[name] = s.diss_rate[i]
@@ -145,19 +160,16 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     )
     carry, traj = jax.lax.scan(save_block, carry0, None, length=solver.n_saves)
     s_end, peaks, ev_t, ev_n, _, res_max, fail_t = carry
-    _, _, rec_end, _, en_end = model.evaluate(vehicle, s_end)
+    _, _, rec_end, _, en_end = model.evaluate(vehicle, s_end, scene)
     dissipated = sum(v for k, v in en_end.items() if k.startswith("diss_"))
     dissipated = dissipated + jnp.sum(s_end.diss_rate)
     summary = dict(
         **peaks,
-        max_stroke_m=s_end.x_max,
-        final_stroke_m=rec_end["stroke_m"],
-        final_plastic_set_m=rec_end["plastic_set_m"],
-        final_pit_depth_m=rec_end["pit_depth_m"],
-        slip_distance_m=s_end.slip_distance,
+        **model.final_summary(s_end, rec_end),
         event_times_s=ev_t,
         n_contact_changes=ev_n,
         energy_initial_J=e0,
+        energy_scale_J=e_scale,
         energy_dissipated_J=dissipated,
         energy_closure_max_J=res_max,
         failed=fail_t >= 0.0,

@@ -116,8 +116,9 @@ class Leg(eqx.Module):
         "m", "lateral half-spacing of the two auxiliary struts (used by 3-D models only)",
         "paper Table 2, our reading (DESIGN.md section 2)", ">= 0", toml="h_m")
     k_a: jnp.ndarray = _param(
-        "N/m", "axial stiffness of the auxiliary strut (massless spring)",
-        "our assumption: 5e6 N/m, a steel tube of a few cm^2 over 2 m; the paper gives none",
+        "N/m", "combined axial stiffness of the leg's pair of auxiliary struts (k_a / 2 each; "
+        "massless springs)",
+        "our assumption: 5e6 N/m, steel tubes of a few cm^2 over 2 m; the paper gives none",
         "> 0", toml="k_a_N_per_m")
     k_topout: jnp.ndarray = _param(
         "N/m", "stiffness of the main strut's top-out stop (no extension beyond L_h0)",
@@ -143,8 +144,14 @@ class Leg(eqx.Module):
 
     @property
     def L_a0(self):
-        """Rest length of the auxiliary strut, |F0 - A| [m] (derived)."""
+        """In-plane distance from the auxiliary joint to the foot at rest, |F0 - A| [m]."""
         return jnp.linalg.norm(self.foot_rest - self.joint_A)
+
+    @property
+    def L_a0_pair(self):
+        """Rest length of each of the two auxiliary struts, joints at A +/- h laterally,
+        sqrt(|F0 - A|^2 + h^2) [m] (derived: the leg is unstressed at rest)."""
+        return jnp.sqrt(self.L_a0**2 + self.h**2)
 
 
 class Ground(eqx.Module):
@@ -174,6 +181,16 @@ class Vehicle(eqx.Module):
                                  "paper section 3.1", "> 0", toml="m_foot_kg")
     g: jnp.ndarray = _param("m/s^2", "gravitational acceleration", "standard gravity",
                             "> 0", toml="g_mps2")
+    I_xx: jnp.ndarray = _param(
+        "kg m^2", "body roll inertia about its centre of mass (3-D model)",
+        "our assumption: solid cylinder, radius R = 0.6 m (the paper's body radius), length "
+        "3.2 m: m1 (3 R^2 + L^2) / 12", "> 0", toml="I_xx_kg_m2")
+    I_yy: jnp.ndarray = _param(
+        "kg m^2", "body pitch inertia about its centre of mass (3-D model)",
+        "our assumption: as I_xx (axisymmetric body)", "> 0", toml="I_yy_kg_m2")
+    I_zz: jnp.ndarray = _param(
+        "kg m^2", "body yaw inertia about its axis (3-D model)",
+        "our assumption: solid cylinder, m1 R^2 / 2 with R = 0.6 m", "> 0", toml="I_zz_kg_m2")
     leg: Leg = eqx.field(default=None)
     honeycomb: Honeycomb = eqx.field(default=None)
     ground: Ground = eqx.field(default=None)

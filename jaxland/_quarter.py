@@ -71,6 +71,29 @@ def mass(vehicle: Vehicle):
     return jnp.stack([vehicle.m_quarter, vehicle.m_foot, vehicle.m_foot])
 
 
+def apply_scene(vehicle: Vehicle, scene: Scene) -> Vehicle:
+    """Scene-level friction override and (uniform) honeycomb plateau scatter."""
+    scale = jnp.mean(scene.plateau_scale, axis=-1)
+    hc = vehicle.honeycomb
+    vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
+                          (hc.F1 * scale, hc.F2 * scale))
+    if scene.friction is not None:
+        vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
+    return vehicle
+
+
+def energy_scale(vehicle: Vehicle, scene: Scene):
+    """Energy the landing has to absorb, generously bounded [J]: the scale of ledger checks."""
+    m = vehicle.m_quarter + vehicle.m_foot  # the quarter ledger's own masses
+    height = scene.drop_height + 2.5 * vehicle.honeycomb.x_L4  # body sinks ~2 x stroke
+    return m * (0.5 * scene.sink_speed**2 + vehicle.g * height)
+
+
+def drift(q, v, dt):
+    """Positions from the new velocities (symplectic Euler's second half)."""
+    return q + dt * v
+
+
 def initial_state(vehicle: Vehicle, scene: Scene) -> QuarterState:
     """Leg at rest, feet ``scene.drop_height`` above the ground, falling at ``sink_speed``."""
     foot = vehicle.leg.foot_rest
@@ -84,10 +107,10 @@ def initial_state(vehicle: Vehicle, scene: Scene) -> QuarterState:
     )
 
 
-def evaluate(vehicle: Vehicle, s: QuarterState):
-    """Forces at state ``s``.
+def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None):
+    """Accelerations at state ``s`` (the scene is not needed: level ground, no attitude).
 
-    Returns ``(force (3,), state with updated memory, record, rate_power (2,), energy)`` where
+    Returns ``(accel (3,), state with updated memory, record, rate_power (2,), energy)`` where
     ``record`` is a dict of named scalar outputs (CSV columns, units in the names) and ``energy``
     the ledger at this state excluding the rate-integrated channels.
     """
@@ -105,11 +128,12 @@ def evaluate(vehicle: Vehicle, s: QuarterState):
     hco = honeycomb(x_b, s.x_max, hc)
     st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
 
-    # Auxiliary strut.
+    # Auxiliary struts: a pair with joints at A +/- h laterally; in a symmetric landing their
+    # lateral components cancel and each carries half of k_a.
     dz_a = z_f - (z_b - leg.H1 - leg.H2)
-    length_a = safe_hypot(dr, dz_a)
+    length_a = jnp.sqrt(dr * dr + dz_a * dz_a + leg.h * leg.h)
     a_r, a_z = dr / length_a, dz_a / length_a
-    ax = aux_strut(length_a, leg.L_a0, leg.k_a)
+    ax = aux_strut(length_a, leg.L_a0_pair, leg.k_a)
 
     # Ground: normal with pit memory, tangential stick/slip (3-D law, lateral axis unused here).
     nc = normal_contact(-z_f, -vz_f, s.d_max, gr)
@@ -120,7 +144,7 @@ def evaluate(vehicle: Vehicle, s: QuarterState):
     f_foot_r = st.force * u_r + ax.force * a_r + tc.force[0]
     f_foot_z = st.force * u_z + ax.force * a_z + nc.force - m_f * g
     f_body = -(st.force * u_z + ax.force * a_z) - m_q * g
-    force = jnp.stack([f_body, f_foot_r, f_foot_z])
+    accel = jnp.stack([f_body / m_q, f_foot_r / m_f, f_foot_z / m_f])
 
     new = eqx.tree_at(
         lambda x: (x.x_max, x.d_max, x.anchor, x.diss_slip, x.slip_distance),
@@ -169,7 +193,7 @@ def evaluate(vehicle: Vehicle, s: QuarterState):
         **energy,
     )
     rate_power = jnp.stack([st.damping_power, nc.damping_power])
-    return force, new, record, rate_power, energy
+    return accel, new, record, rate_power, energy
 
 
 def accel_record(acc):
@@ -195,3 +219,14 @@ def peak_values(record, acc):
 
 def contact_flag(record):
     return record["normal_force_N"] > 0.0
+
+
+def final_summary(s: QuarterState, record) -> dict:
+    """Model-specific end-of-landing outcomes."""
+    return dict(
+        max_stroke_m=s.x_max,
+        final_stroke_m=record["stroke_m"],
+        final_plastic_set_m=record["plastic_set_m"],
+        final_pit_depth_m=record["pit_depth_m"],
+        slip_distance_m=s.slip_distance,
+    )

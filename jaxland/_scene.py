@@ -1,6 +1,16 @@
-"""Scenes: the touchdown conditions of one landing, as data (a pytree, so it vmaps)."""
+"""Scenes: the touchdown conditions of one landing, as data (a pytree, so it vmaps).
+
+World frame: z up, the ground plane through the origin (tilted by ``slope`` towards
+``slope_direction``). Angles are radians and rates rad/s inside the code; the TOML scene file
+and the CLI take degrees (``*_deg``, ``*_degps``). Body attitude is yaw-pitch-roll (z-y'-x'')
+from the world frame; at zero yaw leg i points along azimuth i * 360 / n_legs deg.
+"""
 
 from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -8,53 +18,183 @@ import numpy as np
 
 from ._errors import ConfigError
 
-__all__ = ["Scene"]
+__all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric"]
 
 
 def _f64(x):
     return jnp.asarray(x, dtype=jnp.float64)
 
 
-class Scene(eqx.Module):
-    """Touchdown conditions of a symmetric vertical landing.
+def _opt_f64(x):
+    return None if x is None else jnp.asarray(x, dtype=jnp.float64)
 
-    ``drop_height`` is the clearance of the feet above the ground at t = 0 [m] (the paper's
-    H_height = 0.2 m), ``sink_speed`` the downward speed at t = 0 [m/s]. A scene given by its
-    touchdown speed starts with the feet on the ground: ``Scene.from_touchdown_speed(v)``.
+
+_DEG = math.pi / 180.0
+
+# name: (unit, doc, lower, upper, TOML key, TOML->SI factor). Limits are our documented envelope:
+# attitude within 30 deg (a steeper vehicle is not "landing"), rates within 5 rad/s, slopes
+# within 30 deg, friction within [0, 2], honeycomb scatter within a factor 5 either way.
+SCENE_FIELDS = {
+    "drop_height": ("m", "clearance of the lowest foot above the ground at t = 0", 0.0, 50.0,
+                    "drop_height_m", 1.0),
+    "sink_speed": ("m/s", "downward speed at t = 0", 0.0, 30.0, "sink_speed_mps", 1.0),
+    "horizontal_speed": ("m/s", "horizontal speed at t = 0", 0.0, 30.0,
+                         "horizontal_speed_mps", 1.0),
+    "heading": ("rad", "direction of the horizontal velocity (azimuth from world x)",
+                -4 * math.pi, 4 * math.pi, "heading_deg", _DEG),
+    "roll": ("rad", "body roll about x''", -30 * _DEG, 30 * _DEG, "roll_deg", _DEG),
+    "pitch": ("rad", "body pitch about y'", -30 * _DEG, 30 * _DEG, "pitch_deg", _DEG),
+    "yaw": ("rad", "body yaw about z", -4 * math.pi, 4 * math.pi, "yaw_deg", _DEG),
+    "roll_rate": ("rad/s", "body-frame angular rate about x", -5.0, 5.0, "roll_rate_degps",
+                  _DEG),
+    "pitch_rate": ("rad/s", "body-frame angular rate about y", -5.0, 5.0, "pitch_rate_degps",
+                   _DEG),
+    "yaw_rate": ("rad/s", "body-frame angular rate about z", -5.0, 5.0, "yaw_rate_degps", _DEG),
+    "slope": ("rad", "ground slope", 0.0, 30 * _DEG, "slope_deg", _DEG),
+    "slope_direction": ("rad", "downhill direction of the slope (azimuth from world x)",
+                        -4 * math.pi, 4 * math.pi, "slope_direction_deg", _DEG),
+}
+
+
+class Scene(eqx.Module):
+    """Touchdown conditions of one landing (see ``SCENE_FIELDS`` for units and limits).
+
+    ``Scene()`` is the paper's symmetric 0.2 m drop. ``friction`` overrides the vehicle's mu
+    when given; ``plateau_scale`` scales both plateau forces of each leg (honeycomb scatter).
     """
 
     drop_height: jnp.ndarray = eqx.field(converter=_f64, default=0.2)
     sink_speed: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    horizontal_speed: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    heading: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    roll: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    pitch: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    yaw: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    roll_rate: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    pitch_rate: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    yaw_rate: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    slope: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    slope_direction: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
+    friction: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
+    plateau_scale: jnp.ndarray = eqx.field(converter=_f64, default=(1.0, 1.0, 1.0, 1.0))
 
     @classmethod
-    def from_touchdown_speed(cls, speed_mps: float) -> Scene:
+    def from_touchdown_speed(cls, speed_mps: float, **kwargs) -> Scene:
         """A scene that starts at touchdown with downward speed ``speed_mps`` [m/s]."""
-        return cls(drop_height=0.0, sink_speed=speed_mps)
+        return cls(drop_height=0.0, sink_speed=speed_mps, **kwargs)
+
+    @classmethod
+    def batch(cls, **fields) -> Scene:
+        """A batch of scenes for ``jax.vmap``: each given field is an array over the batch (or a
+        scalar, broadcast); every other field takes its default, broadcast to the batch size.
+        ``plateau_scale`` takes shape (batch, n_legs)."""
+        sizes = {np.shape(v)[0] for k, v in fields.items()
+                 if k != "plateau_scale" and v is not None and np.ndim(v) > 0}
+        sizes |= {np.shape(fields["plateau_scale"])[0]} if np.ndim(
+            fields.get("plateau_scale", 0)) == 2 else set()
+        if len(sizes) != 1:
+            raise ConfigError("Scene.batch", sorted(sizes),
+                              "give at least one batched field, all of the same length")
+        (n,) = sizes
+        one = cls(**{k: v for k, v in fields.items() if np.ndim(v) == 0 or (
+            k == "plateau_scale" and np.ndim(v) == 1)})
+        out = {}
+        for name in one.__dataclass_fields__:
+            val = fields.get(name, getattr(one, name))
+            if val is None:
+                out[name] = None
+            elif name == "plateau_scale":
+                out[name] = jnp.broadcast_to(jnp.asarray(val, jnp.float64),
+                                             (n, jnp.shape(one.plateau_scale)[-1]))
+            else:
+                out[name] = jnp.broadcast_to(jnp.asarray(val, jnp.float64), (n,))
+        return cls(**out)
 
     def touchdown_speed(self, g=9.81):
         """Vertical speed at first contact [m/s], sqrt(v0^2 + 2 g h)."""
         return jnp.sqrt(self.sink_speed**2 + 2.0 * g * self.drop_height)
 
-    def validate(self) -> Scene:
-        """Refuse non-physical scenes with a message naming field, value and rule."""
-        for name, lo, hi in (("drop_height", 0.0, 50.0), ("sink_speed", 0.0, 30.0)):
-            val = getattr(self, name)
-            if isinstance(val, jnp.ndarray) and not _is_concrete(val):
+    def validate(self, n_legs: int | None = None) -> Scene:
+        """Refuse scenes outside the documented envelope, naming field, value and rule."""
+        for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():
+            arr = _concrete(getattr(self, name))
+            if arr is None:
                 continue
-            arr = np.asarray(val, dtype=float)
             bad = ~np.isfinite(arr) | (arr < lo) | (arr > hi)
             if np.any(bad):
-                v = arr[bad].flat[0]
-                unit = "m" if name == "drop_height" else "m/s"
-                raise ConfigError(f"scene.{name}", v, f"must be finite and in [{lo}, {hi}] {unit}")
+                shown = float(arr[bad].flat[0]) / to_si
+                raise ConfigError(f"scene.{key}", shown, f"must be finite and in "
+                                  f"[{lo / to_si:.4g}, {hi / to_si:.4g}] "
+                                  f"{key.rsplit('_', 1)[-1]}")
+        fr = _concrete(self.friction)
+        if fr is not None and np.any(~np.isfinite(fr) | (fr < 0) | (fr > 2)):
+            raise ConfigError("scene.friction", float(np.ravel(fr)[0]),
+                              "must be finite and in [0, 2]")
+        ps = _concrete(self.plateau_scale)
+        if ps is not None:
+            if n_legs is not None and ps.shape[-1] != n_legs:
+                raise ConfigError("scene.plateau_scale", ps.tolist(),
+                                  f"must have one entry per leg ({n_legs})")
+            if np.any(~np.isfinite(ps) | (ps < 0.2) | (ps > 5.0)):
+                raise ConfigError("scene.plateau_scale", ps.tolist(),
+                                  "every entry must be finite and in [0.2, 5]")
         return self
 
 
-def _is_concrete(x) -> bool:
+def _concrete(x):
+    if x is None:
+        return None
     try:
-        np.asarray(x)
-        return True
+        return np.asarray(x, dtype=float)
     except Exception:  # a tracer under jit/vmap/grad
-        return False
+        return None
 
 
+def is_symmetric(scene: Scene) -> bool:
+    """True if every landing in ``scene`` (a batch allowed) is a symmetric vertical drop, so the
+    quarter model represents it exactly: no horizontal speed, level attitude (yaw is free), no
+    angular rate, level ground, the same honeycomb in every leg. Needs concrete values."""
+    for name in ("horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate", "yaw_rate",
+                 "slope"):
+        if np.any(np.asarray(getattr(scene, name)) != 0.0):
+            return False
+    ps = np.asarray(scene.plateau_scale)
+    return bool(np.all(ps == ps[..., :1]))
+
+
+def scene_from_dict(data: dict) -> Scene:
+    """Scene from a TOML-shaped table (keys with units, angles in degrees); validated."""
+    known = {v[4]: k for k, v in SCENE_FIELDS.items()}
+    kwargs = {}
+    for key, val in data.items():
+        if key in ("friction", "plateau_scale"):
+            kwargs[key] = val
+            continue
+        if key not in known:
+            raise ConfigError(f"scene.{key}", val, "unknown key; known: "
+                              + ", ".join([*known, "friction", "plateau_scale"]))
+        if isinstance(val, bool) or not isinstance(val, (int, float)):
+            raise ConfigError(f"scene.{key}", val, "must be a number")
+        kwargs[known[key]] = float(val) * SCENE_FIELDS[known[key]][5]
+    if "plateau_scale" in kwargs:
+        ps = kwargs["plateau_scale"]
+        if not isinstance(ps, list) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in ps):
+            raise ConfigError("scene.plateau_scale", ps, "must be a list of numbers, one per leg")
+    if "friction" in kwargs and (isinstance(kwargs["friction"], bool)
+                                 or not isinstance(kwargs["friction"], (int, float))):
+        raise ConfigError("scene.friction", kwargs["friction"], "must be a number")
+    return Scene(**kwargs).validate()
+
+
+def load_scene(path) -> Scene:
+    """Load a scene TOML file: a ``[scene]`` table (or top-level keys)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError("scene", str(path), "file does not exist") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError("scene", str(path), f"is not valid TOML: {err}") from None
+    return scene_from_dict(data.get("scene", data))

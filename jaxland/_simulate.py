@@ -19,28 +19,45 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from . import _quarter
+from . import _quarter, _vehicle3d
 from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
 from ._integrate import Solver, integrate, stable_step
 from ._params import Vehicle
-from ._scene import Scene
+from ._scene import Scene, is_symmetric
 
-__all__ = ["landing", "simulate", "Landing", "impacts_from_events"]
+__all__ = ["landing", "simulate", "Landing", "impacts_from_events", "choose_model", "MODELS"]
+
+MODELS = {"quarter": _quarter, "full": _vehicle3d}
 
 # Contact gaps shorter than this are foot chatter within one impact, not a new impact [s]. The
 # paper drop's hops after the first impact last 6-10 ms; chatter within an impact is sub-ms.
 IMPACT_GAP_S = 1e-3
 
 
-def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver()):
-    """Pure quarter-model landing: ``(trajectory, summary)`` dicts of jnp arrays."""
-    return integrate(_quarter, vehicle, scene, solver)
+def choose_model(scene: Scene) -> str:
+    """The smallest model that represents ``scene`` exactly: ``"quarter"`` for a symmetric
+    vertical drop (every scene of a batch), else ``"full"``. Needs concrete scene values."""
+    try:
+        return "quarter" if is_symmetric(scene) else "full"
+    except jax.errors.TracerArrayConversionError:
+        raise ConfigError("model", "auto", "cannot be chosen from traced scene values (inside "
+                          "jit/vmap/grad); pass model='quarter' or model='full'") from None
 
 
-@functools.partial(jax.jit, static_argnums=(2,))
-def _landing_jit(vehicle, scene, solver):
-    return landing(vehicle, scene, solver)
+def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(), model: str = "auto"):
+    """Pure landing: ``(trajectory, summary)`` dicts of jnp arrays. ``model`` is ``"quarter"``,
+    ``"full"`` or ``"auto"`` (``choose_model``; needs a concrete scene, so under jit name it)."""
+    if model == "auto":
+        model = choose_model(scene)
+    if model not in MODELS:
+        raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
+    return integrate(MODELS[model], vehicle, scene, solver)
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _landing_jit(vehicle, scene, solver, model):
+    return landing(vehicle, scene, solver, model)
 
 
 def impacts_from_events(event_times, n_changes, t_end, gap=IMPACT_GAP_S):
@@ -75,8 +92,17 @@ class Landing:
     def to_csv(self, path) -> Path:
         """Write the trajectory as CSV (header: column names with units). Atomic."""
         path = Path(path)
-        cols = list(self.trajectory)
-        data = np.column_stack([np.asarray(self.trajectory[c], dtype=float) for c in cols])
+        cols, arrays = [], []
+        for name, arr in self.trajectory.items():
+            arr = np.asarray(arr, dtype=float)
+            if arr.ndim == 1:
+                cols.append(name)
+                arrays.append(arr)
+            else:  # per-leg (n_samples, n_legs) -> leg0_..., leg1_...
+                for i in range(arr.shape[1]):
+                    cols.append(f"leg{i}_{name}")
+                    arrays.append(arr[:, i])
+        data = np.column_stack(arrays)
         _atomic_write(path, lambda fh: _write_csv(fh, cols, data))
         return path
 
@@ -110,23 +136,31 @@ def _atomic_write(path: Path, writer):
         raise
 
 
-def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver: Solver) -> dict:
+def _py(x):
+    x = np.asarray(x)
+    return x.item() if x.ndim == 0 else x.tolist()
+
+
+def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver: Solver,
+              model: str) -> dict:
     s = {k: np.asarray(v) for k, v in summary.items()}
     impacts = impacts_from_events(s["event_times_s"], s["n_contact_changes"], solver.t_end)
     hc = vehicle.honeycomb
     t = traj["time_s"]
     first_end = impacts[0][1] if impacts and impacts[0][1] is not None else None
+    stroke = np.asarray(traj["stroke_m"])
     if first_end is not None:
-        i_end = int(np.searchsorted(t, first_end))
-        i_end = min(i_end, len(t) - 1)
-        stroke_first = float(np.max(traj["stroke_m"][: i_end + 1]))
-        foot_v_end = float(traj["foot_vz_mps"][max(i_end - 1, 0)])
+        i_end = min(int(np.searchsorted(t, first_end)), len(t) - 1)
+        stroke_first = np.max(stroke[: i_end + 1], axis=0)
+        foot_v = traj["foot_vz_mps"][max(i_end - 1, 0)] if "foot_vz_mps" in traj else None
     else:
-        stroke_first = float(s["max_stroke_m"])
-        foot_v_end = None
+        stroke_first = s["max_stroke_m"]
+        foot_v = None
     dissipated = float(s["energy_dissipated_J"])
+    max_stroke = np.max(s["max_stroke_m"])
+    bottomed = bool(max_stroke > float(hc.x_L4))
     out = {
-        "model": "quarter",
+        "model": model,
         "drop_height_m": float(scene.drop_height),
         "sink_speed_mps": float(scene.sink_speed),
         "touchdown_speed_mps": float(scene.touchdown_speed(float(vehicle.g))),
@@ -136,39 +170,107 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         "impacts": [{"start_s": a, "end_s": b} for a, b in impacts],
         "n_impacts": len(impacts),
         "n_contact_changes": int(s["n_contact_changes"]),
-        "first_impact_stroke_m": stroke_first,
-        "foot_vz_end_first_impact_mps": foot_v_end,
-        "max_stroke_m": float(s["max_stroke_m"]),
-        "final_stroke_m": float(s["final_stroke_m"]),
-        "final_plastic_set_m": float(s["final_plastic_set_m"]),
-        "final_pit_depth_m": float(s["final_pit_depth_m"]),
-        "secondary_honeycomb_engaged": bool(s["max_stroke_m"] > float(hc.x_L2)),
-        "bottomed_out": bool(s["max_stroke_m"] > float(hc.x_L4)),
-        "slip_distance_m": float(s["slip_distance_m"]),
-        "energy_initial_J": float(s["energy_initial_J"]),
-        "energy_dissipated_J": dissipated,
-        "energy_closure_max_J": float(s["energy_closure_max_J"]),
-        "energy_closure_rel": float(s["energy_closure_max_J"]) / max(dissipated, 1e-12),
+        "first_impact_stroke_m": _py(stroke_first),
+        "secondary_honeycomb_engaged": bool(max_stroke > float(hc.x_L2)),
+        "bottomed_out": bottomed,
     }
+    if foot_v is not None or model == "quarter":
+        out["foot_vz_end_first_impact_mps"] = None if foot_v is None else float(foot_v)
+    skip = {"event_times_s", "n_contact_changes", "failed", "failure_time_s", "t_end_s",
+            "peak_margin_deficit_m", "energy_scale_J"}
     for k, v in s.items():
-        if k.startswith("peak_"):
-            out[k] = float(v)
+        if k not in skip:
+            out[k] = _py(v)
+    if model == "full":
+        out["min_stability_margin_m"] = -float(s["peak_margin_deficit_m"])
+        out["tipped_over"] = bool(out["min_stability_margin_m"] < 0.0)
+    else:
+        out["tipped_over"] = False  # a symmetric vertical drop cannot tip
+    out["classification"] = ("tipped" if out["tipped_over"] else
+                             "bottomed_out" if bottomed else "stable")
+    out["energy_closure_rel"] = float(s["energy_closure_max_J"]) / max(dissipated, 1e-12)
     return out
 
 
+# Largest energy-ledger error, relative to the energy dissipated, accepted from a landing: at the
+# default dt the paper drop closes to 7e-5; a step near the stability limit gives ~0.3.
+CLOSURE_LIMIT = 1e-2
+
+
+def tip_over_time(traj: dict) -> float | None:
+    """First sample time at which the centre of mass left the feet's polygon [s], or None."""
+    margin = traj.get("stability_margin_m")
+    if margin is None or not np.any(margin < 0.0):
+        return None
+    return float(traj["time_s"][int(np.argmax(margin < 0.0))])
+
+
+def _check_numerics(summary: dict, vehicle: Vehicle, dt: float, traj: dict) -> None:
+    """Refuse to return a landing whose integration was unstable: a non-finite state, a ledger
+    that does not close, or a step above the stability limit of the forces it reached.
+
+    After a tip-over only the time up to the tip-over is checked: the body has no ground contact
+    of its own, so what follows (feet striking upside down) is not a landing to be accurate on."""
+    t_tip = tip_over_time(traj)
+    if t_tip is not None:
+        before = traj["time_s"] <= t_tip
+        summary = dict(summary, energy_closure_max_J=np.max(np.abs(
+            traj["energy_residual_J"][before])), failed=summary["failed"] & (
+            summary["failure_time_s"] <= t_tip))
+        summary["peak_honeycomb_force_N"] = np.max(traj["honeycomb_force_N"][before])
+        summary["peak_normal_force_N"] = np.max(traj["normal_force_N"][before])
+        summary["max_stroke_m"] = np.max(traj["stroke_max_m"][before])
+    hc_peak = float(np.max(summary["peak_honeycomb_force_N"]))
+    n_peak = float(np.max(summary["peak_normal_force_N"]))
+    bottomed = bool(np.max(summary["max_stroke_m"]) > float(np.min(vehicle.honeycomb.x_L4)))
+    reached = float(stable_step(vehicle, honeycomb_force=hc_peak, normal_force=n_peak,
+                                bottomed=bottomed))
+    why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force of "
+           f"{n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt to "
+           f"{reached:.3g} s; rerun with dt <= {0.5 * reached:.2g} s")
+    if bool(summary["failed"]):
+        raise SimulationError(
+            f"integration failed at t = {float(summary['failure_time_s']):.6g} s (non-finite "
+            f"state or energy ledger off by more than 10 % of the landing's energy) with "
+            f"dt = {dt:.3g} s; {why}")
+    # relative to the energy dissipated, or to a tenth of the landing's energy scale when little
+    # is dissipated (free fall)
+    ref = max(float(summary["energy_dissipated_J"]), 0.1 * float(summary["energy_scale_J"]))
+    closure = float(summary["energy_closure_max_J"]) / ref
+    if closure > CLOSURE_LIMIT or dt > reached:
+        raise SimulationError(
+            f"dt = {dt:.3g} s is too large for this landing (energy ledger closure "
+            f"{closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
+
+
+
 def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
-             dt: float = 1e-5, t_end: float = 1.2, save_dt: float | None = None) -> Landing:
+             dt: float = 1e-5, t_end: float = 1.2, save_dt: float | None = None,
+             model: str = "auto") -> Landing:
     """Simulate one symmetric landing of ``vehicle`` (default: the paper's) in ``scene``
     (default: the paper's 0.2 m drop) with symplectic Euler at step ``dt`` [s] for ``t_end`` [s],
     sampling the trajectory every ``save_dt`` [s] (default: max(1e-4 s, dt)).
 
-    Raises ``ConfigError`` for invalid inputs or a step above the stability limit and
+    ``model`` is ``"auto"`` (the smallest exact model for the scene: ``choose_model``),
+    ``"quarter"`` or ``"full"``. Raises ``ConfigError`` for invalid inputs or a step above the
+    stability limit and
     ``SimulationError`` if the integration blows up.
     """
     scene = Scene() if scene is None else scene
     vehicle = paper_vehicle() if vehicle is None else vehicle
-    scene.validate()
     validate_vehicle(vehicle)
+    scene.validate(vehicle.n_legs)
+    if any(np.ndim(x) > 0 for x in jax.tree.leaves(scene) if x is not scene.plateau_scale) \
+            or np.ndim(scene.plateau_scale) > 1:
+        raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "
+                          "jax.vmap over jaxland.landing (see Scene.batch)")
+    if model == "auto":
+        model = choose_model(scene)
+    elif model not in MODELS:
+        raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
+    elif model == "quarter" and not is_symmetric(scene):
+        raise ConfigError("model", model, "the quarter model represents only symmetric vertical "
+                          "drops; this scene needs model='full'")
     if save_dt is None and isinstance(dt, (int, float)):
         save_dt = max(1e-4, dt)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt)
@@ -179,11 +281,13 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
                           "symplectic Euler for this vehicle (stiffest spring and strut damping "
                           "on the foot); use dt <= that")
     solver.validate()
-    traj, summary = _landing_jit(vehicle, scene, solver)
-    traj = {k: np.asarray(traj[k]) for k in _quarter.COLUMNS}
-    if bool(summary["failed"]):
-        raise SimulationError(
-            f"integration failed at t = {float(summary['failure_time_s']):.6g} s (non-finite "
-            f"state or energy ledger off by more than 10 %) with dt = {dt:.3g} s; the estimated "
-            f"stability limit is {limit:.3g} s: reduce dt")
-    return Landing(traj, _outcomes(summary, traj, vehicle, scene, solver), vehicle, scene, solver)
+    traj, summary = _landing_jit(vehicle, scene, solver, model)
+    traj = {k: np.asarray(traj[k]) for k in MODELS[model].COLUMNS}
+    _check_numerics(summary, vehicle, dt, traj)
+    outcomes = _outcomes(summary, traj, vehicle, scene, solver, model)
+    t_tip = tip_over_time(traj)
+    outcomes["tip_over_time_s"] = t_tip
+    if t_tip is not None:
+        outcomes["note"] = ("the vehicle tipped over; after tip_over_time_s the body, which has "
+                            "no ground contact of its own, is not modelled physically")
+    return Landing(traj, outcomes, vehicle, scene, solver)

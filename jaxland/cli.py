@@ -25,7 +25,12 @@ def _cmd_config(args) -> int:
 
 
 def _fmt(v, scale=1.0, unit="", nd=4):
-    return "-" if v is None else f"{v * scale:.{nd}g} {unit}".strip()
+    """A value, or a per-leg list of values, scaled and with its unit."""
+    if v is None:
+        return "-"
+    if isinstance(v, list):
+        return (" / ".join(f"{x * scale:.{nd}g}" for x in v) + f" {unit}  (per leg)").strip()
+    return f"{v * scale:.{nd}g} {unit}".strip()
 
 
 def _print_summary(o: dict) -> None:
@@ -35,16 +40,16 @@ def _print_summary(o: dict) -> None:
             f"{i['start_s']:.3f}-{'end' if i['end_s'] is None else format(i['end_s'], '.3f')}"
             for i in o["impacts"][:5]) + (" ..." if o["n_impacts"] > 5 else "")),
         ("first-impact stroke", _fmt(o["first_impact_stroke_m"], 1e3, "mm")),
-        ("max / final stroke",
-         f"{o['max_stroke_m'] * 1e3:.4g} / {o['final_stroke_m'] * 1e3:.4g} mm"),
+        ("max stroke", _fmt(o["max_stroke_m"], 1e3, "mm")),
+        ("final stroke", _fmt(o["final_stroke_m"], 1e3, "mm")),
         ("secondary honeycomb engaged", str(o["secondary_honeycomb_engaged"])),
-        ("bottomed out", str(o["bottomed_out"])),
+        ("outcome", o["classification"]),
         ("peak ground normal force", _fmt(o["peak_normal_force_N"], 1e-3, "kN")),
         ("peak ground tangential force", _fmt(o["peak_tangential_force_N"], 1e-3, "kN")),
         ("peak strut (buffer) force", _fmt(o["peak_strut_force_N"], 1e-3, "kN")),
         ("peak buffer velocity", _fmt(o["peak_buffer_velocity_mps"], 1, "m/s")),
-        ("peak body / foot acceleration",
-         f"{o['peak_body_accel_mps2']:.4g} / {o['peak_foot_accel_mps2']:.4g} m/s^2"),
+        ("peak body acceleration", _fmt(o["peak_body_accel_mps2"], 1, "m/s^2")),
+        ("peak foot acceleration", _fmt(o["peak_foot_accel_mps2"], 1, "m/s^2")),
         ("foot slip distance", _fmt(o["slip_distance_m"], 1e3, "mm")),
         ("energy dissipated", _fmt(o["energy_dissipated_J"], 1, "J")),
         ("energy ledger closure", f"{o['energy_closure_max_J']:.3g} J "
@@ -55,23 +60,56 @@ def _print_summary(o: dict) -> None:
         print(f"  {name:<{width}}  {val}")
 
 
-def _cmd_simulate(args) -> int:
-    from ._config import load_vehicle, paper_vehicle, vehicle_to_toml
-    from ._scene import Scene
-    from ._simulate import simulate
+_SCENE_FLAGS = (  # CLI flag -> scene TOML key (units in the names)
+    ("drop_height", "drop_height_m"), ("sink_speed", "sink_speed_mps"),
+    ("horizontal_speed", "horizontal_speed_mps"), ("heading_deg", "heading_deg"),
+    ("roll_deg", "roll_deg"), ("pitch_deg", "pitch_deg"), ("yaw_deg", "yaw_deg"),
+    ("roll_rate_degps", "roll_rate_degps"), ("pitch_rate_degps", "pitch_rate_degps"),
+    ("yaw_rate_degps", "yaw_rate_degps"), ("slope_deg", "slope_deg"),
+    ("slope_direction_deg", "slope_direction_deg"), ("friction", "friction"),
+    ("plateau_scale", "plateau_scale"),
+)
 
-    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+
+def _scene_from_args(args):
+    import tomllib
+
+    from ._scene import scene_from_dict
+
+    table = {}
+    if args.scene:
+        try:
+            with open(args.scene, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise ConfigError("--scene", args.scene, "file does not exist") from None
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError("--scene", args.scene, f"is not valid TOML: {err}") from None
+        table = dict(data.get("scene", data))
+    for flag, key in _SCENE_FLAGS:
+        val = getattr(args, flag)
+        if val is not None:
+            table[key] = val
     if args.touchdown_speed is not None:
         if args.drop_height is not None or args.sink_speed is not None:
             raise ConfigError("--touchdown-speed", args.touchdown_speed,
                               "give either --touchdown-speed or --drop-height/--sink-speed")
-        scene = Scene.from_touchdown_speed(args.touchdown_speed)
-    else:
-        scene = Scene(drop_height=0.2 if args.drop_height is None else args.drop_height,
-                      sink_speed=0.0 if args.sink_speed is None else args.sink_speed)
-    result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt)
+        table["drop_height_m"], table["sink_speed_mps"] = 0.0, args.touchdown_speed
+    return scene_from_dict(table)
+
+
+def _cmd_simulate(args) -> int:
+    from ._config import load_vehicle, paper_vehicle, vehicle_to_toml
+    from ._simulate import simulate
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError("--out", str(out), "exists and is not a folder")
+    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    scene = _scene_from_args(args)
+    result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
+                      model=args.model)
+    model = result.outcomes["model"]
     out.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
     try:  # write everything into a staging folder, then move it into place
@@ -79,12 +117,18 @@ def _cmd_simulate(args) -> int:
         result.to_json(staging / "summary.json")
         (staging / "vehicle.toml").write_text(vehicle_to_toml(vehicle))
         if not args.no_plots:
-            from ._plots import plot_landing
+            if model == "quarter":
+                from ._plots import plot_landing
 
-            hc = vehicle.honeycomb
-            bps = {f"x_L{i}": float(getattr(hc, f"x_L{i}")) for i in (1, 2, 3, 4)}
-            plot_landing(result.trajectory, result.outcomes, staging / "figures",
-                         breakpoints_m=bps)
+                hc = vehicle.honeycomb
+                bps = {f"x_L{i}": float(getattr(hc, f"x_L{i}")) for i in (1, 2, 3, 4)}
+                plot_landing(result.trajectory, result.outcomes, staging / "figures",
+                             breakpoints_m=bps)
+            else:
+                from ._plots3d import plot_landing_3d
+
+                plot_landing_3d(result.trajectory, result.outcomes, staging / "figures",
+                                vehicle=vehicle, scene=scene)
         for path in sorted(staging.rglob("*")):
             if path.is_file():
                 dest = out / path.relative_to(staging)
@@ -92,7 +136,7 @@ def _cmd_simulate(args) -> int:
                 path.replace(dest)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    print(f"jaxland simulate: quarter model, drop {float(scene.drop_height):g} m, "
+    print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
           f"sink {float(scene.sink_speed):g} m/s, dt {args.dt:g} s, {args.t_end:g} s")
     _print_summary(result.outcomes)
     print(f"wrote {out}/trajectory.csv, summary.json, vehicle.toml"
@@ -119,10 +163,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="simulate one landing, write CSV, summary and figures")
     s.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
-    s.add_argument("--drop-height", type=float, help="foot clearance at release [m] (default 0.2)")
+    s.add_argument("--scene", help="scene TOML ([scene] table, keys as the flags below with "
+                                   "their units, e.g. roll_deg = 3); flags override it")
+    s.add_argument("--model", default="auto", choices=("auto", "quarter", "full"),
+                   help="auto (default): the smallest model that represents the scene exactly")
+    s.add_argument("--drop-height", type=float,
+                   help="clearance of the lowest foot at release [m] (default 0.2)")
     s.add_argument("--sink-speed", type=float, help="downward speed at release [m/s] (default 0)")
     s.add_argument("--touchdown-speed", type=float,
                    help="start at touchdown with this downward speed [m/s]")
+    s.add_argument("--horizontal-speed", type=float, help="horizontal speed [m/s]")
+    s.add_argument("--heading-deg", type=float, help="direction of the horizontal speed [deg]")
+    for ax in ("roll", "pitch", "yaw"):
+        s.add_argument(f"--{ax}-deg", type=float, help=f"body {ax} at release [deg]")
+        s.add_argument(f"--{ax}-rate-degps", type=float, help=f"body {ax} rate [deg/s]")
+    s.add_argument("--slope-deg", type=float, help="ground slope [deg]")
+    s.add_argument("--slope-direction-deg", type=float, help="downhill direction [deg]")
+    s.add_argument("--friction", type=float, help="foot-ground friction mu (overrides config)")
+    s.add_argument("--plateau-scale", type=float, nargs="+",
+                   help="honeycomb plateau-force scale per leg (scatter), one value per leg")
     s.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
     s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
     s.add_argument("--save-dt", type=float, default=None,

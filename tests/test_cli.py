@@ -46,7 +46,7 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["--drop-height", "-1"], "scene.drop_height = -1.0"),
+    (["--drop-height", "-1"], "scene.drop_height_m = -1.0"),
     (["--touchdown-speed", "2", "--drop-height", "0.1"], "give either"),
     (["--dt", "1e-3"], "stability limit"),
 ])

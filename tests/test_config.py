@@ -61,7 +61,13 @@ BAD = [
     ({"ground": {"friction": 0.5}}, "ground.friction", "0.5", "unknown key"),
     ({"wheels": {"n": 3}}, "wheels", "", "unknown section"),
     ({"ground": {"mu": "high"}}, "ground.mu", "high", "must be a number"),
-    ({"body": {"n_legs": 2}}, "body.n_legs", "2", ">= 3"),
+    ({"body": {"n_legs": 2}}, "body.n_legs", "2", "[3, 12]"),
+    ({"body": {"n_legs": 1000}}, "body.n_legs", "1000", "[3, 12]"),
+    ({"honeycomb": {"k_b1_N_per_m": 0.0}}, "honeycomb.k_b1_N_per_m", "0.0", "> 0"),
+    ({"ground": {"k_tan_N_per_m": -5.0}}, "ground.k_tan_N_per_m", "-5.0", "> 0"),
+    ({"honeycomb": {"x_L4_mm": 5000.0}}, "honeycomb.x_L4_mm", "5000", "shorter than the main"),
+    ({"honeycomb": {"cells": 5}}, "honeycomb.cells", "5", "must be a table"),
+    ({"ground": {"k_N_per_m": 10**400}}, "ground.k_N_per_m", "", "too large"),
 ]
 
 
@@ -87,6 +93,8 @@ def test_bad_toml_file(tmp_path):
     (dict(drop_height=-0.1), "scene.drop_height"),
     (dict(drop_height=float("nan")), "scene.drop_height"),
     (dict(sink_speed=-1.0), "scene.sink_speed"),
+    (dict(sink_speed=float("inf")), "scene.sink_speed"),
+    (dict(drop_height=60.0), "scene.drop_height"),
 ])
 def test_bad_scene_is_refused(kwargs, field):
     with pytest.raises(jl.ConfigError, match=field.replace(".", r"\.")):
@@ -98,6 +106,12 @@ def test_bad_solver_is_refused():
         jl.simulate(dt=-1e-5)
     with pytest.raises(jl.ConfigError, match=r"solver\.save_dt"):
         jl.simulate(dt=1e-5, save_dt=1e-6)
+    with pytest.raises(jl.ConfigError, match=r"solver\.save_dt.*<= t_end"):
+        jl.simulate(t_end=0.01, save_dt=1.0)
+    with pytest.raises(jl.ConfigError, match="whole multiple of dt"):
+        jl.simulate(dt=1e-5, t_end=0.01, save_dt=3.5e-5)
+    with pytest.raises(jl.ConfigError, match="one scene"):
+        jl.simulate(jl.Scene.batch(drop_height=[0.1, 0.2]))
     limit = float(jl.stable_step(jl.paper_vehicle()))
     with pytest.raises(jl.ConfigError, match="stability limit") as err:
         jl.simulate(dt=2 * limit, save_dt=10 * limit)

@@ -2,11 +2,13 @@
 central finite differences; no NaN gradients over the documented drop-height envelope.
 
 Where AD and FD agree: on the first impact (foot in continuous contact), for D_b, k_b1, F1, F2
-and also k and gamma, to ~1e-6 relative. Where they do not: on records that include lift-off and
+to <= 3e-5 relative (h = 1e-6). k and gamma are kinked there at ~1e-6 relative spacing: FD
+converges to AD only for h ~ 1e-7. Where they do not: on records that include lift-off and
 re-contact (the paper's drop after ~0.37 s) the discrete map has dense kinks (contact on/off at
 step boundaries) and the loss is exact-but-jagged below ~1e-5 relative parameter change, so FD
-secants and the AD slope of the local smooth piece differ for every parameter (measured in
-benchmarks/gradient_scan.py). Curing that is the integrators issue's work.
+secants and the AD slope of the local smooth piece differ for every parameter (a 1-D scan of
+the loss in D_b at 1e-7 steps showed local slopes varying by over an order of magnitude, and
+not around the AD slope). Curing that is the integrators issue's work.
 """
 
 import equinox as eqx
@@ -35,7 +37,7 @@ def _vehicle(theta):
 
 
 def _trace_loss(theta, scene, ref):
-    tr, _ = jl.landing(_vehicle(theta), scene, SOLVER)
+    tr, _ = jl.landing(_vehicle(theta), scene, SOLVER, "quarter")
     return (jnp.mean((tr["stroke_m"] - ref["stroke_m"]) ** 2) / 1e-3**2
             + jnp.mean((tr["strut_force_N"] - ref["strut_force_N"]) ** 2) / 1e3**2)
 
@@ -48,23 +50,40 @@ def setup():
     return scene, ref, loss
 
 
+def _fd(loss, i, h):
+    e = jnp.zeros(6).at[i].set(h)
+    return (float(loss(e)) - float(loss(-e))) / (2 * h)
+
+
 def test_grad_and_jacfwd_match_central_differences(setup):
+    """D_b, k_b1, F1, F2: AD = central FD to 1e-4 (h = 1e-6, measured agreement <= 3e-5)."""
     scene, ref, loss = setup
     th0 = jnp.zeros(6)
     g_rev = jax.jit(jax.grad(lambda th: _trace_loss(th, scene, ref)))(th0)
     g_fwd = jax.jit(jax.jacfwd(lambda th: _trace_loss(th, scene, ref)))(th0)
     np.testing.assert_allclose(g_rev, g_fwd, rtol=1e-9)
-    h = 1e-5
-    for i, name in enumerate(NAMES):
-        e = th0.at[i].set(h)
-        fd = (float(loss(th0 + e)) - float(loss(th0 - e))) / (2 * h)
+    for i, name in enumerate(NAMES[:4]):
+        fd = _fd(loss, i, 1e-6)
         assert abs(float(g_rev[i]) - fd) <= 1e-4 * abs(fd), (name, float(g_rev[i]), fd)
+
+
+def test_k_and_gamma_are_exact_but_kinked(setup):
+    """k and gamma: even in the first impact the discrete map has kinks ~1e-6 apart in relative
+    parameter (contact and stick/slip switches landing on step boundaries), so FD secants at
+    h = 1e-5 miss the AD slope by ~1 %; they converge to it as h shrinks (<= 2e-4 at h = 1e-7).
+    AD is the exact derivative of the local smooth piece; smoothing is the integrators issue."""
+    scene, ref, loss = setup
+    g = jax.jit(jax.grad(lambda th: _trace_loss(th, scene, ref)))(jnp.zeros(6))
+    for i in (4, 5):
+        errs = [abs(_fd(loss, i, h) - float(g[i])) / abs(float(g[i])) for h in (1e-5, 1e-7)]
+        assert errs[1] < 1e-3, (NAMES[i], errs)
+        assert errs[1] < errs[0], (NAMES[i], errs)
 
 
 def test_vmap_of_grad_equals_grad_per_scene_and_grad_of_vmap(setup):
     _, ref, _ = setup
     speeds = jnp.array([1.6, 2.0, 2.4])
-    scenes = jl.Scene(drop_height=jnp.zeros(3), sink_speed=speeds)
+    scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
     th0 = jnp.full(6, 0.01)
     gfun = jax.grad(_trace_loss)
     batched = jax.jit(jax.vmap(gfun, in_axes=(None, 0, None)))(th0, scenes, ref)
@@ -83,7 +102,7 @@ def test_no_nan_gradients_over_the_drop_height_envelope():
     solver = jl.Solver(dt=1e-5, t_end=0.6, save_dt=1e-3)
 
     def outcome(theta, h):
-        _, s = jl.landing(_vehicle(theta), jl.Scene(drop_height=h, sink_speed=0.0), solver)
+        _, s = jl.landing(_vehicle(theta), jl.Scene(drop_height=h), solver, "quarter")
         return (s["max_stroke_m"] * 1e3 + s["final_stroke_m"] * 1e3
                 + s["peak_normal_force_N"] * 1e-3 + s["peak_strut_force_N"] * 1e-3)
 

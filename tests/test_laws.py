@@ -100,6 +100,11 @@ def test_structural_damping_law_and_power():
         expected = F_bh * max(1.0 + D_b * v_b, 0.0)  # F_bh + D_b v_b F_bh, never pulling
         np.testing.assert_allclose(float(out.force), expected)
         assert float(out.damping_power) >= 0.0
+    # a bonded honeycomb in tension is damped on |F_bh|: the damping never feeds energy in
+    for v_b in (-2.0, -0.5, 0.5, 2.0):
+        out = laws.strut_force(-2000.0, 0.01, v_b, D_b, 1e7)
+        np.testing.assert_allclose(float(out.force), -2000.0 + D_b * v_b * 2000.0)
+        assert float(out.damping_power) >= 0.0
     top = laws.strut_force(0.0, -1e-3, 0.0, D_b, 1e7)
     np.testing.assert_allclose(float(top.force), -1e4)
     np.testing.assert_allclose(float(top.topout_energy), 0.5 * 1e7 * 1e-6)
@@ -184,6 +189,7 @@ def test_tangential_stick_and_slip_3d():
     air = laws.tangential_contact(tuple(big), anchor, 0.0, GR)
     np.testing.assert_allclose(np.array(air.force), 0.0)
     np.testing.assert_allclose(np.array(air.anchor), big)  # off the ground it follows the foot
+    assert float(air.slip) == 0.0 and not bool(air.slipping)  # ...and that is not slip
 
 
 # ---------------------------------------------------------------------------- gradient safety

@@ -103,14 +103,14 @@ def test_paper_drop_reproduces_calibrated_targets(paper_landing):
 def test_vmap_over_drop_heights_matches_single_runs():
     solver = jl.Solver(dt=1e-5, t_end=0.45, save_dt=1e-3)
     heights = np.array([0.05, 0.2, 0.35])
-    batched = jax.jit(jax.vmap(lambda s: jl.landing(VEH, s, solver)[1]))(
-        jl.Scene(drop_height=heights, sink_speed=np.zeros(3)))
-    single = jax.jit(lambda s: jl.landing(VEH, s, solver)[1])
+    batched = jax.jit(jax.vmap(lambda s: jl.landing(VEH, s, solver, "quarter")[1]))(
+        jl.Scene.batch(drop_height=heights))
+    single = jax.jit(lambda s: jl.landing(VEH, s, solver, "quarter")[1])
     for i, h in enumerate(heights):
         one = single(jl.Scene(drop_height=h))
-        np.testing.assert_allclose(batched["max_stroke_m"][i], one["max_stroke_m"], rtol=1e-12)
+        np.testing.assert_allclose(batched["max_stroke_m"][i], one["max_stroke_m"], rtol=1e-10)
         np.testing.assert_allclose(batched["peak_normal_force_N"][i], one["peak_normal_force_N"],
-                                   rtol=1e-12)
+                                   rtol=1e-10)  # batched and single compilations reassociate
     assert np.all(np.diff(np.asarray(batched["max_stroke_m"])) > 0)  # higher drop, more stroke
 
 
@@ -118,11 +118,25 @@ def test_blow_up_is_detected_not_returned(monkeypatch):
     """Above the stability limit the core flags the failure; simulate raises, naming dt."""
     limit = float(jl.stable_step(VEH))
     solver = jl.Solver(dt=3 * limit, t_end=0.3, save_dt=3 * limit)
-    _, summary = jax.jit(jl.landing, static_argnums=2)(VEH, jl.Scene(), solver)
+    _, summary = jax.jit(jl.landing, static_argnums=(2, 3))(VEH, jl.Scene(), solver, "quarter")
     assert bool(summary["failed"])
-    monkeypatch.setattr(_simulate, "stable_step", lambda v: 1.0)
-    with pytest.raises(jl.SimulationError, match="reduce dt"):
+    monkeypatch.setattr(_simulate, "stable_step", lambda v, **kw: 1.0)
+    with pytest.raises(jl.SimulationError, match="rerun with dt"):
         jl.simulate(dt=3 * limit, t_end=0.3, save_dt=3 * limit)
+
+
+def test_bottoming_landing_needs_a_smaller_step_and_says_so():
+    """A 14 m/s touchdown bottoms the honeycomb out: forces ~200 kN make the strut damping and
+    the bottoming stiffness far stiffer than the a-priori limit assumes. At the default step the
+    failure is detected and the message gives the limit of the forces reached; at that step the
+    landing runs, closes its ledger and reports bottoming out."""
+    scene = jl.Scene.from_touchdown_speed(14.0)
+    with pytest.raises(jl.SimulationError, match=r"bottomed out, which limits dt to") as err:
+        jl.simulate(scene, dt=1e-5, t_end=0.1)
+    assert "rerun with dt <=" in str(err.value)
+    res = jl.simulate(scene, dt=2e-6, t_end=0.1, save_dt=1e-4)
+    assert res.outcomes["bottomed_out"] and res.outcomes["classification"] == "bottomed_out"
+    assert res.outcomes["energy_closure_rel"] < 1e-3
 
 
 def test_just_inside_the_stability_limit_is_accurate(first_impact):

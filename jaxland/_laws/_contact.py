@@ -89,11 +89,12 @@ def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground) -> Tan
     slipping = ground.k_tan * n > limit
     scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(slipping, n, 1.0)), 1.0)
     ux, uy = ux * scale, uy * scale
-    slip = n * (1.0 - scale)
+    in_contact = normal_force > 0.0
+    slip = jnp.where(in_contact, n * (1.0 - scale), 0.0)  # off the ground it is not slip
     return TangentialOut(
         force=(-ground.k_tan * ux, -ground.k_tan * uy),
         anchor=(foot_t[0] - ux, foot_t[1] - uy),
-        slipping=slipping & (normal_force > 0.0),
+        slipping=slipping & in_contact,
         slip=slip,
         elastic_energy=0.5 * ground.k_tan * (ux * ux + uy * uy),
         slip_energy=ground.k_tan * n * scale * slip,

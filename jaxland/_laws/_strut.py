@@ -1,9 +1,10 @@
 """Main-strut axial force: honeycomb with structural damping, plus the top-out stop.
 
-Structural damping (paper section 3.1): F_bd = D_b v_b F_bh, so the strut carries
-F_bh (1 + D_b v_b), with v_b the stroke rate (compression positive). The factor is floored at 0
-so the damping never turns the honeycomb into a puller on fast extension. Its dissipated power is
-F_bd v_b >= 0 in both regimes.
+Structural damping (paper section 3.1): F_bd = D_b v_b |F_bh|, so a compressed strut carries
+F_bh (1 + D_b v_b), with v_b the stroke rate (compression positive). For F_bh >= 0 the total is
+floored at 0 so the damping never turns the honeycomb into a puller on fast extension; a bonded
+honeycomb in tension (F_bh < 0) is damped by the same law on |F_bh|. The dissipated power
+(F - F_bh) v_b is >= 0 in every regime.
 
 Top-out stop (our assumption): the strut cannot extend beyond its rest length; for stroke x < 0 a
 stiff elastic stop pulls the foot back with k_topout x.
@@ -26,8 +27,9 @@ class StrutOut(eqx.Module):
 def strut_force(F_bh, x, v_b, D_b, k_topout) -> StrutOut:
     """Axial force of the main strut [N] from the honeycomb force ``F_bh`` [N], stroke ``x``
     [m], stroke rate ``v_b`` [m/s], structural damping ``D_b`` [s/m] and top-out stiffness."""
-    factor = jnp.maximum(1.0 + D_b * v_b, 0.0)
-    f_damp = F_bh * (factor - 1.0)
+    f_raw = F_bh + D_b * v_b * jnp.abs(F_bh)
+    f_total = jnp.where(F_bh >= 0.0, jnp.maximum(f_raw, 0.0), f_raw)
+    f_damp = f_total - F_bh
     x_ext = jnp.minimum(x, 0.0)
     f_top = k_topout * x_ext
     return StrutOut(
