@@ -21,11 +21,17 @@ from ._errors import (
 )
 from ._integrate import Solver as Solver, stable_step as stable_step
 from ._params import Ground as Ground, Honeycomb as Honeycomb, Leg as Leg, Vehicle as Vehicle
-from ._scene import Scene as Scene, load_scene as load_scene, scene_from_dict as scene_from_dict
+from ._scene import (
+    Scene as Scene,
+    batch_axes as batch_axes,
+    load_scene as load_scene,
+    scene_from_dict as scene_from_dict,
+)
 from ._simulate import (
     Landing as Landing,
     choose_model as choose_model,
     landing as landing,
+    landings as landings,
     simulate as simulate,
 )
 
@@ -33,6 +39,6 @@ __all__ = [
     "laws", "load_vehicle", "paper_vehicle", "validate_vehicle", "vehicle_from_dict",
     "vehicle_to_toml", "plateau_force", "ConfigError", "JaxlandError", "SimulationError",
     "Solver", "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "load_scene",
-    "scene_from_dict", "Landing", "choose_model", "landing", "simulate",
+    "scene_from_dict", "Landing", "choose_model", "landing", "landings", "simulate", "batch_axes",
 ]
 __version__ = "0.1.0"

@@ -7,12 +7,12 @@ point) by return maps; then v_{n+1} = v_n + dt M^-1 f, q_{n+1} = q_n + dt v_{n+1
 order, explicit, and its stability limit is set by the stiffest spring and the strut damping on
 the 1 kg foot (``stable_step``).
 
-A model is any namespace with ``initial_state``, ``evaluate`` (generalised accelerations at a
-state, with the memories advanced), ``drift`` (positions from the new velocities: plain
-q + dt v, or a rotation update for an attitude), ``energy_scale``, ``accel_record``,
-``peak_values``, ``contact_flag``, ``apply_scene``, ``final_summary``, ``RATE_CHANNELS``
-and ``COLUMNS``
-(see ``jaxland._quarter`` and ``jaxland._vehicle3d``).
+A model is any namespace with ``initial_state``, ``prepare`` (parameter-derived numbers,
+computed once before the loop), ``evaluate`` (generalised accelerations at a state, with the
+memories advanced), ``drift`` (positions from the new velocities: plain q + dt v, or a rotation
+update for an attitude), ``energy_scale``, ``apply_scene``, ``accel_record``, ``peak_values``,
+``contact_flag``, ``final_summary``, ``RATE_CHANNELS`` and ``COLUMNS`` (see
+``jaxland._quarter`` and ``jaxland._vehicle3d``).
 """
 
 from __future__ import annotations
@@ -115,15 +115,16 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     """
     dt = solver.dt
     vehicle = model.apply_scene(vehicle, scene)  # scene-level friction and honeycomb scatter
+    derived = model.prepare(vehicle, scene)  # parameter-derived numbers, once, outside the loop
     s0 = model.initial_state(vehicle, scene)
-    acc0, _, rec0, _, en0 = model.evaluate(vehicle, s0, scene)
+    acc0, _, rec0, _, en0 = model.evaluate(vehicle, s0, scene, derived)
     e0 = sum(en0.values()) + jnp.sum(s0.diss_rate)
     e_scale = model.energy_scale(vehicle, scene)
     peaks0 = jax.tree.map(lambda x: jnp.full_like(x, -jnp.inf), model.peak_values(rec0, acc0))
 
     def step(carry, _):
         s, peaks, ev_t, ev_n, prev_c, res_max, fail_t = carry
-        acc, s_m, rec, power, energy = model.evaluate(vehicle, s, scene)
+        acc, s_m, rec, power, energy = model.evaluate(vehicle, s, scene, derived)
         residual = sum(energy.values()) + jnp.sum(s.diss_rate) - e0
         peaks = jax.tree.map(jnp.maximum, peaks, model.peak_values(rec, acc))
         contact = model.contact_flag(rec)
@@ -146,7 +147,7 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
 
     def save_block(carry, _):
         s = carry[0]
-        acc, _, rec, _, energy = model.evaluate(vehicle, s, scene)
+        acc, _, rec, _, energy = model.evaluate(vehicle, s, scene, derived)
         out = dict(time_s=s.t, **rec, **model.accel_record(acc))
         for i, name in enumerate(model.RATE_CHANNELS):
             out[name] = s.diss_rate[i]
@@ -160,7 +161,7 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     )
     carry, traj = jax.lax.scan(save_block, carry0, None, length=solver.n_saves)
     s_end, peaks, ev_t, ev_n, _, res_max, fail_t = carry
-    _, _, rec_end, _, en_end = model.evaluate(vehicle, s_end, scene)
+    _, _, rec_end, _, en_end = model.evaluate(vehicle, s_end, scene, derived)
     dissipated = sum(v for k, v in en_end.items() if k.startswith("diss_"))
     dissipated = dissipated + jnp.sum(s_end.diss_rate)
     summary = dict(

@@ -85,10 +85,32 @@ class Honeycomb(eqx.Module):
         """Stroke at the end of the primary elastic stage, F1 / k_b1 [m]."""
         return self.F1 / self.k_b1
 
+    def curve(self) -> HoneycombCurve:
+        """The force law's numbers with the derived breakpoints evaluated once (do this outside
+        a time loop: XLA does not hoist the divisions out of it)."""
+        return HoneycombCurve(k_b1=self.k_b1, k_b3=self.k_b3, k_bottom=self.k_bottom,
+                              F1=self.F1, F2=self.F2, x_L1=self.x_L1, x_L2=self.x_L2,
+                              x_L3=self.x_L3, x_L4=self.x_L4, bonded=self.bonded)
+
     @property
     def x_L3(self):
         """Stroke at the end of the secondary elastic stage, x_L2 + (F2 - F1) / k_b3 [m]."""
         return self.x_L2 + (self.F2 - self.F1) / self.k_b3
+
+
+class HoneycombCurve(eqx.Module):
+    """``Honeycomb`` with its breakpoints evaluated: what the force law reads at every step."""
+
+    k_b1: jnp.ndarray
+    k_b3: jnp.ndarray
+    k_bottom: jnp.ndarray
+    F1: jnp.ndarray
+    F2: jnp.ndarray
+    x_L1: jnp.ndarray
+    x_L2: jnp.ndarray
+    x_L3: jnp.ndarray
+    x_L4: jnp.ndarray
+    bonded: bool = eqx.field(static=True, default=False)
 
 
 class Leg(eqx.Module):

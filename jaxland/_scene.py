@@ -18,7 +18,7 @@ import numpy as np
 
 from ._errors import ConfigError
 
-__all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric"]
+__all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric", "batch_axes"]
 
 
 def _f64(x):
@@ -60,7 +60,8 @@ class Scene(eqx.Module):
     """Touchdown conditions of one landing (see ``SCENE_FIELDS`` for units and limits).
 
     ``Scene()`` is the paper's symmetric 0.2 m drop. ``friction`` overrides the vehicle's mu
-    when given; ``plateau_scale`` scales both plateau forces of each leg (honeycomb scatter).
+    when given; ``plateau_scale`` (one entry per leg) scales both plateau forces of each leg
+    (honeycomb scatter) when given.
     """
 
     drop_height: jnp.ndarray = eqx.field(converter=_f64, default=0.2)
@@ -76,7 +77,9 @@ class Scene(eqx.Module):
     slope: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
     slope_direction: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
     friction: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
-    plateau_scale: jnp.ndarray = eqx.field(converter=_f64, default=(1.0, 1.0, 1.0, 1.0))
+    # None (the default) means no scatter: static, so the honeycomb stays a compile-time constant
+    # of the loop (runtime-valued parameters make XLA's CPU loop several times slower).
+    plateau_scale: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
 
     @classmethod
     def from_touchdown_speed(cls, speed_mps: float, **kwargs) -> Scene:
@@ -85,27 +88,24 @@ class Scene(eqx.Module):
 
     @classmethod
     def batch(cls, **fields) -> Scene:
-        """A batch of scenes for ``jax.vmap``: each given field is an array over the batch (or a
-        scalar, broadcast); every other field takes its default, broadcast to the batch size.
-        ``plateau_scale`` takes shape (batch, n_legs)."""
+        """A batch of scenes: each given field an array over the batch (scalars broadcast to it);
+        every other field keeps its single default value. ``plateau_scale`` takes shape
+        (batch, n_legs). Run it with ``jaxland.landings`` or ``jax.vmap(..., in_axes=
+        (batch_axes(batch),))``: fields left out stay unbatched, which keeps them compile-time
+        constants (batched honeycomb parameters cost ~3x on CPU)."""
         sizes = {np.shape(v)[0] for k, v in fields.items()
-                 if k != "plateau_scale" and v is not None and np.ndim(v) > 0}
-        sizes |= {np.shape(fields["plateau_scale"])[0]} if np.ndim(
-            fields.get("plateau_scale", 0)) == 2 else set()
+                 if v is not None and np.ndim(v) > (1 if k == "plateau_scale" else 0)}
         if len(sizes) != 1:
             raise ConfigError("Scene.batch", sorted(sizes),
                               "give at least one batched field, all of the same length")
         (n,) = sizes
-        one = cls(**{k: v for k, v in fields.items() if np.ndim(v) == 0 or (
-            k == "plateau_scale" and np.ndim(v) == 1)})
         out = {}
-        for name in one.__dataclass_fields__:
-            val = fields.get(name, getattr(one, name))
+        for name, val in fields.items():
             if val is None:
                 out[name] = None
             elif name == "plateau_scale":
-                out[name] = jnp.broadcast_to(jnp.asarray(val, jnp.float64),
-                                             (n, jnp.shape(one.plateau_scale)[-1]))
+                val = jnp.asarray(val, jnp.float64)
+                out[name] = jnp.broadcast_to(val, (n, val.shape[-1]))
             else:
                 out[name] = jnp.broadcast_to(jnp.asarray(val, jnp.float64), (n,))
         return cls(**out)
@@ -141,6 +141,26 @@ class Scene(eqx.Module):
         return self
 
 
+def batch_axes(scene: Scene) -> Scene:
+    """``in_axes`` for ``jax.vmap`` over a batch from ``Scene.batch``: 0 for the batched fields,
+    None for the rest."""
+    def axis(name, val):
+        if val is None:
+            return None
+        base = 1 if name == "plateau_scale" else 0
+        return 0 if np.ndim(val) > base else None
+
+    return _axes_scene(
+        {name: axis(name, getattr(scene, name)) for name in scene.__dataclass_fields__})
+
+
+def _axes_scene(axes: dict) -> Scene:
+    obj = object.__new__(Scene)
+    for name, val in axes.items():
+        object.__setattr__(obj, name, val)
+    return obj
+
+
 def _concrete(x):
     if x is None:
         return None
@@ -158,6 +178,8 @@ def is_symmetric(scene: Scene) -> bool:
                  "slope"):
         if np.any(np.asarray(getattr(scene, name)) != 0.0):
             return False
+    if scene.plateau_scale is None:
+        return True
     ps = np.asarray(scene.plateau_scale)
     return bool(np.all(ps == ps[..., :1]))
 

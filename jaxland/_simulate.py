@@ -24,9 +24,10 @@ from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
 from ._integrate import Solver, integrate, stable_step
 from ._params import Vehicle
-from ._scene import Scene, is_symmetric
+from ._scene import Scene, batch_axes, is_symmetric
 
-__all__ = ["landing", "simulate", "Landing", "impacts_from_events", "choose_model", "MODELS"]
+__all__ = ["landing", "landings", "simulate", "Landing", "impacts_from_events", "choose_model",
+           "MODELS"]
 
 MODELS = {"quarter": _quarter, "full": _vehicle3d}
 
@@ -53,6 +54,15 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(), model: st
     if model not in MODELS:
         raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
     return integrate(MODELS[model], vehicle, scene, solver)
+
+
+def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(), model: str = "auto"):
+    """``landing`` vmapped over a ``Scene.batch``: every output gains a leading batch axis.
+    Only the batched fields are mapped; the rest stay constants of the compiled loop."""
+    if model == "auto":
+        model = choose_model(scenes)
+    return jax.vmap(lambda s: landing(vehicle, s, solver, model),
+                    in_axes=(batch_axes(scenes),))(scenes)
 
 
 @functools.partial(jax.jit, static_argnums=(2, 3))
@@ -260,7 +270,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     vehicle = paper_vehicle() if vehicle is None else vehicle
     validate_vehicle(vehicle)
     scene.validate(vehicle.n_legs)
-    if any(np.ndim(x) > 0 for x in jax.tree.leaves(scene) if x is not scene.plateau_scale) \
+    if any(np.ndim(getattr(scene, k)) > 0 for k in scene.__dataclass_fields__
+           if k != "plateau_scale" and getattr(scene, k) is not None) \
             or np.ndim(scene.plateau_scale) > 1:
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "
                           "jax.vmap over jaxland.landing (see Scene.batch)")

@@ -141,9 +141,10 @@ def _inertia(vehicle: Vehicle):
 
 def apply_scene(vehicle: Vehicle, scene: Scene) -> Vehicle:
     """Scene-level friction override and per-leg honeycomb plateau scatter ((n,) F1, F2)."""
-    hc = vehicle.honeycomb
-    vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
-                          (hc.F1 * scene.plateau_scale, hc.F2 * scene.plateau_scale))
+    if scene.plateau_scale is not None:
+        hc = vehicle.honeycomb
+        vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
+                              (hc.F1 * scene.plateau_scale, hc.F2 * scene.plateau_scale))
     if scene.friction is not None:
         vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
     return vehicle
@@ -173,6 +174,15 @@ def initial_state(vehicle: Vehicle, scene: Scene) -> Vehicle3DState:
     )
 
 
+def prepare(vehicle: Vehicle, scene: Scene) -> dict:
+    """Parameter- and scene-derived numbers the step reads, computed once outside the loop."""
+    gr = vehicle.ground
+    P_b, Ap_b, Am_b, _ = leg_geometry(vehicle)
+    return dict(curve=vehicle.honeycomb.curve(), k_r=gr.k / (1.0 - gr.gamma),
+                L_a0_pair=vehicle.leg.L_a0_pair, geometry=(P_b, Ap_b, Am_b),
+                ground=ground_frame(scene), inertia=_inertia(vehicle))
+
+
 def energy_scale(vehicle: Vehicle, scene: Scene):
     m = vehicle.m_body + vehicle.n_legs * vehicle.m_foot
     w = jnp.stack([scene.roll_rate, scene.pitch_rate, scene.yaw_rate])
@@ -189,11 +199,12 @@ def drift(q, v, dt):
     return (p + dt * vb, quat, feet + dt * vf)
 
 
-def stability_margin(com, feet, scene: Scene):
+def stability_margin(com, feet, frame):
     """Signed distance [m] of the centre of mass, projected along gravity onto the ground plane,
     from the edges of the feet's polygon (legs in azimuth order), positive inside; a soft-min
-    over edges (width MARGIN_SOFTNESS_M), so it is smooth for optimisation."""
-    n_g, t1, t2 = ground_frame(scene)
+    over edges (width MARGIN_SOFTNESS_M), so it is smooth for optimisation. ``frame`` is
+    ``ground_frame(scene)``."""
+    n_g, t1, t2 = frame
     c = com - (com @ n_g) / n_g[2] * jnp.array([0.0, 0.0, 1.0])
     cx, cy = c @ t1, c @ t2
     fx, fy = feet @ t1, feet @ t2
@@ -205,17 +216,19 @@ def stability_margin(com, feet, scene: Scene):
     return -tau * jax.nn.logsumexp(-dist / tau)
 
 
-def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None):
+def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
+             derived: dict | None = None):
     """Accelerations at state ``s`` (see ``jaxland._quarter.evaluate`` for the contract)."""
     scene = Scene() if scene is None else scene
-    leg, hc, gr = vehicle.leg, vehicle.honeycomb, vehicle.ground
+    derived = prepare(vehicle, scene) if derived is None else derived
+    leg, hc, gr = vehicle.leg, derived["curve"], vehicle.ground
     m, m2, g = vehicle.m_body, vehicle.m_foot, vehicle.g
-    inertia = _inertia(vehicle)
+    inertia = derived["inertia"]
     p, quat, feet = s.q
     vb, w_b, vf = s.v
     Rm = quat_to_matrix(quat)
     w_w = Rm @ w_b
-    P_b, Ap_b, Am_b, _ = leg_geometry(vehicle)
+    P_b, Ap_b, Am_b = derived["geometry"]
 
     def attach(r_b):
         r = r_b @ Rm.T
@@ -236,15 +249,15 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None):
         da = feet - A
         la = _norm_rows(da)
         a = da / la[:, None]
-        ax = aux_strut(la, leg.L_a0_pair, 0.5 * leg.k_a)
+        ax = aux_strut(la, derived["L_a0_pair"], 0.5 * leg.k_a)
         fa = ax.force[:, None] * a
         aux_force_vecs = aux_force_vecs + fa
         aux_torques = aux_torques + jnp.sum(jnp.cross(rA, -fa), axis=0)
         aux_energy = aux_energy + jnp.sum(ax.elastic_energy)
         aux_axial = aux_axial + ax.force
 
-    n_g, t1, t2 = ground_frame(scene)
-    nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr)
+    n_g, t1, t2 = derived["ground"]
+    nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr, derived["k_r"])
     tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr)
     f_ground = (nc.force[:, None] * n_g[None, :] + tc.force[0][:, None] * t1[None, :]
                 + tc.force[1][:, None] * t2[None, :])
@@ -290,7 +303,7 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None):
         roll_deg=roll * deg, pitch_deg=pitch * deg, yaw_deg=yaw * deg,
         tilt_deg=jnp.arccos(jnp.clip(Rm[2, 2], -1.0, 1.0)) * deg,
         omega_x_radps=w_b[0], omega_y_radps=w_b[1], omega_z_radps=w_b[2],
-        stability_margin_m=stability_margin(p, feet, scene),
+        stability_margin_m=stability_margin(p, feet, derived["ground"]),
         angular_momentum_x_Nms=ang_mom[0], angular_momentum_y_Nms=ang_mom[1],
         angular_momentum_z_Nms=ang_mom[2],
         stroke_m=x_b, stroke_max_m=hco.x_max, buffer_velocity_mps=v_b,

@@ -70,3 +70,23 @@ def test_bench_quick_writes_json_and_plot(tmp_path):
     data = json.loads((tmp_path / "bench_landing.json").read_text())
     assert data["single"]["run_s"] > 0 and data["batched"][-1]["batch"] == 10
     assert (tmp_path / "bench_landing.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_simulate_3d_scene_from_file_and_flags(tmp_path, capsys):
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[scene]\nroll_deg = 3.0\nhorizontal_speed_mps = 0.5\nheading_deg = 30\n")
+    out = tmp_path / "run3d"
+    assert main(["simulate", "--scene", str(scene), "--pitch-deg", "-2", "--t-end", "0.35",
+                 "--out", str(out)]) == 0
+    assert "full model" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["model"] == "full" and len(summary["max_stroke_m"]) == 4
+    assert summary["classification"] == "stable"
+    header = (out / "trajectory.csv").read_text().splitlines()[0].split(",")
+    assert "leg3_stroke_m" in header and "roll_deg" in header
+    figs = sorted(p.name for p in (out / "figures").glob("*.png"))
+    assert figs == ["fig3d_attitude.png", "fig3d_body.png", "fig3d_energy.png", "fig3d_legs.png",
+                    "fig3d_views.png"]
+    assert main(["simulate", "--roll-deg", "3", "--model", "quarter", "--out",
+                 str(tmp_path / "x")]) == 2
+    assert "needs model='full'" in capsys.readouterr().err

@@ -86,12 +86,13 @@ def test_vmap_of_grad_equals_grad_per_scene_and_grad_of_vmap(setup):
     scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
     th0 = jnp.full(6, 0.01)
     gfun = jax.grad(_trace_loss)
-    batched = jax.jit(jax.vmap(gfun, in_axes=(None, 0, None)))(th0, scenes, ref)
+    axes = jl.batch_axes(scenes)
+    batched = jax.jit(jax.vmap(gfun, in_axes=(None, axes, None)))(th0, scenes, ref)
     for i, v in enumerate(speeds):
         one = jax.jit(gfun)(th0, jl.Scene.from_touchdown_speed(v), ref)
         np.testing.assert_allclose(batched[i], one, rtol=1e-10)
     summed = jax.jit(jax.grad(lambda th: jnp.sum(
-        jax.vmap(_trace_loss, in_axes=(None, 0, None))(th, scenes, ref))))(th0)
+        jax.vmap(_trace_loss, in_axes=(None, axes, None))(th, scenes, ref))))(th0)
     np.testing.assert_allclose(summed, jnp.sum(batched, axis=0), rtol=1e-10)
 
 

@@ -103,7 +103,7 @@ def test_paper_drop_reproduces_calibrated_targets(paper_landing):
 def test_vmap_over_drop_heights_matches_single_runs():
     solver = jl.Solver(dt=1e-5, t_end=0.45, save_dt=1e-3)
     heights = np.array([0.05, 0.2, 0.35])
-    batched = jax.jit(jax.vmap(lambda s: jl.landing(VEH, s, solver, "quarter")[1]))(
+    batched = jax.jit(lambda s: jl.landings(VEH, s, solver, "quarter")[1])(
         jl.Scene.batch(drop_height=heights))
     single = jax.jit(lambda s: jl.landing(VEH, s, solver, "quarter")[1])
     for i, h in enumerate(heights):

@@ -113,7 +113,7 @@ def test_tip_over_on_both_sides_of_the_rigid_body_boundary():
     solver = jl.Solver(dt=1e-5, t_end=2.0, save_dt=1e-2)
     scenes = Scene.batch(horizontal_speed=jnp.array([0.7, 1.3]) * v_crit, drop_height=0.0,
                          sink_speed=1.0, heading=np.pi / 4, friction=2.0)
-    out = jax.jit(jax.vmap(lambda s: jl.landing(VEH, s, solver, "full")[1]))(scenes)
+    out = jax.jit(lambda s: jl.landings(VEH, s, solver, "full")[1])(scenes)
     margin = -np.asarray(out["peak_margin_deficit_m"])
     assert margin[0] > 0.2 and float(out["peak_tilt_deg"][0]) < 30  # gentle: stays up
     assert margin[1] < 0.0 and float(out["peak_tilt_deg"][1]) > 60  # steep: tips over

@@ -45,11 +45,12 @@ class NormalOut(eqx.Module):
     damping_power: jnp.ndarray  # W, dissipated by contact damping (>= 0)
 
 
-def normal_contact(d, d_dot, d_max_prev, ground: Ground) -> NormalOut:
+def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None) -> NormalOut:
     """Normal ground force [N] at penetration ``d`` [m] (below the original surface) and
-    penetration rate ``d_dot`` [m/s], with memory ``d_max_prev`` [m]."""
+    penetration rate ``d_dot`` [m/s], with memory ``d_max_prev`` [m]. ``k_r`` is the
+    restitution stiffness k / (1 - gamma); pass it precomputed in a time loop."""
     d_max = jnp.maximum(d_max_prev, d)
-    k_r = ground.k / (1.0 - ground.gamma)
+    k_r = ground.k / (1.0 - ground.gamma) if k_r is None else k_r
     e = jnp.maximum(d - ground.gamma * d_max, 0.0)
     f_s = k_r * e
     factor = jnp.maximum(1.0 + ground.chi * d_dot, 0.0)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from .._params import Honeycomb
+from .._params import Honeycomb, HoneycombCurve
 
 
 class HoneycombOut(eqx.Module):
@@ -45,8 +45,9 @@ def _clip(x, lo, hi):
     return jnp.minimum(jnp.maximum(x, lo), hi)
 
 
-def honeycomb_virgin_force(x, hc: Honeycomb):
+def honeycomb_virgin_force(x, hc: Honeycomb | HoneycombCurve):
     """Virgin-curve force F_v(x) [N] at stroke x [m] (paper section 2.3), bottoming included."""
+    hc = hc.curve() if isinstance(hc, Honeycomb) else hc
     return (
         hc.k_b1 * _clip(x, 0.0, hc.x_L1)
         + hc.k_b3 * _clip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
@@ -54,11 +55,13 @@ def honeycomb_virgin_force(x, hc: Honeycomb):
     )
 
 
-def honeycomb(x, x_max_prev, hc: Honeycomb) -> HoneycombOut:
+def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve) -> HoneycombOut:
     """Honeycomb force at stroke ``x`` [m] given the largest stroke reached so far [m].
 
     Returns the force (compressive positive), the updated memory ``x_max`` and the energies.
+    In a time loop pass ``hc.curve()`` computed once outside it.
     """
+    hc = hc.curve() if isinstance(hc, Honeycomb) else hc
     x_max = jnp.maximum(x_max_prev, x)
     p1 = _clip(x_max - hc.x_L1, 0.0, hc.x_L2 - hc.x_L1)
     p2 = _clip(x_max - hc.x_L3, 0.0, hc.x_L4 - hc.x_L3)
