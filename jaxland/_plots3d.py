@@ -50,7 +50,6 @@ BODY_Z_M = (-0.5, 2.7)  # ... between these body-frame heights (centre of mass a
 STATES = (  # slip indicator value -> (name, colour)
     (1.0, "slip", "tab:red"), (0.0, "stick", "0.35"), (0.5, "in the air", "0.88"))
 GROUND = dict(color="saddlebrown")
-STROKE_FRACTION = 0.95  # the middle view of fig3d_views: see _instants
 
 
 def plot_landing_3d(trajectory: dict, outcomes: dict, out_dir, *, vehicle, scene) -> list[Path]:
@@ -261,17 +260,14 @@ def _fig_energy(fig, lnd, outcomes, geom):
 
 
 def _instants(lnd, outcomes) -> list[tuple[int, str]]:
-    """Touchdown (the first sample if none), the end of the main compression and the end. The
-    crushed honeycomb keeps its stroke and later rocking can ratchet it up a little, so the
-    absolute maximum of the total stroke often comes near the end; the middle view is the first
-    sample where the total stroke reaches ``STROKE_FRACTION`` of that maximum."""
+    """Touchdown (the first sample if none), the maximum total stroke of all legs, and the end.
+    (The crushed honeycomb keeps its stroke, so after a rocking landing the maximum can come
+    late, close to the end.)"""
     t, stroke = lnd.t, lnd.d["stroke_m"]
     t_td = outcomes.get("touchdown_time_s")
     i_td = 0 if t_td is None else min(int(np.searchsorted(t, t_td)), t.size - 1)
-    total = stroke.sum(axis=1)
-    top = total.max()
-    i_mid = int(np.argmax(total >= STROKE_FRACTION * top)) if top > 0 else int(np.argmax(total))
-    return [(i_td, "touchdown" if t_td is not None else "start"), (i_mid, "main compression"),
+    i_mid = int(np.argmax(stroke.sum(axis=1)))
+    return [(i_td, "touchdown" if t_td is not None else "start"), (i_mid, "maximum stroke"),
             (t.size - 1, "end")]
 
 
@@ -295,9 +291,8 @@ def _fig_views(fig, lnd, outcomes, geom):
     poses = [_pose(lnd, geom, k) for k in range(len(instants))]
     views = (("side view", 0, 2, 1, +1), ("front view", 1, 2, 0, -1))  # h, v, depth axis, sign
     top = lnd.d["stroke_m"].sum(axis=1).max() * MM
-    fig.suptitle("3-D landing: the vehicle in orthographic views (world frame)\nmain "
-                 f"compression = first instant the total stroke of all legs reaches "
-                 f"{STROKE_FRACTION:.0%} of its maximum ({top:.0f} mm)", fontsize="large")
+    fig.suptitle("3-D landing: the vehicle in orthographic views (world frame) at touchdown, "
+                 f"maximum total stroke of all legs ({top:.0f} mm) and end", fontsize="large")
     ax = fig.subplots(2, len(instants), squeeze=False)
     for row, (view, h, v, depth, sign) in enumerate(views):
         lims = _view_limits(poses, h, v, geom, depth)
