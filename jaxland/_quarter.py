@@ -80,6 +80,8 @@ def apply_scene(vehicle: Vehicle, scene: Scene) -> Vehicle:
                               (hc.F1 * scale, hc.F2 * scale))
     if scene.friction is not None:
         vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
+    if scene.mass_scale is not None:
+        vehicle = eqx.tree_at(lambda v: v.m_body, vehicle, vehicle.m_body * scene.mass_scale)
     return vehicle
 
 

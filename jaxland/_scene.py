@@ -61,7 +61,9 @@ class Scene(eqx.Module):
 
     ``Scene()`` is the paper's symmetric 0.2 m drop. ``friction`` overrides the vehicle's mu
     when given; ``plateau_scale`` (one entry per leg) scales both plateau forces of each leg
-    (honeycomb scatter) when given.
+    (honeycomb scatter) when given; ``mass_scale`` scales the body mass and inertia (propellant
+    left, payload); ``com_offset`` (3,) [m] moves the body's centre of mass from its geometric
+    axis, in the body frame (3-D model). Left as None they cost nothing.
     """
 
     drop_height: jnp.ndarray = eqx.field(converter=_f64, default=0.2)
@@ -80,6 +82,8 @@ class Scene(eqx.Module):
     # None (the default) means no scatter: static, so the honeycomb stays a compile-time constant
     # of the loop (runtime-valued parameters make XLA's CPU loop several times slower).
     plateau_scale: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
+    mass_scale: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
+    com_offset: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
 
     @classmethod
     def from_touchdown_speed(cls, speed_mps: float, **kwargs) -> Scene:
@@ -93,8 +97,9 @@ class Scene(eqx.Module):
         (batch, n_legs). Run it with ``jaxland.landings`` or ``jax.vmap(..., in_axes=
         (batch_axes(batch),))``: fields left out stay unbatched, which keeps them compile-time
         constants (batched honeycomb parameters cost ~3x on CPU)."""
+        vector = ("plateau_scale", "com_offset")
         sizes = {np.shape(v)[0] for k, v in fields.items()
-                 if v is not None and np.ndim(v) > (1 if k == "plateau_scale" else 0)}
+                 if v is not None and np.ndim(v) > (1 if k in vector else 0)}
         if len(sizes) != 1:
             raise ConfigError("Scene.batch", sorted(sizes),
                               "give at least one batched field, all of the same length")
@@ -103,7 +108,7 @@ class Scene(eqx.Module):
         for name, val in fields.items():
             if val is None:
                 out[name] = None
-            elif name == "plateau_scale":
+            elif name in vector:
                 val = jnp.asarray(val, jnp.float64)
                 out[name] = jnp.broadcast_to(val, (n, val.shape[-1]))
             else:
@@ -130,6 +135,14 @@ class Scene(eqx.Module):
         if fr is not None and np.any(~np.isfinite(fr) | (fr < 0) | (fr > 2)):
             raise ConfigError("scene.friction", float(np.ravel(fr)[0]),
                               "must be finite and in [0, 2]")
+        ms = _concrete(self.mass_scale)
+        if ms is not None and np.any(~np.isfinite(ms) | (ms < 0.5) | (ms > 2.0)):
+            raise ConfigError("scene.mass_scale", float(np.ravel(ms)[0]),
+                              "must be finite and in [0.5, 2]")
+        co = _concrete(self.com_offset)
+        if co is not None and (co.shape[-1] != 3 or np.any(~np.isfinite(co) | (np.abs(co) > 0.3))):
+            raise ConfigError("scene.com_offset_m", co.tolist(),
+                              "must be three finite numbers (x, y, z), each within +/-0.3 m")
         ps = _concrete(self.plateau_scale)
         if ps is not None:
             if n_legs is not None and ps.shape[-1] != n_legs:
@@ -147,7 +160,7 @@ def batch_axes(scene: Scene) -> Scene:
     def axis(name, val):
         if val is None:
             return None
-        base = 1 if name == "plateau_scale" else 0
+        base = 1 if name in ("plateau_scale", "com_offset") else 0
         return 0 if np.ndim(val) > base else None
 
     return _axes_scene(
@@ -178,6 +191,8 @@ def is_symmetric(scene: Scene) -> bool:
                  "slope"):
         if np.any(np.asarray(getattr(scene, name)) != 0.0):
             return False
+    if scene.com_offset is not None and np.any(np.asarray(scene.com_offset) != 0.0):
+        return False
     if scene.plateau_scale is None:
         return True
     ps = np.asarray(scene.plateau_scale)
@@ -189,12 +204,13 @@ def scene_from_dict(data: dict) -> Scene:
     known = {v[4]: k for k, v in SCENE_FIELDS.items()}
     kwargs = {}
     for key, val in data.items():
-        if key in ("friction", "plateau_scale"):
-            kwargs[key] = val
+        if key in ("friction", "plateau_scale", "mass_scale", "com_offset_m"):
+            kwargs["com_offset" if key == "com_offset_m" else key] = val
             continue
         if key not in known:
             raise ConfigError(f"scene.{key}", val, "unknown key; known: "
-                              + ", ".join([*known, "friction", "plateau_scale"]))
+                              + ", ".join([*known, "friction", "plateau_scale", "mass_scale",
+                                           "com_offset_m"]))
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             raise ConfigError(f"scene.{key}", val, "must be a number")
         kwargs[known[key]] = float(val) * SCENE_FIELDS[known[key]][5]

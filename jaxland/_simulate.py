@@ -271,8 +271,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     validate_vehicle(vehicle)
     scene.validate(vehicle.n_legs)
     if any(np.ndim(getattr(scene, k)) > 0 for k in scene.__dataclass_fields__
-           if k != "plateau_scale" and getattr(scene, k) is not None) \
-            or np.ndim(scene.plateau_scale) > 1:
+           if k not in ("plateau_scale", "com_offset") and getattr(scene, k) is not None) \
+            or np.ndim(scene.plateau_scale) > 1 or np.ndim(scene.com_offset) > 1:
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "
                           "jax.vmap over jaxland.landing (see Scene.batch)")
     if model == "auto":

@@ -147,14 +147,28 @@ def apply_scene(vehicle: Vehicle, scene: Scene) -> Vehicle:
                               (hc.F1 * scene.plateau_scale, hc.F2 * scene.plateau_scale))
     if scene.friction is not None:
         vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
+    if scene.mass_scale is not None:
+        s = scene.mass_scale
+        vehicle = eqx.tree_at(lambda v: (v.m_body, v.I_xx, v.I_yy, v.I_zz), vehicle,
+                              (vehicle.m_body * s, vehicle.I_xx * s, vehicle.I_yy * s,
+                               vehicle.I_zz * s))
     return vehicle
+
+
+def body_points(vehicle: Vehicle, scene: Scene):
+    """Leg points (P, A+, A-, foot at rest) relative to the centre of mass, body frame (n, 3):
+    the geometry of ``leg_geometry`` moved by the scene's centre-of-mass offset."""
+    points = leg_geometry(vehicle)
+    if scene.com_offset is None:
+        return points
+    return tuple(p - scene.com_offset[None, :] for p in points)
 
 
 def initial_state(vehicle: Vehicle, scene: Scene) -> Vehicle3DState:
     """Unloaded vehicle in the scene's attitude, lowest foot ``drop_height`` above the ground
     (measured along the ground normal), moving rigidly with the scene's velocity and rates."""
     n_g, t1, t2 = ground_frame(scene)
-    _, _, _, foot_b = leg_geometry(vehicle)
+    _, _, _, foot_b = body_points(vehicle, scene)
     quat = quat_from_euler(scene.roll, scene.pitch, scene.yaw)
     Rm = quat_to_matrix(quat)
     foot_rel = foot_b @ Rm.T
@@ -177,7 +191,7 @@ def initial_state(vehicle: Vehicle, scene: Scene) -> Vehicle3DState:
 def prepare(vehicle: Vehicle, scene: Scene) -> dict:
     """Parameter- and scene-derived numbers the step reads, computed once outside the loop."""
     gr = vehicle.ground
-    P_b, Ap_b, Am_b, _ = leg_geometry(vehicle)
+    P_b, Ap_b, Am_b, _ = body_points(vehicle, scene)
     return dict(curve=vehicle.honeycomb.curve(), k_r=gr.k / (1.0 - gr.gamma),
                 L_a0_pair=vehicle.leg.L_a0_pair, geometry=(P_b, Ap_b, Am_b),
                 ground=ground_frame(scene), inertia=_inertia(vehicle))

@@ -144,6 +144,42 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+def _cmd_montecarlo(args) -> int:
+    from ._config import load_vehicle, paper_vehicle
+    from ._montecarlo import load_montecarlo_spec, run_montecarlo
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError("--out", str(out), "exists and is not a folder")
+    spec = load_montecarlo_spec(args.spec)
+    if args.n is not None:
+        spec.n = args.n
+    if args.seed is not None:
+        spec.seed = args.seed
+    spec.__post_init__()  # re-check n and seed after the overrides
+    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    result = run_montecarlo(spec, vehicle, chunk=args.chunk)
+    result.save(out)
+    s = result.summary
+    tip, bot = s["tip_over"], s["bottoming"]
+    print(f"jaxland montecarlo: {s['n']} landings, {s['model']} model, {s['devices']} device(s),"
+          f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
+    print(f"  failed samples      {s['n_failed']}" + (f"  {s['failures']}" if s["failures"] else ""))
+    print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
+          f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
+    print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
+          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']})")
+    for name, env in s["envelopes"].items():
+        if env:
+            print(f"  {name:<30s} p50 {env['p50']:.4g}  p99 {env['p99']:.4g}  max {env['max']:.4g}")
+    if s["sensitivity"]["ranking"]:
+        top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g})"
+                        for r in s["sensitivity"]["ranking"][:3])
+        print(f"  drivers of {s['sensitivity']['target']}: {top}")
+    print(f"wrote {out}/samples.csv, samples.npz, summary.json, figures/*.png")
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from ._bench import run_benchmark
 
@@ -189,6 +225,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out/simulate", help="output folder (default out/simulate)")
     s.add_argument("--no-plots", action="store_true", help="skip the figures")
     s.set_defaults(func=_cmd_simulate)
+
+    m = sub.add_parser("montecarlo", help="dispersed landings: tip-over and bottoming "
+                                          "probabilities, envelopes, sensitivities")
+    m.add_argument("spec", help="Monte Carlo spec TOML ([montecarlo], [dispersion.*], [fixed])")
+    m.add_argument("--n", type=int, help="number of landings (overrides the spec)")
+    m.add_argument("--seed", type=int, help="random seed (overrides the spec)")
+    m.add_argument("--chunk", type=int, help="landings per compiled batch (bounds memory)")
+    m.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
+    m.add_argument("--out", default="out/montecarlo", help="output folder")
+    m.set_defaults(func=_cmd_montecarlo)
 
     b = sub.add_parser("bench", help="time compile, one landing and a vmapped batch; "
                                      "write JSON and a plot")

@@ -1,0 +1,90 @@
+"""Monte Carlo figures: outcome histograms, envelopes (empirical CDFs) and a tip-over map over the
+two most influential inputs. matplotlib is imported only inside the functions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ._plots import _save
+
+_OUTCOMES = (  # (label, function of (outputs) -> per-sample values, scale, unit)
+    ("max stroke, any leg", lambda o: o["max_stroke_m"].max(axis=1), 1e3, "mm"),
+    ("peak body acceleration", lambda o: o["peak_body_accel_mps2"], 1.0, "m/s^2"),
+    ("peak strut force, any leg", lambda o: o["peak_strut_force_N"].max(axis=1), 1e-3, "kN"),
+    ("foot slip, any leg", lambda o: o["slip_distance_m"].max(axis=1), 1e3, "mm"),
+)
+
+
+def _outcomes(result):
+    rows = list(_OUTCOMES)
+    if "min_stability_margin_m" in result.outputs:
+        rows.append(("min stability margin", lambda o: o["min_stability_margin_m"], 1.0, "m"))
+    return rows
+
+
+def _input_column(result, name):
+    """An input by its ranking name (``plateau_scale[leg2]`` selects a leg)."""
+    base, _, leg = name.partition("[leg")
+    arr = np.asarray(result.inputs[base], dtype=float)
+    return arr[:, int(leg.rstrip("]"))] if leg else arr
+
+
+def plot_montecarlo(result, out_dir) -> list[Path]:
+    """Write mc_histograms.png, mc_envelopes.png and (when there are two or more dispersed
+    inputs) mc_tipover_map.png into ``out_dir``."""
+    from matplotlib.figure import Figure
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ok = result.failure == 0
+    rows = _outcomes(result)
+    s = result.summary
+    title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; "
+             f"P(tip-over) = {s['tip_over']['probability']:.3g} "
+             f"[{s['tip_over']['ci95_wilson'][0]:.3g}, {s['tip_over']['ci95_wilson'][1]:.3g}], "
+             f"P(bottoming) = {s['bottoming']['probability']:.3g}")
+    paths = []
+
+    fig = Figure(figsize=(4.2 * len(rows), 3.6), layout="constrained")
+    for ax, (label, fn, scale, unit) in zip(fig.subplots(1, len(rows)), rows):
+        x = np.asarray(fn(result.outputs), dtype=float)[ok] * scale
+        ax.hist(x, bins=min(50, max(5, int(np.sqrt(x.size)))), color="C0")
+        ax.set_xlabel(f"{label} [{unit}]")
+        ax.set_ylabel("landings")
+        if unit == "m" and "margin" in label:
+            ax.axvline(0.0, color="r", ls="--", label="tip-over")
+            ax.legend()
+    fig.suptitle(title)
+    paths.append(_save(fig, out_dir / "mc_histograms.png"))
+
+    fig = Figure(figsize=(4.2 * len(rows), 3.6), layout="constrained")
+    for ax, (label, fn, scale, unit) in zip(fig.subplots(1, len(rows)), rows):
+        x = np.sort(np.asarray(fn(result.outputs), dtype=float)[ok] * scale)
+        ax.plot(x, np.arange(1, x.size + 1) / max(x.size, 1), color="C1")
+        for q in (0.05, 0.5, 0.95, 0.99):
+            ax.axhline(q, color="0.8", lw=0.8)
+        ax.set_xlabel(f"{label} [{unit}]")
+        ax.set_ylabel("fraction of landings below")
+    fig.suptitle("envelopes (empirical CDFs); lines at 5, 50, 95, 99 %")
+    paths.append(_save(fig, out_dir / "mc_envelopes.png"))
+
+    ranking = s["sensitivity"]["ranking"]
+    if len(ranking) >= 2:
+        a, b = ranking[0]["input"], ranking[1]["input"]
+        xa, xb = _input_column(result, a), _input_column(result, b)
+        fig = Figure(figsize=(6.5, 5), layout="constrained")
+        ax = fig.subplots()
+        tipped = result.outputs["tipped_over"]
+        ax.scatter(xa[ok & ~tipped], xb[ok & ~tipped], s=10, c="C0", label="stable")
+        ax.scatter(xa[ok & tipped], xb[ok & tipped], s=14, c="C3", marker="x", label="tipped")
+        if (~ok).any():
+            ax.scatter(xa[~ok], xb[~ok], s=14, c="k", marker="s", label="failed")
+        ax.set_xlabel(a)
+        ax.set_ylabel(b)
+        ax.set_title(f"tip-over map over the two most influential inputs\n(by effect on "
+                     f"{s['sensitivity']['target']})")
+        ax.legend()
+        paths.append(_save(fig, out_dir / "mc_tipover_map.png"))
+    return paths

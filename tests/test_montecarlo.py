@@ -1,0 +1,154 @@
+"""Monte Carlo: reproducibility across chunk sizes and device counts, probabilities at the
+extremes, interval coverage, failed samples isolated, spec validation."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import jaxland as jl
+from jaxland._montecarlo import (
+    Distribution,
+    MonteCarloSpec,
+    load_montecarlo_spec,
+    run_montecarlo,
+    sample_scenes,
+    wilson_interval,
+)
+
+QUARTER_SPEC = dict(
+    dispersion={"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
+                "mass_scale": Distribution("normal", 1.0, 0.03)},
+    fixed={"drop_height_m": 0.0}, n=12, seed=7, t_end=0.3)
+
+
+@pytest.fixture(scope="module")
+def quarter_run():
+    return run_montecarlo(MonteCarloSpec(**QUARTER_SPEC), chunk=12, progress=False)
+
+
+def test_quarter_model_is_chosen_for_symmetric_dispersions(quarter_run):
+    assert quarter_run.summary["model"] == "quarter"
+    spec = MonteCarloSpec(dispersion={"roll_deg": Distribution("normal", 0.0, 1.0)})
+    assert spec.resolved_model() == "full"
+
+
+def test_same_seed_same_results_for_any_chunk_size(quarter_run):
+    other = run_montecarlo(MonteCarloSpec(**QUARTER_SPEC), chunk=5, progress=False)
+    for k, v in quarter_run.inputs.items():
+        np.testing.assert_array_equal(other.inputs[k], v)
+    for k, v in quarter_run.outputs.items():
+        np.testing.assert_allclose(other.outputs[k], v, rtol=1e-10, err_msg=k)
+    # and sample i does not depend on which chunk drew it
+    _, tail = sample_scenes(MonteCarloSpec(**QUARTER_SPEC), 7, 3)
+    np.testing.assert_array_equal(tail["sink_speed_mps"],
+                                  quarter_run.inputs["sink_speed_mps"][7:10])
+
+
+def test_same_seed_same_results_on_two_devices(quarter_run, tmp_path):
+    """The batch sharded over 2 (forced host) devices gives the 1-device results."""
+    out = tmp_path / "two.npz"
+    code = textwrap.dedent(f"""
+        import numpy as np, jax
+        from jaxland._montecarlo import Distribution, MonteCarloSpec, run_montecarlo
+        spec = MonteCarloSpec(
+            dispersion={{"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
+                         "mass_scale": Distribution("normal", 1.0, 0.03)}},
+            fixed={{"drop_height_m": 0.0}}, n=12, seed=7, t_end=0.3)
+        assert len(jax.devices()) == 2
+        r = run_montecarlo(spec, chunk=6, progress=False)
+        np.savez({str(out)!r}, devices=r.summary["devices"], **r.outputs)
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=300)
+    two = np.load(out)
+    assert int(two["devices"]) == 2
+    for k, v in quarter_run.outputs.items():
+        np.testing.assert_allclose(two[k], v, rtol=1e-10, err_msg=k)
+
+
+TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,
+                       "friction": 2.0}, n=4, seed=0, t_end=1.5)
+
+
+@pytest.mark.parametrize("low,high,expected", [(5.0, 6.0, 1.0), (0.5, 1.5, 0.0)])
+def test_tip_over_probability_is_one_beyond_and_zero_inside_the_boundary(low, high, expected):
+    """Sticky ground, heading towards an edge: the tip-over boundary lies between 3.0 and
+    3.25 m/s (rigid-body criterion 3.31 m/s, see test_vehicle3d)."""
+    spec = MonteCarloSpec(dispersion={"horizontal_speed_mps": Distribution("uniform", low=low,
+                                                                            high=high)},
+                          **TIP_BASE)
+    res = run_montecarlo(spec, progress=False)
+    tip = res.summary["tip_over"]
+    assert res.summary["model"] == "full" and res.summary["n_failed"] == 0
+    assert tip["probability"] == expected
+    lo, hi = tip["ci95_wilson"]
+    assert lo <= expected <= hi
+
+
+def test_wilson_interval_covers_a_known_probability():
+    """Over 4000 simulated experiments of 50 Bernoulli(0.3) trials the 95 % interval covers
+    p = 0.3 about 95 % of the time (Wilson's interval is slightly liberal at some n)."""
+    rng = np.random.default_rng(0)
+    p, n = 0.3, 50
+    k = rng.binomial(n, p, size=4000)
+    cover = np.mean([lo <= p <= hi for lo, hi in (wilson_interval(int(x), n) for x in k)])
+    assert 0.93 <= cover <= 0.97, cover
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+
+
+def test_failed_samples_are_counted_and_the_rest_is_intact():
+    """Touchdowns of 2-18 m/s at dt = 1e-5 s: those above ~9 m/s bottom out with forces too
+    stiff for the step and are recorded as failed (with the reason); every other sample equals
+    its own single run."""
+    spec = MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("uniform", low=2.0,
+                                                                      high=18.0)},
+                          fixed={"drop_height_m": 0.0}, n=8, seed=1, t_end=0.1)
+    res = run_montecarlo(spec, progress=False)
+    s = res.summary
+    assert 0 < s["n_failed"] < spec.n and sum(s["failures"].values()) == s["n_failed"]
+    v = res.inputs["sink_speed_mps"]
+    assert v[res.failure != 0].min() > v[res.failure == 0].max()  # the hard ones failed
+    for i in np.flatnonzero(res.failure == 0):
+        one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1,
+                          save_dt=0.1).outcomes
+        np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one["max_stroke_m"],
+                                   rtol=1e-9)
+
+
+def test_bad_specs_are_refused_by_name(tmp_path):
+    path = tmp_path / "spec.toml"
+    cases = [
+        ("[dispersion.roll_deg]\ndist = 'gauss'\n", "dispersion.roll_deg.dist"),
+        ("[dispersion.roll_deg]\ndist = 'normal'\nmean = 0.0\nstd = -1.0\n",
+         "dispersion.roll_deg.std"),
+        ("[dispersion.rol_deg]\ndist = 'normal'\nmean = 0.0\nstd = 1.0\n", "dispersion.rol_deg"),
+        ("[dispersion.roll_deg]\ndist = 'uniform'\nlow = 2.0\nhigh = 1.0\n",
+         "dispersion.roll_deg.high"),
+        ("[montecarlo]\nn = 0\n", "montecarlo.n"),
+        ("[montecarlo]\nsamples = 5\n", "montecarlo.samples"),
+    ]
+    for text, field in cases:
+        path.write_text(text)
+        with pytest.raises(jl.ConfigError) as err:
+            load_montecarlo_spec(path)
+        assert str(err.value).startswith(field), str(err.value)
+    spec = MonteCarloSpec(dispersion={"roll_deg": Distribution("uniform", low=35, high=50)},
+                          n=2)
+    with pytest.raises(jl.ConfigError, match="scene.roll_deg"):  # samples outside the envelope
+        run_montecarlo(spec, progress=False)
+
+
+def test_results_are_saved_with_inputs(quarter_run, tmp_path):
+    quarter_run.save(tmp_path)
+    header = (tmp_path / "samples.csv").read_text().splitlines()[0].split(",")
+    assert {"sink_speed_mps", "mass_scale", "leg0_max_stroke_m", "failure_code"} <= set(header)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["n"] == 12 and summary["sensitivity"]["ranking"][0]["input"] in (
+        "sink_speed_mps", "mass_scale")
+    assert sorted(p.name for p in (tmp_path / "figures").glob("*.png")) == [
+        "mc_envelopes.png", "mc_histograms.png", "mc_tipover_map.png"]
