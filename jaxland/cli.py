@@ -164,7 +164,8 @@ def _cmd_montecarlo(args) -> int:
     tip, bot = s["tip_over"], s["bottoming"]
     print(f"jaxland montecarlo: {s['n']} landings, {s['model']} model, {s['devices']} device(s),"
           f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
-    print(f"  failed samples      {s['n_failed']}" + (f"  {s['failures']}" if s["failures"] else ""))
+    failures = f"  {s['failures']}" if s["failures"] else ""
+    print(f"  failed samples      {s['n_failed']}{failures}")
     print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
           f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
