@@ -10,14 +10,13 @@ from honeycomb cell data with Wierzbicki's crush formula (``[honeycomb.cells]``)
 from __future__ import annotations
 
 import math
-import tomllib
-from pathlib import Path
 
 import numpy as np
 
 from ._crush import plateau_force
 from ._errors import ConfigError
 from ._params import Ground, Honeycomb, Leg, Vehicle, field_info
+from ._toml import read_toml
 
 __all__ = ["paper_vehicle", "load_vehicle", "vehicle_from_dict", "vehicle_to_toml",
            "validate_vehicle", "PAPER_CELLS"]
@@ -148,15 +147,7 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
 
 def load_vehicle(path) -> Vehicle:
     """Load and validate a vehicle TOML file."""
-    path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError("config", str(path), "file does not exist") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("config", str(path), f"is not valid TOML: {err}") from None
-    return vehicle_from_dict(data)
+    return vehicle_from_dict(read_toml(path, "config"))
 
 
 def paper_vehicle() -> Vehicle:

@@ -20,7 +20,6 @@ import math
 import os
 import sys
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +34,7 @@ from ._integrate import Solver, stable_step
 from ._params import Vehicle
 from ._scene import SCENE_FIELDS, Scene
 from ._simulate import CLOSURE_LIMIT, landings
+from ._toml import read_toml
 
 __all__ = ["Distribution", "MonteCarloSpec", "MonteCarloResult", "load_montecarlo_spec",
            "sample_scenes", "run_montecarlo", "wilson_interval"]
@@ -152,14 +152,7 @@ class MonteCarloSpec:
 def load_montecarlo_spec(path) -> MonteCarloSpec:
     """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model),
     ``[dispersion.<input>]`` tables and an optional ``[fixed]`` table (see the README)."""
-    path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError("spec", str(path), "file does not exist") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("spec", str(path), f"is not valid TOML: {err}") from None
+    data = read_toml(path, "spec")
     unknown = set(data) - {"montecarlo", "dispersion", "fixed"}
     if unknown:
         raise ConfigError(sorted(unknown)[0], "<table>",

@@ -9,14 +9,13 @@ from the world frame; at zero yaw leg i points along azimuth i * 360 / n_legs de
 from __future__ import annotations
 
 import math
-import tomllib
-from pathlib import Path
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from ._errors import ConfigError
+from ._toml import read_toml
 
 __all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric", "batch_axes"]
 
@@ -227,12 +226,5 @@ def scene_from_dict(data: dict) -> Scene:
 
 def load_scene(path) -> Scene:
     """Load a scene TOML file: a ``[scene]`` table (or top-level keys)."""
-    path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError("scene", str(path), "file does not exist") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("scene", str(path), f"is not valid TOML: {err}") from None
+    data = read_toml(path, "scene")
     return scene_from_dict(data.get("scene", data))

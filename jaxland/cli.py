@@ -72,19 +72,12 @@ _SCENE_FLAGS = (  # CLI flag -> scene TOML key (units in the names)
 
 
 def _scene_from_args(args):
-    import tomllib
-
     from ._scene import scene_from_dict
+    from ._toml import read_toml
 
     table = {}
     if args.scene:
-        try:
-            with open(args.scene, "rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise ConfigError("--scene", args.scene, "file does not exist") from None
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError("--scene", args.scene, f"is not valid TOML: {err}") from None
+        data = read_toml(args.scene, "--scene")
         table = dict(data.get("scene", data))
     for flag, key in _SCENE_FLAGS:
         val = getattr(args, flag)
