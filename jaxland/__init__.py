@@ -1,7 +1,19 @@
 """jaxland: a differentiable JAX simulator of a vertical-landing vehicle on crushable
 honeycomb landing gear. float64 is switched on at import; all quantities are SI."""
 
-import jax as _jax
+import os as _os
+
+# XLA:CPU compiles a while loop into one native kernel only when it is "small" by the bytes its
+# buffers touch; above the default threshold every one of a step's ~20 fused kernels is
+# dispatched separately on every iteration. A landing's step is exactly that kind of loop, and
+# its parameters count against the threshold whenever they are traced (fits, design, Monte
+# Carlo): measured 6x faster landings and 3x faster batches with this option. It must be set
+# before the XLA backend starts; a user's own --xla_backend_extra_options is left alone.
+_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+if "xla_backend_extra_options" not in _os.environ.get("XLA_FLAGS", ""):
+    _os.environ["XLA_FLAGS"] = f"{_os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
+
+import jax as _jax  # noqa: E402
 
 _jax.config.update("jax_enable_x64", True)
 

@@ -31,6 +31,17 @@ def quarter_run():
     return run_montecarlo(MonteCarloSpec(**QUARTER_SPEC), chunk=12, progress=False)
 
 
+def _assert_same_outputs(got, ref):
+    """Equal up to how XLA compiles each batch shape (it may fuse and reassociate differently;
+    measured <= 6e-9 relative, on the accumulated slip): 1e-7 relative, and an absolute 1e-12
+    on the ledger residual, a difference of large energies."""
+    for k, v in ref.items():
+        if k == "energy_closure_rel":
+            np.testing.assert_allclose(got[k], v, rtol=0, atol=1e-12, err_msg=k)
+        else:
+            np.testing.assert_allclose(got[k], v, rtol=1e-7, err_msg=k)
+
+
 def test_quarter_model_is_chosen_for_symmetric_dispersions(quarter_run):
     assert quarter_run.summary["model"] == "quarter"
     spec = MonteCarloSpec(dispersion={"roll_deg": Distribution("normal", 0.0, 1.0)})
@@ -41,8 +52,7 @@ def test_same_seed_same_results_for_any_chunk_size(quarter_run):
     other = run_montecarlo(MonteCarloSpec(**QUARTER_SPEC), chunk=5, progress=False)
     for k, v in quarter_run.inputs.items():
         np.testing.assert_array_equal(other.inputs[k], v)
-    for k, v in quarter_run.outputs.items():
-        np.testing.assert_allclose(other.outputs[k], v, rtol=1e-10, err_msg=k)
+    _assert_same_outputs(other.outputs, quarter_run.outputs)
     # and sample i does not depend on which chunk drew it
     _, tail = sample_scenes(MonteCarloSpec(**QUARTER_SPEC), 7, 3)
     np.testing.assert_array_equal(tail["sink_speed_mps"],
@@ -67,8 +77,7 @@ def test_same_seed_same_results_on_two_devices(quarter_run, tmp_path):
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=300)
     two = np.load(out)
     assert int(two["devices"]) == 2
-    for k, v in quarter_run.outputs.items():
-        np.testing.assert_allclose(two[k], v, rtol=1e-10, err_msg=k)
+    _assert_same_outputs(two, quarter_run.outputs)
 
 
 TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,
