@@ -11,7 +11,7 @@ A model is any namespace with ``initial_state``, ``prepare`` (parameter-derived 
 computed once before the loop), ``evaluate`` (generalised accelerations at a state, with the
 memories advanced), ``drift`` (positions from the new velocities: plain q + dt v, or a rotation
 update for an attitude), ``energy_scale``, ``apply_scene``, ``accel_record``, ``peak_values``,
-``contact_flag``, ``final_summary``, ``RATE_CHANNELS`` and ``COLUMNS`` (see
+``contact_flag``, ``tipping``, ``final_summary``, ``RATE_CHANNELS`` and ``COLUMNS`` (see
 ``jaxland._quarter`` and ``jaxland._vehicle3d``).
 """
 
@@ -123,27 +123,33 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     peaks0 = jax.tree.map(lambda x: jnp.full_like(x, -jnp.inf), model.peak_values(rec0, acc0))
 
     def step(carry, _):
-        s, peaks, ev_t, ev_n, prev_c, res_max, fail_t = carry
+        s, peaks, ev_t, ev_n, prev_c, res_max, fail_t, tip_t = carry
         acc, s_m, rec, power, energy = model.evaluate(vehicle, s, scene, derived)
         residual = sum(energy.values()) + jnp.sum(s.diss_rate) - e0
-        peaks = jax.tree.map(jnp.maximum, peaks, model.peak_values(rec, acc))
+        # After a tip-over the body (which has no ground contact of its own) is not a landing
+        # any more: peaks, the ledger and failure checks stop there; the tip itself counts.
+        upright = tip_t < 0.0
+        peaks = jax.tree.map(lambda p, x: jnp.where(upright, jnp.maximum(p, x), p), peaks,
+                             model.peak_values(rec, acc))
+        touched = (ev_n > 0) | model.contact_flag(rec)  # a foot has been on the ground
+        tip_t = jnp.where(upright & touched & model.tipping(rec), s.t, tip_t)
         contact = model.contact_flag(rec)
         changed = contact != prev_c
         idx = jnp.minimum(ev_n, N_EVENTS - 1)
         ev_t = ev_t.at[idx].set(jnp.where(changed & (ev_n < N_EVENTS), s.t, ev_t[idx]))
         ev_n = ev_n + changed.astype(ev_n.dtype)
-        res_max = jnp.maximum(res_max, jnp.abs(residual))
+        res_max = jnp.where(upright, jnp.maximum(res_max, jnp.abs(residual)), res_max)
         state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x))
                                       for x in jax.tree.leaves((s.q, s.v))]))
         bad = ~state_ok | ~(jnp.abs(residual) <= ENERGY_TOLERANCE * e_scale)
-        fail_t = jnp.where(bad & (fail_t < 0.0), s.t, fail_t)
+        fail_t = jnp.where(bad & upright & (fail_t < 0.0), s.t, fail_t)
         v1 = jax.tree.map(lambda v, a: v + dt * a, s.v, acc)
         q1 = model.drift(s.q, v1, dt)
         s1 = eqx.tree_at(
             lambda x: (x.t, x.q, x.v, x.diss_rate), s_m,
             (s.t + dt, q1, v1, s.diss_rate + dt * power),
         )
-        return (s1, peaks, ev_t, ev_n, contact, res_max, fail_t), None
+        return (s1, peaks, ev_t, ev_n, contact, res_max, fail_t, tip_t), None
 
     def save_block(carry, _):
         s = carry[0]
@@ -157,10 +163,10 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
 
     carry0 = (
         s0, peaks0, jnp.full((N_EVENTS,), jnp.nan), jnp.zeros((), jnp.int32),
-        jnp.zeros((), bool), jnp.zeros(()), -jnp.ones(()),
+        jnp.zeros((), bool), jnp.zeros(()), -jnp.ones(()), -jnp.ones(()),
     )
     carry, traj = jax.lax.scan(save_block, carry0, None, length=solver.n_saves)
-    s_end, peaks, ev_t, ev_n, _, res_max, fail_t = carry
+    s_end, peaks, ev_t, ev_n, _, res_max, fail_t, tip_t = carry
     _, _, rec_end, _, en_end = model.evaluate(vehicle, s_end, scene, derived)
     dissipated = sum(v for k, v in en_end.items() if k.startswith("diss_"))
     dissipated = dissipated + jnp.sum(s_end.diss_rate)
@@ -175,6 +181,8 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
         energy_closure_max_J=res_max,
         failed=fail_t >= 0.0,
         failure_time_s=fail_t,
+        tipped=tip_t >= 0.0,
+        tip_over_time_s=tip_t,
         t_end_s=s_end.t,
     )
     return traj, summary

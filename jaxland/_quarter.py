@@ -234,6 +234,11 @@ def contact_flag(record):
     return record["normal_force_N"] > 0.0
 
 
+def tipping(record):
+    """A symmetric vertical drop cannot tip over."""
+    return jnp.zeros((), bool)
+
+
 def final_summary(s: QuarterState, record) -> dict:
     """Model-specific end-of-landing outcomes."""
     return dict(

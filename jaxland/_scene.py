@@ -218,9 +218,15 @@ def scene_from_dict(data: dict) -> Scene:
         if not isinstance(ps, list) or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in ps):
             raise ConfigError("scene.plateau_scale", ps, "must be a list of numbers, one per leg")
-    if "friction" in kwargs and (isinstance(kwargs["friction"], bool)
-                                 or not isinstance(kwargs["friction"], (int, float))):
-        raise ConfigError("scene.friction", kwargs["friction"], "must be a number")
+    for key in ("friction", "mass_scale"):
+        if key in kwargs and (isinstance(kwargs[key], bool)
+                              or not isinstance(kwargs[key], (int, float))):
+            raise ConfigError(f"scene.{key}", kwargs[key], "must be a number")
+    if "com_offset" in kwargs:
+        co = kwargs["com_offset"]
+        if not isinstance(co, list) or len(co) != 3 or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in co):
+            raise ConfigError("scene.com_offset_m", co, "must be a list of three numbers (x, y, z)")
     return Scene(**kwargs).validate()
 
 

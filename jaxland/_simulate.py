@@ -187,15 +187,14 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
     if foot_v is not None or model == "quarter":
         out["foot_vz_end_first_impact_mps"] = None if foot_v is None else float(foot_v)
     skip = {"event_times_s", "n_contact_changes", "failed", "failure_time_s", "t_end_s",
-            "peak_margin_deficit_m", "energy_scale_J"}
+            "peak_margin_deficit_m", "energy_scale_J", "tipped", "tip_over_time_s"}
     for k, v in s.items():
         if k not in skip:
             out[k] = _py(v)
     if model == "full":
         out["min_stability_margin_m"] = -float(s["peak_margin_deficit_m"])
-        out["tipped_over"] = bool(out["min_stability_margin_m"] < 0.0)
-    else:
-        out["tipped_over"] = False  # a symmetric vertical drop cannot tip
+    out["tipped_over"] = bool(s["tipped"])  # a symmetric vertical drop cannot tip
+    out["tip_over_time_s"] = float(s["tip_over_time_s"]) if out["tipped_over"] else None
     out["classification"] = ("tipped" if out["tipped_over"] else
                              "bottomed_out" if bottomed else "stable")
     out["energy_closure_rel"] = float(s["energy_closure_max_J"]) / max(dissipated, 1e-12)
@@ -207,29 +206,10 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
 CLOSURE_LIMIT = 1e-2
 
 
-def tip_over_time(traj: dict) -> float | None:
-    """First sample time at which the centre of mass left the feet's polygon [s], or None."""
-    margin = traj.get("stability_margin_m")
-    if margin is None or not np.any(margin < 0.0):
-        return None
-    return float(traj["time_s"][int(np.argmax(margin < 0.0))])
-
-
-def _check_numerics(summary: dict, vehicle: Vehicle, dt: float, traj: dict) -> None:
+def _check_numerics(summary: dict, vehicle: Vehicle, dt: float) -> None:
     """Refuse to return a landing whose integration was unstable: a non-finite state, a ledger
-    that does not close, or a step above the stability limit of the forces it reached.
-
-    After a tip-over only the time up to the tip-over is checked: the body has no ground contact
-    of its own, so what follows (feet striking upside down) is not a landing to be accurate on."""
-    t_tip = tip_over_time(traj)
-    if t_tip is not None:
-        before = traj["time_s"] <= t_tip
-        summary = dict(summary, energy_closure_max_J=np.max(np.abs(
-            traj["energy_residual_J"][before])), failed=summary["failed"] & (
-            summary["failure_time_s"] <= t_tip))
-        summary["peak_honeycomb_force_N"] = np.max(traj["honeycomb_force_N"][before])
-        summary["peak_normal_force_N"] = np.max(traj["normal_force_N"][before])
-        summary["max_stroke_m"] = np.max(traj["stroke_max_m"][before])
+    that does not close, or a step above the stability limit of the forces it reached. After a
+    tip-over the integrator stops checking (the body has no ground contact of its own)."""
     hc_peak = float(np.max(summary["peak_honeycomb_force_N"]))
     n_peak = float(np.max(summary["peak_normal_force_N"]))
     bottomed = bool(np.max(summary["max_stroke_m"]) > float(np.min(vehicle.honeycomb.x_L4)))
@@ -294,11 +274,10 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     solver.validate()
     traj, summary = _landing_jit(vehicle, scene, solver, model)
     traj = {k: np.asarray(traj[k]) for k in MODELS[model].COLUMNS}
-    _check_numerics(summary, vehicle, dt, traj)
+    _check_numerics(summary, vehicle, dt)
     outcomes = _outcomes(summary, traj, vehicle, scene, solver, model)
-    t_tip = tip_over_time(traj)
-    outcomes["tip_over_time_s"] = t_tip
-    if t_tip is not None:
+    if outcomes["tipped_over"]:
         outcomes["note"] = ("the vehicle tipped over; after tip_over_time_s the body, which has "
-                            "no ground contact of its own, is not modelled physically")
+                            "no ground contact of its own, is not modelled physically, and "
+                            "peaks and checks stop there")
     return Landing(traj, outcomes, vehicle, scene, solver)

@@ -219,9 +219,11 @@ def stability_margin(com, feet, frame):
     over edges (width MARGIN_SOFTNESS_M), so it is smooth for optimisation. ``frame`` is
     ``ground_frame(scene)``."""
     n_g, t1, t2 = frame
-    c = com - (com @ n_g) / n_g[2] * jnp.array([0.0, 0.0, 1.0])
+    e_z = jnp.array([0.0, 0.0, 1.0])
+    c = com - (com @ n_g) / n_g[2] * e_z  # both projected along gravity onto the ground
+    f = feet - ((feet @ n_g) / n_g[2])[:, None] * e_z[None, :]
     cx, cy = c @ t1, c @ t2
-    fx, fy = feet @ t1, feet @ t2
+    fx, fy = f @ t1, f @ t2
     ax, ay = fx, fy
     bx, by = jnp.roll(fx, -1), jnp.roll(fy, -1)
     ex, ey = bx - ax, by - ay
@@ -315,7 +317,7 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
         body_x_m=p[0], body_y_m=p[1], body_z_m=p[2],
         body_vx_mps=vb[0], body_vy_mps=vb[1], body_vz_mps=vb[2],
         roll_deg=roll * deg, pitch_deg=pitch * deg, yaw_deg=yaw * deg,
-        tilt_deg=jnp.arccos(jnp.clip(Rm[2, 2], -1.0, 1.0)) * deg,
+        tilt_deg=jnp.arctan2(safe_hypot(Rm[2, 0], Rm[2, 1]), Rm[2, 2]) * deg,  # grad-safe at 0
         omega_x_radps=w_b[0], omega_y_radps=w_b[1], omega_z_radps=w_b[2],
         stability_margin_m=stability_margin(p, feet, derived["ground"]),
         angular_momentum_x_Nms=ang_mom[0], angular_momentum_y_Nms=ang_mom[1],
@@ -355,6 +357,12 @@ def peak_values(record, acc):
 
 def contact_flag(record):
     return jnp.any(record["normal_force_N"] > 0.0)
+
+
+def tipping(record):
+    """The centre of mass is outside the polygon of the feet (the integrator counts it only
+    after the first touchdown, so a tilted vehicle still in the air is not tipping)."""
+    return record["stability_margin_m"] < 0.0
 
 
 def final_summary(s: Vehicle3DState, record) -> dict:

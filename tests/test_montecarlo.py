@@ -146,10 +146,27 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         with pytest.raises(jl.ConfigError) as err:
             load_montecarlo_spec(path)
         assert str(err.value).startswith(field), str(err.value)
-    spec = MonteCarloSpec(dispersion={"roll_deg": Distribution("uniform", low=35, high=50)},
-                          n=2)
-    with pytest.raises(jl.ConfigError, match="scene.roll_deg"):  # samples outside the envelope
-        run_montecarlo(spec, progress=False)
+    with pytest.raises(jl.ConfigError, match="entirely outside the scene envelope"):
+        MonteCarloSpec(dispersion={"roll_deg": Distribution("uniform", low=35, high=50)}, n=2)
+    for text, field in [("dispersion = 3\n", "dispersion"), ("montecarlo = 5\n", "montecarlo"),
+                        ("[fixed]\nroll_deg = 'abc'\n", "fixed.roll_deg"),
+                        ("[montecarlo]\nseed = 9223372036854775807\n", "montecarlo.seed")]:
+        path.write_text(text)
+        with pytest.raises(jl.ConfigError) as err:
+            load_montecarlo_spec(path)
+        assert str(err.value).startswith(field), str(err.value)
+
+
+def test_samples_outside_the_envelope_are_recorded_not_fatal():
+    """An unbounded distribution can draw outside the envelope: those samples are failures with
+    their reason (code 4), the batch goes on, and padding beyond n is never judged."""
+    spec = MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("normal", 0.3, 0.5)},
+                          fixed={"drop_height_m": 0.0}, n=6, seed=2, t_end=0.05)
+    res = run_montecarlo(spec, chunk=4, progress=False)
+    outside = res.inputs["sink_speed_mps"] < 0.0
+    assert outside.any() and not outside.all()
+    np.testing.assert_array_equal(res.failure == 4, outside)
+    assert res.summary["n_failed"] == int(outside.sum())
 
 
 def test_results_are_saved_with_inputs(quarter_run, tmp_path):
