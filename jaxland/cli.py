@@ -1,4 +1,5 @@
-"""The ``jaxland`` command: ``config``, ``simulate``, ``bench``.
+"""The ``jaxland`` command: ``config``, ``simulate``, ``montecarlo``, ``fit``, ``predict``,
+``bench``.
 
 Exit codes: 0 success, 2 invalid input (the message names field, value and rule), 3 numerical
 failure of the integration.
@@ -183,7 +184,9 @@ def _cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="jaxland", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="jaxland", description="jaxland: landings of a legged vehicle on crushable "
+        "honeycomb gear (quarter and full 3-D models), Monte Carlo, calibration, benchmarks.")
     sub = p.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("config", help="print the vehicle configuration (default: the paper's) "
@@ -229,6 +232,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
     m.add_argument("--out", default="out/montecarlo", help="output folder")
     m.set_defaults(func=_cmd_montecarlo)
+
+    # calibration (`fit`, `predict`) lives in its own package, built on jaxland's public API
+    from calibration.cli import add_subcommands
+
+    add_subcommands(sub)
 
     b = sub.add_parser("bench", help="time compile, one landing and a vmapped batch; "
                                      "write JSON and a plot")

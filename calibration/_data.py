@@ -1,0 +1,439 @@
+"""Drop-test data: CSV traces plus a metadata TOML, validated, then preprocessed.
+
+A drop test is two files side by side:
+
+* ``NAME.csv``: a header naming each column with its unit, then one row per sample.
+  ``time_s`` is required; any non-empty subset of the channels below may follow:
+
+  ===================  =====  ===========================================================
+  column               unit   model quantity (quarter model)
+  ===================  =====  ===========================================================
+  ``normal_force_N``   N      ``normal_force_N``: ground reaction on the instrumented foot
+  ``buffer_force_N``   N      ``strut_force_N``: strut load cell (honeycomb + structural
+                              damping + top-out stop)
+  ``stroke_m``         m      ``stroke_m``: buffer stroke, compression positive
+  ``body_accel_mps2``  m/s^2  ``body_az_mps2``: kinematic vertical acceleration of the body
+                              (-g in free fall, not an accelerometer's specific force)
+  ===================  =====  ===========================================================
+
+* ``NAME.toml``: a ``[drop_test]`` table (see ``META_KEYS``) with the drop height (or touchdown
+  speed), the sample rate, the instrumented leg and the vehicle configuration.
+
+Preprocessing (done on load, stored on the ``DropTest``; README of ``data/`` and the report
+document it):
+
+1. **Touchdown** is detected from the force onset (normal force, else buffer force, else body
+   acceleration, else stroke): the first sample above ``baseline + max(8 sigma_hp, 5 % of the
+   channel's rise)``, then extrapolated back along the rising edge to the baseline. The fit
+   refines it as a parameter per drop (``t0``).
+2. **Offsets** per channel are the mean of the pre-touchdown segment minus the free-fall value
+   the model has there (0 for forces and stroke, -g for the body acceleration). This removes
+   e.g. a stroke sensor's zero error. A record needs ``MIN_PRE_SAMPLES`` before touchdown.
+3. **Noise** per channel is the standard deviation of the pre-touchdown segment when it has at
+   least ``MIN_NOISE_SAMPLES`` samples, else a high-pass estimate (median absolute second
+   difference / 0.6745 / sqrt(6), robust to the signal) over the whole record. A floor of
+   ``NOISE_FLOOR_REL`` of the channel's range keeps noise-free (synthetic) data well-posed.
+   The fit weights each channel by 1/noise^2.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import jaxland as jl
+
+__all__ = ["CHANNELS", "DropTest", "load_drop_test", "load_drop_tests", "META_KEYS"]
+
+# channel column -> (unit, quarter-model trajectory column, free-fall value before touchdown
+# (None: -g), description)
+CHANNELS = {
+    "normal_force_N": ("N", "normal_force_N", 0.0, "ground normal force on the foot"),
+    "buffer_force_N": ("N", "strut_force_N", 0.0, "strut (buffer) load cell force"),
+    "stroke_m": ("m", "stroke_m", 0.0, "buffer stroke, compression positive"),
+    "body_accel_mps2": ("m/s^2", "body_az_mps2", None,
+                        "kinematic vertical body acceleration (-g in free fall)"),
+}
+TIME = "time_s"
+# What each channel's base name must be suffixed with, and units people write instead.
+_UNIT_SUFFIX = {"time": "s", "normal_force": "N", "buffer_force": "N", "stroke": "m",
+                "body_accel": "mps2"}
+_UNIT_WORDS = {"s": "s", "N": "N", "m": "m", "mps2": "m/s^2"}
+
+META_KEYS = {
+    "data_file": "CSV file with the traces, relative to this file (default: same name, .csv)",
+    "drop_height_m": "lowest foot's clearance above the ground at release [m], in [0, 50]",
+    "sink_speed_mps": "downward speed at release [m/s], in [0, 30] (with drop_height_m)",
+    "touchdown_speed_mps": "downward speed at touchdown [m/s], in (0, 30] (instead of "
+                           "drop_height_m)",
+    "sample_rate_Hz": "sample rate of the traces [Hz]; must match the time column within 1 %",
+    "sensor_leg": "index of the leg (and foot) the sensors sit on, in [0, n_legs)",
+    "vehicle_config": "vehicle TOML, relative to this file (default: the paper vehicle)",
+    "synthetic": "true for generated data (e.g. by calibration.virtual_rig)",
+    "description": "free text",
+}
+_OPTIONAL_TABLES = ("synthetic_rig",)  # generator settings, informational only
+
+MIN_PRE_SAMPLES = 10  # samples before touchdown (offsets, and a touchdown that is in the record)
+MIN_NOISE_SAMPLES = 50  # pre-touchdown samples for a noise estimate from that segment
+MIN_AFTER_S = 0.05  # s of record after touchdown
+MIN_SAMPLES = 50
+NOISE_FLOOR_REL = 1e-4  # noise floor, fraction of the channel's range (noise-free data)
+_ONSET_ORDER = ("normal_force_N", "buffer_force_N", "body_accel_mps2", "stroke_m")
+
+
+def _err(field_, value, rule):
+    return jl.ConfigError(field_, value, rule)
+
+
+@dataclass
+class DropTest:
+    """One drop test: validated traces, metadata and preprocessing.
+
+    ``channels`` maps column names (``stroke_m`` ...) to raw samples; ``corrected`` gives them
+    with the offsets removed. Times are the record's own (``time_s``); ``touchdown_time_s`` is
+    the detected touchdown on that axis.
+    """
+
+    name: str
+    time_s: np.ndarray
+    channels: dict
+    touchdown_speed_mps: float
+    sample_rate_Hz: float
+    vehicle: jl.Vehicle = field(repr=False)
+    drop_height_m: float | None = None
+    sink_speed_mps: float = 0.0
+    sensor_leg: int = 0
+    vehicle_config: str | None = None
+    synthetic: bool = False
+    description: str = ""
+    source: str = "<arrays>"
+    touchdown_time_s: float = float("nan")
+    onset_channel: str = ""
+    offsets: dict = field(default_factory=dict)
+    noise_std: dict = field(default_factory=dict)
+    noise_source: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_arrays(cls, time_s, channels: dict, *, sample_rate_Hz=None, drop_height_m=None,
+                    sink_speed_mps=None, touchdown_speed_mps=None, sensor_leg=0, vehicle=None,
+                    vehicle_config=None, name="drop", synthetic=False, description="",
+                    source="<arrays>") -> DropTest:
+        """Validate and preprocess traces given as arrays (what ``load_drop_test`` does after
+        reading the files). Raises ``jaxland.ConfigError`` naming field, value and rule."""
+        vehicle = jl.paper_vehicle() if vehicle is None else vehicle
+        time_s = _as_trace(TIME, time_s)
+        if not channels:
+            raise _err("columns", TIME, "need at least one data channel besides time_s; known: "
+                       + ", ".join(CHANNELS))
+        chans = {}
+        for col, vals in channels.items():
+            _check_column_name(col)
+            chans[col] = _as_trace(col, vals)
+            if chans[col].shape != time_s.shape:
+                raise _err(col, f"{chans[col].size} samples",
+                           f"must have as many samples as time_s ({time_s.size})")
+        _check_time(time_s, sample_rate_Hz)
+        g = float(vehicle.g)
+        v_td, h, v0 = _touchdown_speed(drop_height_m, sink_speed_mps, touchdown_speed_mps, g)
+        n_legs = vehicle.n_legs
+        if isinstance(sensor_leg, bool) or not isinstance(sensor_leg, (int, np.integer)) \
+                or not 0 <= int(sensor_leg) < n_legs:
+            raise _err("sensor_leg", sensor_leg, f"must be an integer in [0, {n_legs}) "
+                       "(the vehicle's legs)")
+        drop = cls(name=name, time_s=time_s, channels=chans, touchdown_speed_mps=v_td,
+                   sample_rate_Hz=float(sample_rate_Hz), vehicle=vehicle, drop_height_m=h,
+                   sink_speed_mps=v0, sensor_leg=int(sensor_leg), vehicle_config=vehicle_config,
+                   synthetic=bool(synthetic), description=str(description), source=source)
+        drop._preprocess()
+        return drop
+
+    # ------------------------------------------------------------------ preprocessing
+    def _preprocess(self) -> None:
+        t = self.time_s
+        onset = next(c for c in _ONSET_ORDER if c in self.channels)
+        y = self.channels[onset]
+        n_base = max(MIN_PRE_SAMPLES // 2, 3)
+        base = float(np.median(y[:n_base]))
+        sig = _highpass_noise(y)
+        rise = float(np.max(np.abs(y - base)))
+        thresh = max(8.0 * sig, 0.05 * rise)
+        above = np.nonzero(np.abs(y - base) > thresh)[0]
+        if rise <= 0.0 or above.size == 0 or rise < 20.0 * sig:
+            raise _err(f"{self.source}: {onset}", f"rise {rise:.4g}",
+                       f"no touchdown found: the channel never rises clearly above its "
+                       f"starting level (noise {sig:.3g}); is this a drop test?")
+        i_c = int(above[0])
+        if i_c < MIN_PRE_SAMPLES:
+            raise _err(f"{self.source}: touchdown", f"sample {i_c}",
+                       f"no touchdown found inside the record: the {onset} onset is at the "
+                       f"start; need >= {MIN_PRE_SAMPLES} samples before touchdown (to set the "
+                       "sensor offsets)")
+        # back along the rising edge (two samples above the threshold) to the baseline
+        y1, y2 = abs(y[i_c] - base), abs(y[min(i_c + 1, len(y) - 1)] - base)
+        slope = (y2 - y1) / (t[i_c + 1] - t[i_c]) if i_c + 1 < len(t) else 0.0
+        t0 = t[i_c] - y1 / slope if slope > 0 else t[i_c - 1]
+        t0 = float(min(max(t0, t[i_c - 1] - (t[i_c] - t[i_c - 1])), t[i_c]))
+        if t[-1] - t0 < MIN_AFTER_S or len(t) < MIN_SAMPLES:
+            raise _err(f"{self.source}: time_s", f"{t[-1] - t0:.4g} s after touchdown",
+                       f"record too short: need >= {MIN_AFTER_S} s after touchdown and >= "
+                       f"{MIN_SAMPLES} samples")
+        self.touchdown_time_s, self.onset_channel = t0, onset
+        pre = t < t0 - 0.5 / self.sample_rate_Hz
+        g = float(self.vehicle.g)
+        for col, vals in self.channels.items():
+            free_fall = CHANNELS[col][2]
+            free_fall = -g if free_fall is None else free_fall
+            seg = vals[pre]
+            self.offsets[col] = float(np.mean(seg)) - free_fall
+            span = float(np.max(vals) - np.min(vals))
+            if seg.size >= MIN_NOISE_SAMPLES:
+                sig_c, src = float(np.std(seg, ddof=1)), "pre-touchdown segment std"
+            else:
+                sig_c, src = _highpass_noise(vals), "high-pass (2nd difference MAD)"
+            floor = NOISE_FLOOR_REL * span
+            if sig_c < floor:
+                sig_c, src = floor, f"floor ({NOISE_FLOOR_REL:g} of the channel's range)"
+            self.noise_std[col], self.noise_source[col] = sig_c, src
+
+    @property
+    def corrected(self) -> dict:
+        """Channels with the offsets removed."""
+        return {c: v - self.offsets[c] for c, v in self.channels.items()}
+
+    @property
+    def duration_after_touchdown_s(self) -> float:
+        return float(self.time_s[-1] - self.touchdown_time_s)
+
+    def summary(self) -> dict:
+        """Metadata and preprocessing, JSON-ready (units in the keys)."""
+        return dict(
+            name=self.name, source=self.source, synthetic=self.synthetic,
+            drop_height_m=self.drop_height_m, sink_speed_mps=self.sink_speed_mps,
+            touchdown_speed_mps=self.touchdown_speed_mps, sample_rate_Hz=self.sample_rate_Hz,
+            n_samples=int(self.time_s.size), sensor_leg=self.sensor_leg,
+            channels=list(self.channels), touchdown_time_s=self.touchdown_time_s,
+            touchdown_detected_from=self.onset_channel,
+            offsets={f"{c}": v for c, v in self.offsets.items()},
+            noise_std={f"{c}": v for c, v in self.noise_std.items()},
+            noise_source=dict(self.noise_source),
+        )
+
+
+def _highpass_noise(y: np.ndarray) -> float:
+    """Robust white-noise std from second differences: MAD / 0.6745 / sqrt(6)."""
+    d2 = np.diff(y, 2)
+    if d2.size == 0:
+        return 0.0
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return mad / 0.6745 / math.sqrt(6.0)
+
+
+def _as_trace(name, vals) -> np.ndarray:
+    try:
+        arr = np.asarray(vals, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _err(name, "<non-numeric>", "must hold numbers only") from None
+    if arr.ndim != 1:
+        raise _err(name, f"shape {arr.shape}", "must be one trace (1-D)")
+    bad = ~np.isfinite(arr)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise _err(name, float(arr[i]), f"must be finite: sample {i} (data row {i + 2}) is "
+                   f"{arr[i]}; remove or repair NaN/inf samples")
+    return arr
+
+
+def _check_column_name(col: str) -> None:
+    if col in CHANNELS or col == TIME:
+        return
+    base, _, unit = col.rpartition("_")
+    for name, want in _UNIT_SUFFIX.items():
+        if col == name or base == name:
+            right = f"{name}_{want}"
+            got = "no unit suffix" if col == name else f"unit '{unit}'"
+            raise _err(f"column {col!r}", col, f"unit suffix missing or wrong ({got}): the "
+                       f"{name} channel must be in {_UNIT_WORDS[want]}, named {right!r}; "
+                       "convert the values (e.g. mm -> m, kN -> N, ms -> s, g -> m/s^2)")
+    raise _err(f"column {col!r}", col, "unknown column; known: " + ", ".join([TIME, *CHANNELS]))
+
+
+def _check_time(t: np.ndarray, rate) -> None:
+    if t.size < 2:
+        raise _err("time_s", f"{t.size} samples", f"record too short: need >= {MIN_SAMPLES}")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        raise _err("time_s", float(t[i + 1]), f"must increase strictly: sample {i + 1} (data "
+                   f"row {i + 3}) is not after the one before ({t[i]})")
+    if t.size < MIN_SAMPLES:
+        raise _err("time_s", f"{t.size} samples", f"record too short: need >= {MIN_SAMPLES}")
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (
+            math.isfinite(rate) and rate > 0):
+        raise _err("sample_rate_Hz", rate, "must be a finite number > 0 Hz")
+    median = float(np.median(dt))
+    if abs(median * rate - 1.0) > 0.01:
+        raise _err("sample_rate_Hz", rate, f"does not match the time column: its median "
+                   f"interval {median:.6g} s means {1.0 / median:.6g} Hz (tolerance 1 %)")
+
+
+def _num(key, val, lo, hi, lo_open=False):
+    if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
+        raise _err(key, val, "must be a finite number")
+    if val < lo or val > hi or (lo_open and val == lo):
+        raise _err(key, val, f"must be in {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+    return float(val)
+
+
+def _touchdown_speed(h, v0, v_td, g):
+    if v_td is not None:
+        if h is not None or v0 is not None:
+            raise _err("touchdown_speed_mps", v_td, "give either touchdown_speed_mps or "
+                       "drop_height_m (with optional sink_speed_mps), not both")
+        return _num("touchdown_speed_mps", v_td, 0.0, 30.0, lo_open=True), None, 0.0
+    if h is None:
+        raise _err("drop_height_m", None, "missing: give drop_height_m (optionally with "
+                   "sink_speed_mps) or touchdown_speed_mps")
+    h = _num("drop_height_m", h, 0.0, 50.0)
+    v0 = 0.0 if v0 is None else _num("sink_speed_mps", v0, 0.0, 30.0)
+    v = math.sqrt(v0 * v0 + 2.0 * g * h)
+    if v <= 0.0:
+        raise _err("drop_height_m", h, "with sink_speed_mps = 0 must be > 0 (no impact)")
+    return v, h, v0
+
+
+# ---------------------------------------------------------------------------------- files
+
+def _read_csv(path: Path):
+    try:
+        fh = path.open(newline="")
+    except FileNotFoundError:
+        raise _err("data_file", str(path), "file does not exist") from None
+    with fh:
+        rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise _err(str(path), "<empty>", "needs a header row and data")
+    header = [h.strip() for h in rows[0]]
+    if TIME not in header:
+        near = [h for h in header if h.startswith("time")]
+        if near:
+            _check_column_name(near[0])
+        raise _err(f"{path.name}: columns", ",".join(header), "missing column time_s (the "
+                   "sample times in s)")
+    seen = set()
+    for h in header:
+        if h in seen:
+            raise _err(f"{path.name}: column {h!r}", h, "appears twice")
+        seen.add(h)
+        _check_column_name(h)
+    data = []
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise _err(f"{path.name}: row {i}", len(row), f"must have {len(header)} values "
+                       f"(one per column: {','.join(header)}); a value is missing or extra")
+        try:
+            data.append([float(x) for x in row])
+        except ValueError:
+            bad = next(x for x in row if not _is_float(x))
+            col = header[row.index(bad)]
+            raise _err(f"{path.name}: row {i}, {col}", bad, "must be a number") from None
+    arr = np.array(data, dtype=np.float64).reshape(-1, len(header))
+    return {h: arr[:, j] for j, h in enumerate(header)}
+
+
+def _is_float(x):
+    try:
+        float(x)
+        return True
+    except ValueError:
+        return False
+
+
+def _meta_paths(path: Path) -> tuple[Path, dict]:
+    path = Path(path)
+    if path.suffix == ".csv":
+        meta_path = path.with_suffix(".toml")
+        if not meta_path.exists():
+            raise _err("metadata", str(meta_path), f"missing: a drop test needs a metadata "
+                       f"TOML beside {path.name} ([drop_test] table)")
+    else:
+        meta_path = path
+    try:
+        with meta_path.open("rb") as fh:
+            meta = tomllib.load(fh)
+    except FileNotFoundError:
+        raise _err("metadata", str(meta_path), "file does not exist") from None
+    except tomllib.TOMLDecodeError as err:
+        raise _err("metadata", str(meta_path), f"is not valid TOML: {err}") from None
+    return meta_path, meta
+
+
+def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
+    """Load one drop test from its metadata TOML (or its CSV, with the TOML beside it of the
+    same name), validate everything and preprocess (touchdown, offsets, noise).
+
+    ``vehicle`` overrides the metadata's ``vehicle_config``. Raises ``jaxland.ConfigError``
+    naming the field (file, column or key), the value and the rule.
+    """
+    meta_path, meta = _meta_paths(Path(path))
+    unknown = set(meta) - {"drop_test", *_OPTIONAL_TABLES}
+    if "drop_test" not in meta or unknown:
+        raise _err(f"{meta_path.name}", sorted(unknown) or "<no [drop_test]>",
+                   "needs a [drop_test] table (and optionally [synthetic_rig]); nothing else")
+    table = meta["drop_test"]
+    for key in table:
+        if key not in META_KEYS:
+            raise _err(f"{meta_path.name}: drop_test.{key}", table[key],
+                       "unknown key; known: " + ", ".join(META_KEYS))
+    if "sample_rate_Hz" not in table:
+        raise _err(f"{meta_path.name}: drop_test.sample_rate_Hz", None, "missing: the sample "
+                   "rate of the traces [Hz]")
+    data_file = table.get("data_file", meta_path.with_suffix(".csv").name)
+    if not isinstance(data_file, str):
+        raise _err("drop_test.data_file", data_file, "must be a file name (string)")
+    csv_path = (meta_path.parent / data_file)
+    cfg = table.get("vehicle_config")
+    if vehicle is None:
+        if cfg is None:
+            vehicle = jl.paper_vehicle()
+        elif not isinstance(cfg, str):
+            raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
+        else:
+            vehicle = jl.load_vehicle(meta_path.parent / cfg)
+    cols = _read_csv(csv_path)
+    time_s = cols.pop(TIME)
+    where = f"{csv_path.name}"
+    try:
+        return DropTest.from_arrays(
+            time_s, cols, sample_rate_Hz=table["sample_rate_Hz"],
+            drop_height_m=table.get("drop_height_m"), sink_speed_mps=table.get("sink_speed_mps"),
+            touchdown_speed_mps=table.get("touchdown_speed_mps"),
+            sensor_leg=table.get("sensor_leg", 0), vehicle=vehicle, vehicle_config=cfg,
+            name=meta_path.stem, synthetic=table.get("synthetic", False),
+            description=table.get("description", ""), source=where)
+    except jl.ConfigError as err:
+        if err.field.startswith(where):
+            raise
+        if err.field in META_KEYS:  # a metadata value (alone or against the time column)
+            raise _err(f"{meta_path.name}: drop_test.{err.field}", err.value,
+                       err.rule) from None
+        raise _err(f"{where}: {err.field}", err.value, err.rule) from None
+
+
+def load_drop_tests(paths, *, vehicle: jl.Vehicle | None = None) -> list[DropTest]:
+    """``load_drop_test`` for each path; the drops must share one vehicle configuration."""
+    drops = [load_drop_test(p, vehicle=vehicle) for p in paths]
+    if not drops:
+        raise _err("DATA", "<none>", "give at least one drop test")
+    first = jl.vehicle_to_toml(drops[0].vehicle)
+    for d in drops[1:]:
+        if jl.vehicle_to_toml(d.vehicle) != first:
+            raise _err(f"{d.source}: vehicle_config", d.vehicle_config,
+                       f"differs from {drops[0].source}'s; drops fitted together must share "
+                       "one vehicle (or pass one with --config)")
+    return drops

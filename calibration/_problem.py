@@ -1,0 +1,276 @@
+"""The calibration problem: weighted residuals of the quarter model against drop-test traces.
+
+For drop d, channel c and sample i inside the fit window,
+
+    r_dci = (m_c(t_i - t0_d; p) - y_dci) / sigma_dc
+
+where ``m_c`` is the quarter model's trajectory (``jaxland.landing``, started at touchdown with
+the drop's touchdown speed, sampled every ``save_dt`` and linearly interpolated to the sample
+times), ``y`` the offset-corrected data, ``sigma_dc`` the channel's noise estimate and ``t0_d``
+the drop's touchdown time on the record's axis. Before touchdown (t < t0) the model holds its
+touchdown values (no force, no stroke, body acceleration -g), so the few samples before the
+onset pin ``t0``.
+
+The unknowns are ``theta = (z, dt0)``: the unconstrained model parameters ``z``
+(``_parameters``) and one touchdown shift per drop in milliseconds from the detected touchdown.
+The vehicle is built from ``z`` inside the jitted function; every parameter that is not fitted
+stays a compile-time constant of the landing loop (several times faster on CPU).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxland as jl
+
+from ._data import CHANNELS, DropTest
+from ._parameters import check_names, from_unconstrained, set_values, to_unconstrained
+
+__all__ = ["CalibrationProblem"]
+
+MS = 1e-3  # the touchdown shifts are fitted in milliseconds
+PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
+_COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
+
+
+def _vehicle_key(vehicle):
+    leaves, treedef = jax.tree.flatten(vehicle)
+    return treedef, tuple(float(x) for x in leaves)
+
+
+def _compiled(vehicle, names, solver, channels, fit_t0):
+    """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels;
+    compiled once and shared (data, speeds and windows are arguments)."""
+    key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt, channels,
+           fit_t0)
+    if key in _COMPILED:
+        return _COMPILED[key]
+    model_cols = tuple(CHANNELS[c][1] for c in channels)
+    n_z = len(names)
+
+    def residual(theta, speeds, rel_t, data, inv_sigma, mask, huber_c):
+        z = theta[:n_z]
+        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle))
+        scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
+        traj, summary = jl.landings(veh, scenes, solver, "quarter")
+        shift = theta[n_z:] * MS if fit_t0 else jnp.zeros_like(speeds)
+        tau = rel_t - shift[:, None]  # (drops, samples): model time of each sample
+
+        def one(tm, ys, ta):  # one drop: (saves,), (channels, saves), (samples,)
+            return jax.vmap(lambda y: jnp.interp(ta, tm, y))(ys)
+
+        ys = jnp.stack([traj[c] for c in model_cols], axis=1)  # (drops, channels, saves)
+        model = jax.vmap(one)(traj["time_s"], ys, tau)  # (drops, channels, samples)
+        r = ((model - data) * inv_sigma[:, :, None] * mask).ravel()
+        # Huber: r -> sign(r) c sqrt(2|r|/c - 1) beyond c, so 0.5 r^2 becomes c|r| - c^2/2
+        u = jnp.abs(r) / huber_c
+        u_safe = jnp.where(u <= 1.0, 1.0, u)
+        r = jnp.where(u <= 1.0, r, jnp.sign(r) * huber_c * jnp.sqrt(2.0 * u_safe - 1.0))
+        return r, jnp.any(summary["failed"])
+
+    def with_jac(theta, *args):
+        def f(th):
+            r, failed = residual(th, *args)
+            return r, (r, failed)
+
+        jac, (r, failed) = jax.jacfwd(f, has_aux=True)(theta)
+        return r, jac, failed
+
+    fns = (jax.jit(residual), jax.jit(with_jac))
+    _COMPILED[key] = fns
+    return fns
+
+
+class CalibrationProblem:
+    """Weighted least squares of the quarter model against one or more drop tests.
+
+    Parameters
+    ----------
+    drops : list of DropTest
+    params : names of the fitted parameters (``calibration.PARAMS``)
+    vehicle : the vehicle whose other parameters stay fixed (default: the first drop's)
+    window_s : fit window after each drop's detected touchdown [s]
+    pre_s : samples this long before the detected touchdown are included [s] (they pin t0)
+    dt, save_dt : integration step and model sampling interval [s]
+    fit_touchdown : fit one touchdown-time shift per drop (else use the detected touchdown)
+    channels : channels to fit (default: every channel any drop has)
+    """
+
+    def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
+                 window_s: float = 0.1, pre_s: float = 0.005, dt: float = 1e-5,
+                 save_dt: float = 2e-5, fit_touchdown: bool = True, channels=None):
+        from ._parameters import DEFAULT_PARAMS
+
+        if isinstance(drops, DropTest):
+            drops = [drops]
+        drops = list(drops)
+        if not drops:
+            raise jl.ConfigError("drops", "[]", "give at least one drop test")
+        self.drops = drops
+        self.names = check_names(DEFAULT_PARAMS if params is None else params)
+        self.vehicle = drops[0].vehicle if vehicle is None else vehicle
+        jl.validate_vehicle(self.vehicle)
+        for name, val in (("window_s", window_s), ("pre_s", pre_s)):
+            if isinstance(val, bool) or not isinstance(val, (int, float)) or not (
+                    np.isfinite(val) and val >= (0.0 if name == "pre_s" else 1e-3)):
+                raise jl.ConfigError(name, val, "must be a finite number >= "
+                                     f"{'0' if name == 'pre_s' else '0.001'} s")
+        for d in drops:
+            if d.duration_after_touchdown_s < window_s - 0.5 / d.sample_rate_Hz:
+                raise jl.ConfigError("window_s", window_s, f"longer than the record "
+                                     f"{d.name} after touchdown "
+                                     f"({d.duration_after_touchdown_s:.4g} s)")
+        self.window_s, self.pre_s = float(window_s), float(pre_s)
+        self.fit_touchdown = bool(fit_touchdown)
+        present = [c for c in CHANNELS if any(c in d.channels for d in drops)]
+        if channels is None:
+            channels = present
+        channels = tuple(channels)
+        for c in channels:
+            if c not in present:
+                raise jl.ConfigError("channels", c, "not in the data; present: "
+                                     + ", ".join(present))
+        if not channels:
+            raise jl.ConfigError("channels", "", "select at least one channel")
+        self.channels = channels
+        # model time span: the window plus room for the touchdown shift
+        self.solver = jl.Solver(dt=dt, t_end=self.window_s + 0.005, save_dt=save_dt)
+        self.solver.validate()
+        n = max(int(np.sum(self._in_window(d))) for d in drops)
+        nd, nc = len(drops), len(channels)
+        rel_t = np.zeros((nd, n))
+        data = np.zeros((nd, nc, n))
+        mask = np.zeros((nd, nc, n))
+        inv_sigma = np.ones((nd, nc))
+        for i, d in enumerate(drops):
+            sel = self._in_window(d)
+            m = int(np.sum(sel))
+            rel_t[i, :m] = d.time_s[sel] - d.touchdown_time_s
+            rel_t[i, m:] = rel_t[i, m - 1] if m else 0.0
+            corr = d.corrected
+            for j, c in enumerate(channels):
+                if c in d.channels:
+                    data[i, j, :m] = corr[c][sel]
+                    mask[i, j, :m] = 1.0
+                    inv_sigma[i, j] = 1.0 / d.noise_std[c]
+        self.speeds = np.array([d.touchdown_speed_mps for d in drops])
+        self.rel_t, self.data, self.inv_sigma = rel_t, data, inv_sigma
+        self.has, self.mask = mask, mask
+        self.n_obs = int(mask.sum())
+        self.active_window_s = self.window_s
+        self.huber_c = PLAIN
+        self.n_z = len(self.names)
+        self.n_theta = self.n_z + (nd if self.fit_touchdown else 0)
+        # the fitted values are replaced inside: key the compiled code on the fixed ones only
+        canonical = set_values(self.vehicle, self.names, np.full(len(self.names), 0.5))
+        self._res, self._jac = _compiled(canonical, self.names, self.solver, channels,
+                                         self.fit_touchdown)
+
+    def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
+        """The same problem (same compiled functions) fitting only the samples up to
+        ``window_s`` after touchdown (<= the problem's ``window_s``), and only ``channels``
+        (default: all of the problem's)."""
+        if not 0.0 < window_s <= self.window_s + 1e-12:
+            raise jl.ConfigError("window_s", window_s,
+                                 f"must be in (0, {self.window_s:g}] s (the problem's window)")
+        new = copy.copy(self)
+        new.mask = self.has * (self.rel_t <= window_s + 1e-12)[:, None, :]
+        if channels is not None:
+            keep = np.array([c in channels for c in self.channels], dtype=float)
+            new.mask = new.mask * keep[None, :, None]
+        new.n_obs = int(new.mask.sum())
+        new.active_window_s = float(window_s)
+        return new
+
+    def robust(self, c: float | None) -> CalibrationProblem:
+        """The same problem with a Huber loss of threshold ``c`` (weighted-residual units;
+        None: plain least squares)."""
+        new = copy.copy(self)
+        new.huber_c = PLAIN if c is None else float(c)
+        return new
+
+    def _in_window(self, d: DropTest) -> np.ndarray:
+        rel = d.time_s - d.touchdown_time_s
+        return (rel >= -self.pre_s) & (rel <= self.window_s)
+
+    # ------------------------------------------------------------------------ parameters
+    def theta_from(self, vehicle: jl.Vehicle | None = None, shifts_ms=None) -> np.ndarray:
+        """theta for ``vehicle``'s values of the fitted parameters (default: the problem's
+        vehicle) and touchdown shifts (default 0)."""
+        z = to_unconstrained(self.vehicle if vehicle is None else vehicle, self.names)
+        if not self.fit_touchdown:
+            return z
+        s = np.zeros(len(self.drops)) if shifts_ms is None else np.asarray(shifts_ms, float)
+        return np.concatenate([z, s])
+
+    def values(self, theta) -> np.ndarray:
+        """Physical values of the fitted parameters [SI] at ``theta``."""
+        z = jnp.asarray(theta[: self.n_z])
+        return np.asarray(from_unconstrained(z, self.names, self.vehicle))
+
+    def vehicle_at(self, theta) -> jl.Vehicle:
+        """The vehicle with the fitted parameters at ``theta`` (validated)."""
+        return jl.validate_vehicle(set_values(self.vehicle, self.names, self.values(theta)))
+
+    def touchdown_times(self, theta) -> np.ndarray:
+        """Each drop's touchdown time on its record's axis [s] at ``theta``."""
+        t0 = np.array([d.touchdown_time_s for d in self.drops])
+        if self.fit_touchdown:
+            t0 = t0 + np.asarray(theta[self.n_z:]) * MS
+        return t0
+
+    def transform_jacobian(self, theta) -> np.ndarray:
+        """d(physical values)/d(theta[:n_z]) (for the delta method)."""
+        z = jnp.asarray(theta[: self.n_z])
+        return np.asarray(jax.jacfwd(lambda zz: from_unconstrained(
+            zz, self.names, self.vehicle))(z))
+
+    # ------------------------------------------------------------------------ evaluation
+    def _args(self):
+        return (jnp.asarray(self.speeds), jnp.asarray(self.rel_t), jnp.asarray(self.data),
+                jnp.asarray(self.inv_sigma), jnp.asarray(self.mask),
+                jnp.asarray(self.huber_c, dtype=jnp.float64))
+
+    def residuals(self, theta) -> tuple[np.ndarray, bool]:
+        """Weighted residual vector (flattened drops x channels x samples; padding is 0) and
+        whether any landing failed numerically."""
+        r, failed = self._res(jnp.asarray(theta, dtype=jnp.float64), *self._args())
+        return np.asarray(r), bool(failed)
+
+    def residuals_and_jacobian(self, theta):
+        """(r, J, failed) with J = dr/dtheta by forward mode (``jax.jacfwd``)."""
+        r, jac, failed = self._jac(jnp.asarray(theta, dtype=jnp.float64), *self._args())
+        return np.asarray(r), np.asarray(jac), bool(failed)
+
+    def loss(self, theta) -> float:
+        """0.5 * sum of squared weighted residuals."""
+        r, _ = self.residuals(theta)
+        return 0.5 * float(r @ r)
+
+    def loss_fn(self):
+        """A pure, jittable ``theta -> loss`` (for ``jax.grad`` / ``jax.jacfwd``)."""
+        args = self._args()
+        res = self._res
+
+        def f(theta):
+            r, _ = res(theta, *args)
+            return 0.5 * jnp.sum(r * r)
+
+        return f
+
+    def channel_rms(self, theta) -> dict:
+        """Per drop and channel: RMS of the unweighted residual (data units)."""
+        r, _ = self.robust(None).residuals(theta)
+        r = r.reshape(self.data.shape) / self.inv_sigma[:, :, None]
+        out = {}
+        for i, d in enumerate(self.drops):
+            out[d.name] = {}
+            for j, c in enumerate(self.channels):
+                m = self.mask[i, j] > 0
+                if m.any():
+                    out[d.name][c] = float(np.sqrt(np.mean(r[i, j, m] ** 2)))
+        return out

@@ -1,0 +1,192 @@
+"""``jaxland fit`` and ``jaxland predict``: the calibration's command line.
+
+``add_subcommands(subparsers)`` registers both on an ``argparse`` subparsers object; each
+handler returns an exit code and raises ``jaxland.ConfigError`` for bad input (the ``jaxland``
+command maps it to exit code 2, and ``SimulationError`` to 3). Output files are written into a
+staging folder and moved into place only once all of them exist.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import jaxland as jl
+
+__all__ = ["add_subcommands"]
+
+
+def _floats(flag: str, text: str) -> list[float]:
+    try:
+        vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise jl.ConfigError(flag, text, "must be comma-separated numbers") from None
+    if not vals:
+        raise jl.ConfigError(flag, text, "must give at least one number")
+    return vals
+
+
+def _start(text: str | None) -> dict | None:
+    if not text:
+        return None
+    out = {}
+    for item in text.split(","):
+        name, sep, val = item.partition("=")
+        if not sep:
+            raise jl.ConfigError("--start", item, "must be name=value pairs, e.g. k=2e6,F1=5000")
+        try:
+            out[name.strip()] = float(val)
+        except ValueError:
+            raise jl.ConfigError(f"--start {name.strip()}", val, "must be a number") from None
+    return out
+
+
+def _out_dir(path: str) -> Path:
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise jl.ConfigError("--out", str(out), "exists and is not a folder")
+    return out
+
+
+def _publish(staging: Path, out: Path) -> None:
+    for path in sorted(staging.rglob("*")):
+        if path.is_file():
+            dest = out / path.relative_to(staging)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            path.replace(dest)
+
+
+class _Progress:
+    """One stderr line per iteration."""
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+
+    def __call__(self, rec: dict) -> None:
+        if self.quiet:
+            return
+        extra = (f"  lambda {rec['lambda_']:.1e}" if "lambda_" in rec
+                 else f"  |grad| {rec.get('grad_max', float('nan')):.2e}")
+        print(f"fit stage {rec['stage']}  iter {rec['iteration']:3d}  loss {rec['loss']:.6e}"
+              f"{extra}  {rec['wall_s']:6.1f} s", file=sys.stderr, flush=True)
+
+
+def _cmd_fit(args) -> int:
+    from . import _fit
+    from ._data import load_drop_tests
+    from ._parameters import check_names
+
+    out = _out_dir(args.out)
+    names = check_names(args.params)
+    vehicle = jl.load_vehicle(args.config) if args.config else None
+    drops = load_drop_tests(args.data, vehicle=vehicle)
+    windows = _floats("--windows", args.windows)
+    refine = args.refine_window_s if args.refine_window_s and args.refine_window_s > 0 else None
+    robust = args.robust if args.robust and args.robust > 0 else None
+    print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
+          f"parameters {', '.join(names)}, method {args.method}", file=sys.stderr)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", _fit.IdentifiabilityWarning)
+        result = _fit.fit(drops, names, vehicle=vehicle, start=_start(args.start),
+                          windows=windows, refine_window_s=refine, robust=robust,
+                          method=args.method, max_iter=args.max_iter, dt=args.dt,
+                          progress=_Progress(args.quiet))
+    for w in caught:
+        print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+    try:
+        (staging / "fitted_vehicle.toml").write_text(result.to_toml())
+        result.to_json(staging / "fit_report.json")
+        if not args.no_plots:
+            result.plot(staging / "figures")
+        _publish(staging, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    width = max(len(n) for n in result.names)
+    print(f"fitted in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
+          f"iterations); residual variance factor {result.sigma2:.3g}")
+    for i, n in enumerate(result.names):
+        from ._parameters import PARAMS
+
+        flag = "" if result.identified[i] else "   NOT IDENTIFIED"
+        print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
+              f"{PARAMS[n][1]}  (start {result.start_values[i]:.6g}){flag}")
+    print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
+          + ("" if args.no_plots else ", figures/*.png"))
+    return 0
+
+
+def _cmd_predict(args) -> int:
+    from ._data import load_drop_test
+    from ._predict import predict
+
+    out = _out_dir(args.out)
+    vehicle = jl.load_vehicle(args.config)
+    drops = [load_drop_test(p, vehicle=vehicle) for p in args.data]
+    preds = [predict(vehicle, d) for d in drops]
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+    try:
+        for p in preds:
+            p.to_json(staging / f"prediction_{p.drop.name}.json")
+            if not args.no_plots:
+                p.plot(staging / "figures" / f"prediction_{p.drop.name}.png")
+        _publish(staging, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    for p in preds:
+        print(f"jaxland predict: {p.drop.name} with {args.config}")
+        for k, v in p.metrics.items():
+            print(f"  {k:<22} data {v['data']:<12.6g} model {v['model']:<12.6g} "
+                  f"error {v['rel_error']:+.2%}")
+    print(f"wrote {out}/prediction_*.json" + ("" if args.no_plots else ", figures/*.png"))
+    return 0
+
+
+def add_subcommands(subparsers) -> None:
+    """Register ``fit`` and ``predict`` on an argparse subparsers object."""
+    from ._fit import REFINE_WINDOW_S, ROBUST_K, WINDOWS_S
+    from ._parameters import DEFAULT_PARAMS, PARAMS
+
+    f = subparsers.add_parser(
+        "fit", help="calibrate the quarter model to drop-test traces; write the fitted "
+                    "config, a report and figures")
+    f.add_argument("data", nargs="+", metavar="DATA",
+                   help="drop tests: metadata TOML files (or their CSVs, TOML beside them)")
+    f.add_argument("--params", default=",".join(DEFAULT_PARAMS),
+                   help=f"parameters to fit, comma-separated (default {','.join(DEFAULT_PARAMS)}"
+                        f"; known: {','.join(PARAMS)})")
+    f.add_argument("--config", help="vehicle TOML for the fixed parameters and the start "
+                                     "(default: the drops' vehicle_config)")
+    f.add_argument("--start", help="start values, e.g. k=2e6,F1=5000 (SI; default: the config)")
+    f.add_argument("--windows", default=",".join(f"{w:g}" for w in WINDOWS_S),
+                   help="growing fit windows after touchdown [s] (default "
+                        f"{','.join(f'{w:g}' for w in WINDOWS_S)})")
+    f.add_argument("--refine-window-s", type=float, default=REFINE_WINDOW_S,
+                   help=f"one refit on this longer window [s] (default {REFINE_WINDOW_S:g}; 0: "
+                        "skip)")
+    f.add_argument("--robust", type=float, default=ROBUST_K,
+                   help=f"Huber threshold in robust residual std (default {ROBUST_K:g}; 0: "
+                        "plain least squares)")
+    f.add_argument("--method", default="lm", choices=("lm", "lbfgs"),
+                   help="lm: Levenberg-Marquardt on the jacfwd Jacobian (default); lbfgs: "
+                        "optax.lbfgs")
+    f.add_argument("--max-iter", type=int, default=60, help="iterations per stage (default 60)")
+    f.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
+    f.add_argument("--out", default="out/fit", help="output folder (default out/fit)")
+    f.add_argument("--no-plots", action="store_true", help="skip the figures")
+    f.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")
+    f.set_defaults(func=_cmd_fit)
+
+    p = subparsers.add_parser(
+        "predict", help="simulate drop tests with a (fitted) vehicle and compare peaks and "
+                        "strokes with the data")
+    p.add_argument("data", nargs="+", metavar="DATA", help="drop tests (metadata TOML or CSV)")
+    p.add_argument("--config", required=True, help="vehicle TOML, e.g. fitted_vehicle.toml")
+    p.add_argument("--out", default="out/predict", help="output folder (default out/predict)")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.set_defaults(func=_cmd_predict)

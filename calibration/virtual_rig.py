@@ -1,0 +1,234 @@
+"""A virtual drop-test rig: synthetic drop tests with known truth, since no measured data is
+public.
+
+The rig drops a vehicle whose parameters are the **truth** (the paper vehicle perturbed by
+``TRUTH_SCALE``, below) with jaxland's quarter model, from release, at dt = 1e-5 s, and records
+what a real rig records, with what a real rig adds:
+
+* **sampling**: 5 kHz, a record of ``duration_s`` (1.2 s) that starts ``pre_trigger_s``
+  (50 ms) before touchdown; the record's time axis starts at 0, so touchdown is not at a known
+  time and has to be found;
+* **sensor noise**: white Gaussian, ``NOISE`` per channel;
+* **a stroke offset**: the stroke sensor is not zeroed (``STROKE_OFFSET_M``);
+* **a crush peak**, which the model does not have: honeycomb needs a higher stress to start
+  crushing than to keep crushing. Both force channels are multiplied by
+  ``1 + CRUSH_PEAK * s(p / p0)`` with ``s(u) = u exp(1 - u)`` (peak 1 at u = 1), p the primary
+  honeycomb's crushed length and p0 = ``CRUSH_PEAK_LENGTH_M`` (0.4 mm): a +20 % overshoot over
+  the first millimetre or so of crushing, about 1-2 ms.
+
+``python -m calibration.virtual_rig [--out data/synthetic]`` writes the bundled set: one CSV +
+metadata TOML per drop height (``HEIGHTS_M``), ``truth_vehicle.toml`` (the truth, loadable by
+``jaxland simulate --config``), all labelled SYNTHETIC. ``--clean`` writes noise- and
+artefact-free variants instead. Everything is seeded and reproducible.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import jaxland as jl
+
+from ._data import CHANNELS, DropTest
+from ._parameters import get_values, set_values
+from ._report import atomic_write_text
+
+__all__ = ["TRUTH_SCALE", "NOISE", "STROKE_OFFSET_M", "CRUSH_PEAK", "CRUSH_PEAK_LENGTH_M",
+           "HEIGHTS_M", "truth_vehicle", "record", "drop_test", "write_drop_test", "main"]
+
+# truth = paper vehicle x scale (ground stiffer and lossier-less, less damping, softer primary
+# elastic stage, stronger primary and weaker secondary honeycomb)
+TRUTH_SCALE = {"k": 1.30, "gamma": 0.80, "D_b": 0.80, "k_b1": 0.80, "F1": 1.08, "F2": 0.94}
+NOISE = {"normal_force_N": 60.0, "buffer_force_N": 40.0, "stroke_m": 5e-5,
+         "body_accel_mps2": 0.3}  # white-noise std per channel, in the channel's unit
+STROKE_OFFSET_M = 1.5e-3
+CRUSH_PEAK = 0.20
+CRUSH_PEAK_LENGTH_M = 4e-4
+HEIGHTS_M = (0.15, 0.20, 0.30)
+SAMPLE_RATE_HZ = 5000.0
+_SIM_DT = 1e-5
+
+
+def truth_vehicle(base: jl.Vehicle | None = None) -> jl.Vehicle:
+    """The rig's truth: ``base`` (the paper vehicle) with ``TRUTH_SCALE`` applied."""
+    base = jl.paper_vehicle() if base is None else base
+    names = tuple(TRUTH_SCALE)
+    vals = get_values(base, names) * np.array([TRUTH_SCALE[n] for n in names])
+    return jl.validate_vehicle(set_values(base, names, vals))
+
+
+def _crush_shape(p):
+    u = np.maximum(p, 0.0) / CRUSH_PEAK_LENGTH_M
+    return u * np.exp(1.0 - u)
+
+
+def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2,
+           pre_trigger_s: float = 0.05, sample_rate_Hz: float = SAMPLE_RATE_HZ,
+           noise: dict | None = NOISE, stroke_offset_m: float = STROKE_OFFSET_M,
+           crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0):
+    """Run the rig: ``(time_s, {channel: samples}, info)``. ``noise=None``, ``stroke_offset_m=0``
+    and ``crush_peak=0`` give the clean record (the model itself, sampled)."""
+    step = int(round(1.0 / (sample_rate_Hz * _SIM_DT)))
+    if abs(step * sample_rate_Hz * _SIM_DT - 1.0) > 1e-9:
+        raise jl.ConfigError("sample_rate_Hz", sample_rate_Hz,
+                             f"must divide 1/{_SIM_DT:g} s (the rig samples the simulation)")
+    g = float(vehicle.g)
+    t_td_est = math.sqrt(2.0 * drop_height_m / g)
+    t_end = t_td_est + duration_s + 0.01
+    res = jl.simulate(jl.Scene(drop_height=drop_height_m), vehicle, dt=_SIM_DT, t_end=t_end,
+                      save_dt=_SIM_DT, model="quarter")
+    tr = res.trajectory
+    t_td = res.outcomes["touchdown_time_s"]
+    i0 = int(round((t_td - pre_trigger_s) / _SIM_DT))
+    n = int(round(duration_s * sample_rate_Hz))
+    idx = i0 + step * np.arange(n)
+    if i0 < 0 or idx[-1] >= tr["time_s"].size:
+        raise jl.ConfigError("pre_trigger_s", pre_trigger_s, "the record must lie within the "
+                             "simulated drop (pre-trigger shorter than the fall)")
+    time_s = np.arange(n) / sample_rate_Hz
+    hc = vehicle.honeycomb
+    p1 = np.minimum(tr["plastic_set_m"][idx], float(hc.x_L2 - hc.x_L1))
+    peak = 1.0 + crush_peak * _crush_shape(p1)
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c in channels:
+        y = np.array(tr[CHANNELS[c][1]][idx], dtype=float)
+        if c in ("normal_force_N", "buffer_force_N"):
+            y = y * peak
+        if c == "stroke_m":
+            y = y + stroke_offset_m
+        if noise:
+            y = y + rng.normal(0.0, noise[c], size=n)
+        out[c] = y
+    info = dict(touchdown_time_in_record_s=float(t_td - i0 * _SIM_DT),
+                touchdown_time_from_release_s=float(t_td),
+                touchdown_speed_mps=float(res.outcomes["touchdown_speed_mps"]),
+                max_stroke_m=float(res.outcomes["max_stroke_m"]),
+                final_stroke_m=float(res.outcomes["final_stroke_m"]),
+                peak_normal_force_N=float(res.outcomes["peak_normal_force_N"]),
+                peak_strut_force_N=float(res.outcomes["peak_strut_force_N"]),
+                peak_body_accel_mps2=float(res.outcomes["peak_body_accel_mps2"]))
+    return time_s, out, info
+
+
+def drop_test(drop_height_m: float, *, vehicle: jl.Vehicle | None = None,
+              nominal: jl.Vehicle | None = None, name: str | None = None, **kwargs) -> DropTest:
+    """A validated, preprocessed in-memory ``DropTest`` from the rig (truth ``vehicle``,
+    default ``truth_vehicle()``; the drop carries ``nominal``, default the paper vehicle, as its
+    vehicle configuration, as a metadata file would)."""
+    vehicle = truth_vehicle() if vehicle is None else vehicle
+    t, ch, info = record(vehicle, drop_height_m, **kwargs)
+    return DropTest.from_arrays(
+        t, ch, sample_rate_Hz=kwargs.get("sample_rate_Hz", SAMPLE_RATE_HZ),
+        drop_height_m=drop_height_m, vehicle=jl.paper_vehicle() if nominal is None else nominal,
+        name=name or f"drop_h{drop_height_m:.2f}m", synthetic=True,
+        description="SYNTHETIC (calibration.virtual_rig)")
+
+
+def _csv_text(time_s, channels: dict, banner: str) -> str:
+    cols = ["time_s", *channels]
+    lines = [f"# {banner}", ",".join(cols)]
+    data = np.column_stack([time_s, *channels.values()])
+    lines += [",".join(f"{x:.7g}" for x in row) for row in data]
+    return "\n".join(lines) + "\n"
+
+
+def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False, seed=0,
+                    vehicle_config="nominal_vehicle.toml", duration_s=1.2):
+    """Write ``drop_hX.XXm.csv`` and ``.toml`` (metadata) into ``out_dir``; return their paths.
+    ``vehicle_config`` is written into the metadata (the nominal vehicle the fit starts from)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    vehicle = truth_vehicle() if vehicle is None else vehicle
+    kw = dict(noise=None, stroke_offset_m=0.0, crush_peak=0.0) if clean else {}
+    t, ch, info = record(vehicle, drop_height_m, duration_s=duration_s, seed=seed, **kw)
+    stem = f"drop_h{drop_height_m:.2f}m{'_clean' if clean else ''}"
+    banner = (f"SYNTHETIC drop test, not measured: calibration.virtual_rig, truth "
+              f"truth_vehicle.toml, drop height {drop_height_m} m, seed {seed}"
+              f"{', clean (no noise, offset or crush peak)' if clean else ''}")
+    meta = [
+        f"# {banner}",
+        "# Generated by `python -m calibration.virtual_rig`; see data/README.md.",
+        "[drop_test]",
+        f'data_file = "{stem}.csv"',
+        "synthetic = true",
+        f'description = "{banner}"',
+        f"drop_height_m = {drop_height_m}",
+        f"sample_rate_Hz = {SAMPLE_RATE_HZ}",
+        "sensor_leg = 0",
+        f'vehicle_config = "{vehicle_config}"',
+        "",
+        "[synthetic_rig]  # what the rig did (informational; the loader does not read it)",
+        f"seed = {seed}",
+        "noise_std = { " + ", ".join(f"{k} = {0.0 if clean else v:g}"
+                                     for k, v in NOISE.items()) + " }",
+        f"stroke_offset_m = {0.0 if clean else STROKE_OFFSET_M:g}",
+        f"crush_peak_rel = {0.0 if clean else CRUSH_PEAK:g}",
+        f"crush_peak_length_m = {CRUSH_PEAK_LENGTH_M:g}",
+        f"touchdown_time_in_record_s = {info['touchdown_time_in_record_s']:.6f}",
+        f"touchdown_speed_mps = {info['touchdown_speed_mps']:.9g}",
+        f"true_max_stroke_m = {info['max_stroke_m']:.9g}",
+        f"true_final_stroke_m = {info['final_stroke_m']:.9g}",
+        f"true_peak_normal_force_N = {info['peak_normal_force_N']:.9g}",
+        f"true_peak_buffer_force_N = {info['peak_strut_force_N']:.9g}",
+        f"true_peak_body_accel_mps2 = {info['peak_body_accel_mps2']:.9g}",
+    ]
+    csv_path, meta_path = out_dir / f"{stem}.csv", out_dir / f"{stem}.toml"
+    atomic_write_text(csv_path, _csv_text(t, ch, banner))
+    atomic_write_text(meta_path, "\n".join(meta) + "\n")
+    return csv_path, meta_path
+
+
+def write_nominal(out_dir) -> Path:
+    """``nominal_vehicle.toml``: the vehicle as designed (the paper's), which the drop tests'
+    metadata name as their configuration and a fit starts from."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "nominal_vehicle.toml"
+    atomic_write_text(path, "# The nominal (as designed) vehicle of the synthetic drop tests: the "
+                 "paper vehicle.\n" + jl.vehicle_to_toml(jl.paper_vehicle()))
+    return path
+
+
+def write_truth(out_dir, vehicle=None) -> Path:
+    """``truth_vehicle.toml``: the rig's truth as a jaxland vehicle config, labelled."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    vehicle = truth_vehicle() if vehicle is None else vehicle
+    head = ["# SYNTHETIC: the TRUE parameters of the virtual test rig (calibration.virtual_rig),",
+            "# the paper vehicle scaled by " + ", ".join(f"{k} x{v:g}" for k, v in
+                                                       TRUTH_SCALE.items()) + ".",
+            "# A calibration of data/synthetic/*.csv should recover these.", ""]
+    path = out_dir / "truth_vehicle.toml"
+    atomic_write_text(path, "\n".join(head) + jl.vehicle_to_toml(vehicle))
+    return path
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m calibration.virtual_rig",
+                                description="write synthetic drop tests with known truth")
+    p.add_argument("--out", default="data/synthetic", help="output folder")
+    p.add_argument("--heights", type=float, nargs="+", default=list(HEIGHTS_M),
+                   help="drop heights [m]")
+    p.add_argument("--clean", action="store_true", help="no noise, offset or crush peak")
+    p.add_argument("--duration", type=float, default=1.2, help="record length [s]")
+    args = p.parse_args(argv)
+    try:
+        write_truth(args.out)
+        write_nominal(args.out)
+        for i, h in enumerate(args.heights):
+            paths = write_drop_test(args.out, h, clean=args.clean, seed=100 + i,
+                                    duration_s=args.duration)
+            print(f"wrote {paths[0]} and {paths[1].name}")
+    except jl.JaxlandError as err:
+        print(f"virtual_rig: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,418 @@
+"""Calibration (issue #4): data validation, recovery of known truth, gradients of the calibration
+loss against finite differences, uncertainty coverage, identifiability, the crush-peak data's
+fit and prediction, and the `fit` / `predict` command line.
+
+Truth comes from the virtual rig (``calibration.virtual_rig``): jaxland's quarter model with the
+paper vehicle perturbed by ``TRUTH_SCALE``, simulated from release. The fit simulates from
+touchdown and interpolates its trajectory to the samples, so even noise-free data are not
+reproduced bit for bit: that is why recovery is checked to 0.5 %, not to round-off.
+"""
+
+import argparse
+import json
+import math
+import tomllib
+import warnings
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import calibration as cal
+import jaxland as jl
+from calibration import virtual_rig as vr
+from calibration._parameters import get_values
+from calibration.cli import add_subcommands
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
+TRUTH = vr.truth_vehicle()
+NAMES = cal.DEFAULT_PARAMS
+P_TRUE = get_values(TRUTH, NAMES)
+CLEAN = dict(noise=None, stroke_offset_m=0.0, crush_peak=0.0)
+
+
+def _start(factors):
+    """The truth scaled per parameter (gamma kept in (0, 1))."""
+    vals = P_TRUE * np.asarray(factors, float)
+    return dict(zip(NAMES, vals))
+
+
+# ------------------------------------------------------------------------------ data checks
+
+def _write(tmp_path, header, rows, meta=None, name="drop"):
+    csv_path = tmp_path / f"{name}.csv"
+    lines = [",".join(header)] + [",".join(str(x) for x in r) for r in rows]
+    csv_path.write_text("\n".join(lines) + "\n")
+    meta = meta if meta is not None else {"drop_height_m": 0.2, "sample_rate_Hz": 5000.0}
+    body = "\n".join(f"{k} = {json.dumps(v)}" for k, v in meta.items())
+    (tmp_path / f"{name}.toml").write_text(f"[drop_test]\n{body}\n")
+    return tmp_path / f"{name}.toml"
+
+
+def _trace(n=1000, onset=100, rate=5000.0):
+    """A simple drop-like record: zero, then a force ramp to a plateau and a growing stroke."""
+    t = np.arange(n) / rate
+    k = np.clip(np.arange(n) - onset, 0, None)
+    force = np.minimum(k * 400.0, 8000.0)
+    stroke = 1e-4 * k
+    return t, force, stroke
+
+
+def _rows(*cols):
+    return np.column_stack(cols).tolist()
+
+
+def test_a_valid_record_loads_and_touchdown_offsets_and_noise_are_found(tmp_path):
+    t, f, x = _trace()
+    rng = np.random.default_rng(0)
+    x_meas = x + 2e-3 + rng.normal(0, 1e-5, t.size)  # a stroke offset of 2 mm
+    path = _write(tmp_path, ["time_s", "normal_force_N", "stroke_m"], _rows(t, f, x_meas))
+    d = cal.load_drop_test(path)
+    assert abs(d.touchdown_time_s - 100 / 5000.0) <= 1 / 5000.0
+    assert d.offsets["stroke_m"] == pytest.approx(2e-3, abs=1e-5)
+    assert d.noise_std["stroke_m"] == pytest.approx(1e-5, rel=0.3)
+    assert d.touchdown_speed_mps == pytest.approx(math.sqrt(2 * 9.81 * 0.2))
+    assert cal.load_drop_test(tmp_path / "drop.csv").name == "drop"  # the CSV finds its TOML
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("no_time", "missing column time_s"),
+    ("no_channel", "need at least one data channel"),
+    ("unknown_column", "unknown column"),
+    ("stroke_in_mm", "unit suffix missing or wrong"),
+    ("no_unit", "unit suffix missing or wrong"),
+    ("force_in_kN", "must be in N"),
+    ("duplicate", "appears twice"),
+    ("missing_value", "a value is missing"),
+    ("nan", "must be finite"),
+    ("inf", "must be finite"),
+    ("not_a_number", "must be a number"),
+    ("time_backwards", "must increase strictly"),
+    ("too_short", "record too short"),
+    ("short_after_touchdown", "record too short"),
+    ("no_touchdown", "no touchdown found"),
+    ("touchdown_at_start", "no touchdown found inside the record"),
+    ("rate_mismatch", "does not match the time column"),
+    ("no_height", "missing: give drop_height_m"),
+    ("height_and_speed", "give either touchdown_speed_mps or drop_height_m"),
+    ("bad_height", "must be in [0, 50]"),
+    ("unknown_meta", "unknown key"),
+    ("bad_leg", "must be an integer in [0, 4)"),
+    ("no_rate", "sample_rate_Hz"),
+    ("missing_config", "file does not exist"),
+])
+def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
+    t, f, x = _trace()
+    header, cols = ["time_s", "normal_force_N", "stroke_m"], [t, f, x]
+    meta = {"drop_height_m": 0.2, "sample_rate_Hz": 5000.0}
+    rows = None
+    if case == "no_time":
+        header, cols = ["normal_force_N", "stroke_m"], [f, x]
+    elif case == "no_channel":
+        header, cols = ["time_s"], [t]
+    elif case == "unknown_column":
+        header = ["time_s", "normal_force_N", "foot_force_N"]
+    elif case == "stroke_in_mm":
+        header, cols = ["time_s", "normal_force_N", "stroke_mm"], [t, f, x * 1e3]
+    elif case == "no_unit":
+        header = ["time_s", "normal_force_N", "stroke"]
+    elif case == "force_in_kN":
+        header, cols = ["time_s", "normal_force_kN", "stroke_m"], [t, f * 1e-3, x]
+    elif case == "duplicate":
+        header, cols = ["time_s", "stroke_m", "stroke_m"], [t, x, x]
+    elif case in ("nan", "inf"):
+        f = f.copy()
+        f[500] = np.nan if case == "nan" else np.inf
+        cols = [t, f, x]
+    elif case == "time_backwards":
+        t = t.copy()
+        t[300] = t[298]
+        cols = [t, f, x]
+    elif case == "too_short":
+        cols = [c[:30] for c in cols]
+    elif case == "short_after_touchdown":
+        t, f, x = _trace(n=200, onset=100)
+        cols = [t, f, x]
+    elif case == "no_touchdown":
+        cols = [t, np.zeros_like(f), np.zeros_like(x)]
+    elif case == "touchdown_at_start":
+        t, f, x = _trace(onset=3)
+        cols = [t, f, x]
+    elif case == "rate_mismatch":
+        meta["sample_rate_Hz"] = 1000.0
+    elif case == "no_height":
+        meta.pop("drop_height_m")
+    elif case == "height_and_speed":
+        meta["touchdown_speed_mps"] = 2.0
+    elif case == "bad_height":
+        meta["drop_height_m"] = -0.1
+    elif case == "unknown_meta":
+        meta["drop_hieght_m"] = 0.2
+    elif case == "bad_leg":
+        meta["sensor_leg"] = 4
+    elif case == "no_rate":
+        meta.pop("sample_rate_Hz")
+    elif case == "missing_config":
+        meta["vehicle_config"] = "nowhere.toml"
+    rows = _rows(*cols)
+    if case == "missing_value":
+        rows[400] = rows[400][:-1]
+    if case == "not_a_number":
+        rows[400][1] = "abc"
+    path = _write(tmp_path, header, rows, meta)
+    with pytest.raises(jl.ConfigError) as err:
+        cal.load_drop_test(path)
+    assert needle in str(err.value), str(err.value)
+
+
+def test_bundled_synthetic_data_are_labelled_and_carry_their_truth():
+    truth = jl.load_vehicle(DATA / "truth_vehicle.toml")
+    np.testing.assert_allclose(get_values(truth, NAMES), P_TRUE, rtol=1e-11)
+    assert "SYNTHETIC" in (DATA / "truth_vehicle.toml").read_text()
+    for h in vr.HEIGHTS_M:
+        meta = tomllib.loads((DATA / f"drop_h{h:.2f}m.toml").read_text())
+        assert meta["drop_test"]["synthetic"] is True
+        assert (DATA / f"drop_h{h:.2f}m.csv").read_text().startswith("# SYNTHETIC")
+        d = cal.load_drop_test(DATA / f"drop_h{h:.2f}m.toml")
+        assert d.synthetic and set(d.channels) == set(cal.CHANNELS)
+        assert d.sample_rate_Hz == 5000.0 and d.time_s.size == 6000
+        # the rig's stroke offset is found from the pre-touchdown segment, the touchdown too
+        assert d.offsets["stroke_m"] == pytest.approx(vr.STROKE_OFFSET_M, abs=2e-5)
+        t_true = meta["synthetic_rig"]["touchdown_time_in_record_s"]
+        assert abs(d.touchdown_time_s - t_true) < 2e-4
+
+
+# ------------------------------------------------------------------------------ recovery
+
+@pytest.fixture(scope="module")
+def clean_drop():
+    """Noise- and artefact-free 0.2 m drop from the rig, 0.22 s record."""
+    return vr.drop_test(0.2, duration_s=0.22, **CLEAN)
+
+
+@pytest.mark.parametrize("factors", [
+    [1.3, 0.77, 1.3, 0.77, 1.3, 1.3],   # 30 % off
+    [2.0, 2.0, 2.0, 2.0, 2.0, 2.0],     # 2x off (gamma 0.4 -> 0.8)
+    [0.5, 0.5, 0.5, 0.5, 0.5, 0.5],     # 2x off the other way
+])
+def test_noise_free_data_recover_the_truth_within_half_a_percent(clean_drop, factors):
+    res = cal.fit([clean_drop], start=_start(factors), vehicle=jl.paper_vehicle())
+    err = res.values / P_TRUE - 1
+    assert np.all(np.abs(err) < 5e-3), dict(zip(NAMES, err))
+    assert res.identified.all() and not res.warnings
+    assert abs(res.touchdown_times_s[0] - clean_drop.touchdown_time_s) < 1e-4
+
+
+def test_two_drop_heights_fitted_jointly_recover_the_truth():
+    """Several drops share one parameter set (one vmapped landing per iteration), each with its
+    own touchdown time."""
+    drops = [vr.drop_test(h, duration_s=0.21, **CLEAN) for h in (0.15, 0.3)]
+    res = cal.fit(drops, start=_start([0.77, 1.3, 0.77, 1.3, 0.77, 0.77]),
+                  vehicle=jl.paper_vehicle())
+    err = res.values / P_TRUE - 1
+    assert np.all(np.abs(err) < 5e-3), dict(zip(NAMES, err))
+    assert set(res.residual_rms) == {d.name for d in drops}
+    np.testing.assert_allclose(res.touchdown_times_s, [d.touchdown_time_s for d in drops],
+                               atol=1e-4)
+
+
+def test_optional_parameters_can_be_fitted_too(clean_drop):
+    names = (*NAMES, "mu", "k_a")
+    truth = get_values(TRUTH, names)
+    res = cal.fit([clean_drop], names, start=dict(zip(names, truth * 1.3)),
+                  vehicle=jl.paper_vehicle())
+    err = res.values / truth - 1
+    assert np.all(np.abs(err) < 5e-3), dict(zip(names, err))
+    assert res.identified.all()
+
+
+@pytest.fixture(scope="module")
+def window_problem():
+    """A noisy 0.2 m drop (no offset, no crush peak) and its 0.1 s first-impact problem."""
+    d = vr.drop_test(0.2, duration_s=0.16, seed=7, stroke_offset_m=0.0, crush_peak=0.0)
+    return d, cal.CalibrationProblem([d], NAMES, vehicle=TRUTH, window_s=0.1)
+
+
+def test_gradient_of_the_calibration_loss_matches_central_differences(window_problem):
+    """On the first impact AD is exact: forward (jacfwd, J^T r) = reverse (grad) to 1e-9, and
+    both = central differences to 1e-4 (h = 1e-6 in log parameter), at the truth and at a
+    perturbed start. k and gamma are kinked at ~1e-6 relative spacing (README "Gradients"), so
+    FD secants there are allowed 1e-3; measured here 1e-6 to 1e-5."""
+    _, prob = window_problem
+    loss = jax.jit(prob.loss_fn())
+    grad = jax.jit(jax.grad(prob.loss_fn()))
+    th_truth = prob.theta_from()
+    th_start = th_truth + np.array([0.2, -0.3, -0.15, -0.2, -0.1, 0.1, 0.05])
+    for th in (th_truth, th_start):
+        r, jac, failed = prob.residuals_and_jacobian(th)
+        g_fwd = jac.T @ r
+        g_rev = np.asarray(grad(th))
+        assert not failed
+        np.testing.assert_allclose(g_rev, g_fwd, rtol=1e-9, atol=1e-9 * np.abs(g_fwd).max())
+        for i, name in enumerate([*NAMES, "t0"]):
+            h = 1e-6
+            e = np.zeros(th.size)
+            e[i] = h
+            fd = (float(loss(th + e)) - float(loss(th - e))) / (2 * h)
+            tol = 1e-3 if name in ("k", "gamma") else 1e-4
+            assert abs(fd - g_fwd[i]) <= tol * abs(g_fwd[i]), (name, fd, g_fwd[i])
+
+
+def test_standard_errors_cover_the_truth_under_noise():
+    """Noise only (no offset, no crush peak): over six seeds the fitted values lie within the
+    reported standard errors as often as they should. Measured over 40 seeds: 66 % within 1 SE,
+    90 % within 2 SE, rms z = 1.1 (the model reproduces the rig only to its discretisation)."""
+    z = []
+    for seed in range(6):
+        d = vr.drop_test(0.2, duration_s=0.16, seed=1000 + seed, stroke_offset_m=0.0,
+                         crush_peak=0.0)
+        res = cal.fit([d], windows=(0.1,), refine_window_s=None, robust=None, start=TRUTH,
+                      vehicle=TRUTH)
+        assert 0.8 < res.sigma2 < 1.3  # the noise estimates are right
+        z.append((res.values - P_TRUE) / res.std_errors)
+    z = np.abs(np.array(z))
+    assert np.mean(z < 2.0) >= 0.7, z
+    assert np.max(z) < 4.0, z
+    assert 0.5 < np.sqrt(np.mean(z**2)) < 2.0, z
+
+
+def test_a_parameter_the_data_do_not_reach_is_flagged_not_identified():
+    """A 0.1 m drop never reaches x_L2 (57.6 mm): F2 cannot be identified."""
+    d = vr.drop_test(0.1, duration_s=0.16, seed=3, stroke_offset_m=0.0, crush_peak=0.0)
+    with pytest.warns(cal.IdentifiabilityWarning, match="F2 is not identified"):
+        res = cal.fit([d], windows=(0.1,), refine_window_s=None, start=TRUTH, vehicle=TRUTH)
+    i = NAMES.index("F2")
+    assert not res.identified[i] and np.isnan(res.std_errors[i])
+    assert res.identified[[j for j in range(6) if j != i]].all()
+    f1 = NAMES.index("F1")  # F2 is fitted as log(F2 - F1): the excess is left at its start
+    assert res.values[i] - res.values[f1] == pytest.approx(P_TRUE[i] - P_TRUE[f1], rel=1e-9)
+    rep = res.report()
+    assert rep["parameters"]["F2"]["identified"] is False
+    assert rep["parameters"]["F2"]["std_error"] is None
+    assert any("F2" in w for w in rep["identifiability_warnings"])
+
+
+def test_bad_fit_settings_are_refused(clean_drop):
+    for kwargs, needle in [
+        (dict(params=("k", "zeta")), "unknown parameter"),
+        (dict(params=("k", "k")), "twice"),
+        (dict(method="adam"), "must be 'lm' or 'lbfgs'"),
+        (dict(windows=(0.1, 0.01)), "increasing"),
+        (dict(start={"F2": 1000.0}), "must exceed F1"),
+        (dict(dt=1e-3), "stability limit"),
+        (dict(windows=(0.5,)), "longer than the record"),
+    ]:
+        with pytest.raises(jl.ConfigError, match=needle):
+            cal.fit([clean_drop], **kwargs)
+
+
+# ---------------------------------------------------------------- crush peak, CLI, prediction
+
+def _parser():
+    p = argparse.ArgumentParser(prog="jaxland")
+    add_subcommands(p.add_subparsers(dest="command", required=True))
+    return p
+
+
+def _run(argv):
+    args = _parser().parse_args(argv)
+    return args.func(args)
+
+
+@pytest.fixture(scope="module")
+def cli_fit(tmp_path_factory):
+    """`jaxland fit` on the bundled 0.2 m drop (noise, stroke offset, crush peak)."""
+    out = tmp_path_factory.mktemp("fit")
+    assert _run(["fit", str(DATA / "drop_h0.20m.toml"), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
+    fitted = jl.load_vehicle(cli_fit / "fitted_vehicle.toml")
+    rep = json.loads((cli_fit / "fit_report.json").read_text())
+    assert set(rep["parameters"]) == set(NAMES)
+    for name, p in rep["parameters"].items():
+        assert p["unit"] and p["std_error"] > 0 and p["identified"]
+        assert float(get_values(fitted, (name,))[0]) == pytest.approx(p["value"], rel=1e-9)
+    assert len(rep["correlation"]["matrix"]) == 6
+    assert set(rep["residual_rms"]["drop_h0.20m"]) == set(cal.CHANNELS)
+    assert rep["history"] and rep["stages"][-1]["status"] in ("converged", "no_decrease")
+    figs = sorted(p.name for p in (cli_fit / "figures").glob("*.png"))
+    assert figs == ["fit_drop_h0.20m.png", "fit_history.png"]
+    assert not list(cli_fit.glob(".staging-*"))
+
+
+def test_crush_peak_and_offset_data_still_fit_close_to_the_truth(cli_fit):
+    """The model has no crush peak; the robust (Huber) fit keeps it from biasing the fit.
+    Measured: k 0.3 %, gamma 0.6 %, D_b, F1, F2 < 0.1 %, k_b1 4.4 % (the crush peak sits on
+    the primary stage's elastic rise, which k_b1 sets)."""
+    rep = json.loads((cli_fit / "fit_report.json").read_text())
+    err = {n: rep["parameters"][n]["value"] / P_TRUE[i] - 1 for i, n in enumerate(NAMES)}
+    for n, e in err.items():
+        assert abs(e) < (0.10 if n == "k_b1" else 0.02), err
+
+
+def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path, capsys):
+    """Fitted at 0.2 m, predicting the 0.3 m drop: max stroke within 1 %, peak forces within
+    5 % (the paper reached 9.9 % / 19.7 % on peaks). Measured: stroke 0.1 %, forces 0.3 %."""
+    out = tmp_path / "pred"
+    assert _run(["predict", "--config", str(cli_fit / "fitted_vehicle.toml"),
+                 str(DATA / "drop_h0.30m.toml"), "--out", str(out)]) == 0
+    assert "peak_buffer_force_N" in capsys.readouterr().out
+    m = json.loads((out / "prediction_drop_h0.30m.json").read_text())["metrics"]
+    assert abs(m["max_stroke_m"]["rel_error"]) <= 0.01
+    assert abs(m["final_stroke_m"]["rel_error"]) <= 0.01
+    assert abs(m["peak_normal_force_N"]["rel_error"]) <= 0.05
+    assert abs(m["peak_buffer_force_N"]["rel_error"]) <= 0.05
+    assert abs(m["peak_body_accel_mps2"]["rel_error"]) <= 0.05
+    assert (out / "figures" / "prediction_drop_h0.30m.png").exists()
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "unknown parameter"),
+    (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
+    (["fit", "DATA/missing.toml"], "does not exist"),
+    (["predict", "--config", "DATA/missing.toml", "DATA/drop_h0.20m.toml"], "does not exist"),
+])
+def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
+    out = tmp_path / "out"
+    argv = [a.replace("DATA", str(DATA)) for a in argv] + ["--out", str(out)]
+    with pytest.raises(jl.ConfigError, match=needle):
+        _run(argv)
+    assert not out.exists()
+
+
+def test_lbfgs_path_reaches_the_levenberg_marquardt_optimum(window_problem):
+    """optax.lbfgs (jacfwd gradient through a custom_vjp) on the 10 ms window from 10 % off
+    ends where LM does. LM is the default: on the full fit it is ~18x faster (benchmark)."""
+    d, _ = window_problem
+    kw = dict(windows=(0.01,), refine_window_s=None, robust=None, vehicle=TRUTH,
+              start=_start([1.1, 0.9, 1.1, 0.9, 1.1, 1.1]), max_iter=100)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cal.IdentifiabilityWarning)  # F2: 10 ms never gets there
+        lm = cal.fit([d], **kw)
+        lb = cal.fit([d], method="lbfgs", **kw)
+    assert lb.loss <= lm.loss * (1 + 1e-6) + 1e-9
+    keep = [NAMES.index(n) for n in ("k", "gamma", "D_b", "F1")]
+    np.testing.assert_allclose(lb.values[keep], lm.values[keep], rtol=1e-3)
+
+
+def test_virtual_rig_writes_labelled_data_and_truth(tmp_path, capsys):
+    assert vr.main(["--out", str(tmp_path), "--heights", "0.1", "--duration", "0.2"]) == 0
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["drop_h0.10m.csv", "drop_h0.10m.toml", "nominal_vehicle.toml",
+                     "truth_vehicle.toml"]
+    d = cal.load_drop_test(tmp_path / "drop_h0.10m.toml")
+    assert d.synthetic and d.time_s.size == 1000
+    np.testing.assert_allclose(get_values(jl.load_vehicle(tmp_path / "truth_vehicle.toml"),
+                                          NAMES), P_TRUE, rtol=1e-11)
+
+
+def test_fit_progress_is_one_stderr_line_per_iteration(capsys):
+    from calibration.cli import _Progress
+
+    _Progress(False)(dict(stage="1/4 (10 ms)", iteration=3, loss=12.5, lambda_=1e-3, wall_s=0.4))
+    _Progress(True)(dict(stage="1/4 (10 ms)", iteration=4, loss=12.0, lambda_=1e-3, wall_s=0.5))
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "iter   3" in err and "loss 1.250000e+01" in err
