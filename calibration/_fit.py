@@ -11,7 +11,7 @@ benchmarks/results/bench_fit.json):
 2. **Multi-start on the short windows**: the 10 and 30 ms stages run from the start and from
    variants of it in k and gamma (``START_VARIANTS``), until two starts agree on the lowest
    loss; the rest continues from the best. Without it, 1-2 of ~15 starts up to 2x off failed;
-   with it 63 of 63 (three drop heights, noisy and noise-free, one joint fit) converged.
+   with it 105 of 105 (three drop heights, noisy and noise-free, a joint fit) converged.
 3. **Huber loss on the long stages** (``robust``, threshold 1.5 robust standard deviations):
    the model has no honeycomb crush peak, and plain least squares let the peak pull k_b1 up by
    ~45 %; with Huber 4-5 %, the other parameters within 1 %. Not on the short stages: there it
@@ -53,8 +53,8 @@ REFINE_WINDOW_S = 0.15
 ROBUST_K = 1.5
 # Alternative starts of the multi-start phase: (k factor, gamma value) applied to the start.
 # From 2x off, one start's continuation can end in a wrong basin of the contact oscillation
-# (gamma -> 0 or 1, k off); over 28 random and corner starts up to 2x off, every one reached
-# the truth's basin from at least two of these five.
+# (gamma -> 0 or 1, k off); over 105 random and corner starts up to 2x off, the best of these
+# five always continued into the truth's basin.
 START_VARIANTS = ((1.0, None), (1.0, 0.2), (1.0, 0.8), (0.5, None), (2.0, None))
 PRE_S = 0.005  # samples this long before the detected touchdown are fitted too (they pin t0)
 # a parameter is "not identified" when its Jacobian column is this small against the largest

@@ -385,7 +385,7 @@ def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
 
 def test_lbfgs_path_reaches_the_levenberg_marquardt_optimum(window_problem):
     """optax.lbfgs (jacfwd gradient through a custom_vjp) on the 10 ms window from 10 % off
-    ends where LM does. LM is the default: on the full fit it is ~18x faster (benchmark)."""
+    ends where LM does. LM is the default: on the full fit it is ~16x faster (benchmark)."""
     d, _ = window_problem
     kw = dict(windows=(0.01,), refine_window_s=None, robust=None, vehicle=TRUTH,
               start=_start([1.1, 0.9, 1.1, 0.9, 1.1, 1.1]), max_iter=100)
