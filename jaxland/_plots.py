@@ -57,14 +57,19 @@ def plot_landing(trajectory: dict, outcomes: dict, out_dir, *,
     before anything is written.
     """
     lnd = _validate(trajectory, outcomes, breakpoints_m)
+    return _render(_FIGURES, out_dir, lnd)
+
+
+def _render(figures, out_dir, *args) -> list[Path]:
+    """Draw each (file name, size, draw(fig, *args)) into its own PNG in ``out_dir``."""
     from matplotlib.figure import Figure
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
-    for name, size, draw in _FIGURES:
+    for name, size, draw in figures:
         fig = Figure(figsize=size, layout="constrained")
-        draw(fig, lnd)
+        draw(fig, *args)
         paths.append(_save(fig, out_dir / name))
     return paths
 

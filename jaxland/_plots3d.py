@@ -25,7 +25,7 @@ from ._plots import (
     _fig16,
     _grid,
     _Landing,
-    _save,
+    _render,
     _style,
     _time_panel,
 )
@@ -67,16 +67,7 @@ def plot_landing_3d(trajectory: dict, outcomes: dict, out_dir, *, vehicle, scene
     lnd = _validate(trajectory, outcomes, vehicle.n_legs)
     views = _instants(lnd, outcomes)
     geom = dict(_geometry(vehicle, scene, lnd, [i for i, _ in views]), views=views)
-    from matplotlib.figure import Figure
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name, size, draw in _FIGURES:
-        fig = Figure(figsize=size, layout="constrained")
-        draw(fig, lnd, outcomes, geom)
-        paths.append(_save(fig, out_dir / name))
-    return paths
+    return _render(_FIGURES, out_dir, lnd, outcomes, geom)
 
 
 def _validate(trajectory, outcomes, n_legs) -> _Landing:
