@@ -15,27 +15,26 @@ import numpy as np
 
 from ._crush import plateau_force
 from ._errors import ConfigError
-from ._params import Ground, Honeycomb, Leg, Vehicle, field_info
+from ._params import Ground, Honeycomb, Leg, Vehicle, concrete, field_info
 from ._toml import read_toml
 
 __all__ = ["paper_vehicle", "load_vehicle", "vehicle_from_dict", "vehicle_to_toml",
            "validate_vehicle", "PAPER_CELLS"]
 
 # Table 1 of the paper, and the flow stress we calibrated (see README "The paper's vehicle").
+# Effective foil flow stress sigma_0 that makes the 0.2 m drop reproduce the paper's 66.5 mm
+# first-impact stroke (with D_b = 1.5 s/m from Table 2). Calibrated by
+# `python benchmarks/paper_reproduction.py --calibrate` (310.2 MPa); for comparison, Al 5052-H38
+# foil has sigma_0 ~ 270 MPa.
+PAPER_FLOW_STRESS_PA = 310e6
 PAPER_CELLS = dict(
-    flow_stress_Pa=0.0,  # set below
+    flow_stress_Pa=PAPER_FLOW_STRESS_PA,
     section_diameter_mm=98.0,
     primary_cell_size_mm=8.66,
     primary_foil_thickness_mm=0.07,
     secondary_cell_size_mm=5.20,
     secondary_foil_thickness_mm=0.06,
 )
-# Effective foil flow stress sigma_0 that makes the 0.2 m drop reproduce the paper's 66.5 mm
-# first-impact stroke (with D_b = 1.5 s/m from Table 2). Calibrated by
-# `python benchmarks/paper_reproduction.py --calibrate` (310.2 MPa); for comparison, Al 5052-H38
-# foil has sigma_0 ~ 270 MPa.
-PAPER_FLOW_STRESS_PA = 310e6
-PAPER_CELLS["flow_stress_Pa"] = PAPER_FLOW_STRESS_PA
 
 # Paper's x_L1 and x_L3 - x_L2 (Table 2, mm), used to set the elastic stiffnesses.
 _PAPER_X_L1_MM = 0.47
@@ -157,13 +156,6 @@ def paper_vehicle() -> Vehicle:
 
 # ----------------------------------------------------------------------------------- checks
 
-def _concrete(x):
-    try:
-        return np.asarray(x, dtype=float)
-    except Exception:  # tracer: cannot check inside a transformation
-        return None
-
-
 def _rule_ok(rule: str, val: np.ndarray) -> np.ndarray | None:
     if rule == "> 0":
         return val > 0
@@ -191,7 +183,7 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
     for section, mod in (("body", veh), ("leg", veh.leg), ("honeycomb", veh.honeycomb),
                          ("ground", veh.ground)):
         for f in field_info(type(mod)):
-            val = _concrete(getattr(mod, f.name))
+            val = concrete(getattr(mod, f.name))
             if val is None:
                 continue
             bad = ~np.isfinite(val)
@@ -201,8 +193,8 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
             if np.any(bad):
                 _fail(section, f, val[bad].flat[0], f.metadata["rule"])
     hc = veh.honeycomb
-    F1, F2, k1, k3 = (_concrete(x) for x in (hc.F1, hc.F2, hc.k_b1, hc.k_b3))
-    x2, x4 = _concrete(hc.x_L2), _concrete(hc.x_L4)
+    F1, F2, k1, k3 = (concrete(x) for x in (hc.F1, hc.F2, hc.k_b1, hc.k_b3))
+    x2, x4 = concrete(hc.x_L2), concrete(hc.x_L4)
     if all(x is not None for x in (F1, F2, k1, k3, x2, x4)):
         x1 = F1 / k1
         x3 = x2 + (F2 - F1) / k3
@@ -219,7 +211,7 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
                               f"breakpoints must increase: x_L3 = x_L2 + (F2-F1)/k_b3 = "
                               f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4")
     leg = veh.leg
-    L, th, H2 = _concrete(leg.L_h0), _concrete(leg.theta_b), _concrete(leg.H2)
+    L, th, H2 = concrete(leg.L_h0), concrete(leg.theta_b), concrete(leg.H2)
     if x4 is not None and L is not None and np.any(~(x4 < L)):
         raise ConfigError("honeycomb.x_L4_mm", float(np.max(x4)) * 1e3,
                           f"the buffer stroke must be shorter than the main strut, "

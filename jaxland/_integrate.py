@@ -179,6 +179,9 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
         energy_scale_J=e_scale,
         energy_dissipated_J=dissipated,
         energy_closure_max_J=res_max,
+        # the ledger error judged by simulate and Monte Carlo: relative to the energy
+        # dissipated, or to a tenth of the energy scale when little is dissipated (free fall)
+        ledger_error_rel=res_max / jnp.maximum(dissipated, 0.1 * e_scale),
         failed=fail_t >= 0.0,
         failure_time_s=fail_t,
         tipped=tip_t >= 0.0,

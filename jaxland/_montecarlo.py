@@ -283,7 +283,6 @@ def _per_sample(vehicle, solver, model, scenes):
     def legs(x):
         return jnp.broadcast_to(x[..., None], x.shape + (n,)) if x.ndim == 1 else x
 
-    ref = jnp.maximum(s["energy_dissipated_J"], 0.1 * s["energy_scale_J"])
     out = dict(
         max_stroke_m=legs(s["max_stroke_m"]),
         peak_strut_force_N=legs(s["peak_strut_force_N"]),
@@ -291,7 +290,7 @@ def _per_sample(vehicle, solver, model, scenes):
         peak_honeycomb_force_N=legs(s["peak_honeycomb_force_N"]),
         slip_distance_m=legs(s["slip_distance_m"]),
         peak_body_accel_mps2=s["peak_body_accel_mps2"],
-        energy_closure_rel=s["energy_closure_max_J"] / ref,
+        energy_closure_rel=s["ledger_error_rel"],
         failed_in_run=s["failed"],
         tipped_over=s["tipped"],
     )

@@ -16,12 +16,28 @@ import math
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = ["Honeycomb", "Leg", "Ground", "Vehicle", "field_info"]
 
 
 def _f64(x):
     return jnp.asarray(x, dtype=jnp.float64)
+
+
+def _opt_f64(x):
+    return None if x is None else _f64(x)
+
+
+def concrete(x):
+    """``x`` as a float numpy array, or None if it is None or a tracer (inside jit/vmap/grad,
+    where values cannot be checked)."""
+    if x is None:
+        return None
+    try:
+        return np.asarray(x, dtype=float)
+    except Exception:
+        return None
 
 
 def _param(unit: str, doc: str, source: str, rule: str, *, toml: str, to_si: float = 1.0):

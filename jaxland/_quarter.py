@@ -31,7 +31,6 @@ from ._laws import (
 from ._params import Vehicle
 from ._scene import Scene
 
-N_DOF = 3
 # Honeycomb force above which the state machine calls the buffer active [N]; round-off in free
 # fall leaves forces of ~1e-6 N on an unloaded leg.
 BUFFERING_THRESHOLD_N = 1e-3
@@ -64,11 +63,6 @@ class QuarterState(eqx.Module):
     diss_rate: jnp.ndarray  # (2,) J, accumulated RATE_CHANNELS
     diss_slip: jnp.ndarray  # J, accumulated friction slip dissipation
     slip_distance: jnp.ndarray  # m, accumulated slip path of the foot
-
-
-def mass(vehicle: Vehicle):
-    """Diagonal mass of the generalised coordinates [kg]."""
-    return jnp.stack([vehicle.m_quarter, vehicle.m_foot, vehicle.m_foot])
 
 
 def apply_scene(vehicle: Vehicle, scene: Scene) -> Vehicle:

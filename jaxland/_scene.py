@@ -15,17 +15,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._errors import ConfigError
+from ._params import _f64, _opt_f64, concrete
 from ._toml import read_toml
 
 __all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric", "batch_axes"]
-
-
-def _f64(x):
-    return jnp.asarray(x, dtype=jnp.float64)
-
-
-def _opt_f64(x):
-    return None if x is None else jnp.asarray(x, dtype=jnp.float64)
 
 
 _DEG = math.pi / 180.0
@@ -121,7 +114,7 @@ class Scene(eqx.Module):
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
         for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():
-            arr = _concrete(getattr(self, name))
+            arr = concrete(getattr(self, name))
             if arr is None:
                 continue
             bad = ~np.isfinite(arr) | (arr < lo) | (arr > hi)
@@ -130,19 +123,19 @@ class Scene(eqx.Module):
                 raise ConfigError(f"scene.{key}", shown, f"must be finite and in "
                                   f"[{lo / to_si:.4g}, {hi / to_si:.4g}] "
                                   f"{key.rsplit('_', 1)[-1]}")
-        fr = _concrete(self.friction)
+        fr = concrete(self.friction)
         if fr is not None and np.any(~np.isfinite(fr) | (fr < 0) | (fr > 2)):
             raise ConfigError("scene.friction", float(np.ravel(fr)[0]),
                               "must be finite and in [0, 2]")
-        ms = _concrete(self.mass_scale)
+        ms = concrete(self.mass_scale)
         if ms is not None and np.any(~np.isfinite(ms) | (ms < 0.5) | (ms > 2.0)):
             raise ConfigError("scene.mass_scale", float(np.ravel(ms)[0]),
                               "must be finite and in [0.5, 2]")
-        co = _concrete(self.com_offset)
+        co = concrete(self.com_offset)
         if co is not None and (co.shape[-1] != 3 or np.any(~np.isfinite(co) | (np.abs(co) > 0.3))):
             raise ConfigError("scene.com_offset_m", co.tolist(),
                               "must be three finite numbers (x, y, z), each within +/-0.3 m")
-        ps = _concrete(self.plateau_scale)
+        ps = concrete(self.plateau_scale)
         if ps is not None:
             if n_legs is not None and ps.shape[-1] != n_legs:
                 raise ConfigError("scene.plateau_scale", ps.tolist(),
@@ -171,15 +164,6 @@ def _axes_scene(axes: dict) -> Scene:
     for name, val in axes.items():
         object.__setattr__(obj, name, val)
     return obj
-
-
-def _concrete(x):
-    if x is None:
-        return None
-    try:
-        return np.asarray(x, dtype=float)
-    except Exception:  # a tracer under jit/vmap/grad
-        return None
 
 
 def is_symmetric(scene: Scene) -> bool:

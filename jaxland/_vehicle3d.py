@@ -24,7 +24,6 @@ from ._params import Vehicle
 from ._scene import Scene
 
 RATE_CHANNELS = ("diss_struct_damping_J", "diss_ground_damping_J")
-BUFFERING_THRESHOLD_N = 1e-3
 MARGIN_SOFTNESS_M = 0.01  # soft-min width over the support-polygon edges [m]
 
 PER_LEG = (
