@@ -113,8 +113,11 @@ def initial_state(vehicle: Vehicle, scene: Scene) -> QuarterState:
 
 
 def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
-             derived: dict | None = None):
+             derived: dict | None = None, kick=None):
     """Accelerations at state ``s`` (the scene is not needed: level ground, no attitude).
+
+    ``kick`` [s]: when given, the strut damping is implicit, evaluated at the stroke rate after
+    a velocity kick of that length (``strut_force``); ``None`` is explicit.
 
     Returns ``(accel (3,), state with updated memory, record, rate_power (2,), energy)`` where
     ``record`` is a dict of named scalar outputs (CSV columns, units in the names) and ``energy``
@@ -133,7 +136,6 @@ def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
     x_b = leg.L_h0 - length
     v_b = -(u_r * vr_f + u_z * (vz_f - vz_b))
     hco = honeycomb(x_b, s.x_max, hc)
-    st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
 
     # Auxiliary struts: a pair with joints at A +/- h laterally; in a symmetric landing their
     # lateral components cancel and each carries half of k_a.
@@ -148,6 +150,13 @@ def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
     tc = tangential_contact((r_f, zero), (s.anchor, zero), nc.force, gr)
 
     m_q, m_f, g = derived["m_quarter"], vehicle.m_foot, vehicle.g
+    if kick is None:
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
+    else:  # implicit damping: the stroke rate after the kick from the other foot forces
+        other_u = (u_r * (ax.force * a_r + tc.force[0])
+                   + u_z * (ax.force * a_z + nc.force - m_f * g))
+        a = kick / m_f
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u)
     f_foot_r = st.force * u_r + ax.force * a_r + tc.force[0]
     f_foot_z = st.force * u_z + ax.force * a_z + nc.force - m_f * g
     f_body = -(st.force * u_z + ax.force * a_z) - m_q * g
@@ -242,3 +251,65 @@ def final_summary(s: QuarterState, record) -> dict:
         final_pit_depth_m=record["pit_depth_m"],
         slip_distance_m=s.slip_distance,
     )
+
+
+# ---- hooks of the variable-step integrators (quarter model only) ----
+
+def primary_force(record):
+    """The force whose impulse is the independent variable of the paper's discrete-impulse
+    method (paper 2.4) [N]: the ground normal force while the foot is in contact (states 2 and
+    3), the honeycomb force while only the buffer is loaded (state 4), 0 in the air (state 1)."""
+    f_n, f_h = record["normal_force_N"], record["honeycomb_force_N"]
+    return jnp.where(f_n > 0.0, f_n, jnp.where(f_h > BUFFERING_THRESHOLD_N, f_h, 0.0))
+
+
+ODE_SIZE = 13  # q (3), v (3), x_max, d_max, anchor, RATE_CHANNELS (2), diss_slip, slip_distance
+
+
+def ode_state(s: QuarterState):
+    """The state as one flat vector for an ODE solver (see ``ode_rates``)."""
+    mem = jnp.stack([s.x_max, s.d_max, s.anchor])
+    return jnp.concatenate([s.q, s.v, mem, s.diss_rate, jnp.stack([s.diss_slip,
+                                                                   s.slip_distance])])
+
+
+def from_ode(t, y) -> QuarterState:
+    return QuarterState(t=t, q=y[0:3], v=y[3:6], x_max=y[6], d_max=y[7], anchor=y[8],
+                        diss_rate=y[9:11], diss_slip=y[11], slip_distance=y[12])
+
+
+def ode_rates(vehicle: Vehicle, t, y, scene: Scene | None, derived: dict):
+    """The landing as a continuous ODE y' = f(t, y) for adaptive solvers (diffrax, scipy).
+
+    The memories are written in rate form, so that an ODE solver carries them between its
+    stages (the laws take max(x_max, x) etc. themselves, so forces are right even where a
+    memory lags within a step):
+      x_max' = max(v_b, 0) while the stroke is on the virgin curve (x_b >= x_max), else 0;
+      d_max' = max(d_dot, 0) while the penetration is at its deepest (d >= d_max), else 0;
+      anchor' = foot velocity off the ground; in contact, with the trial spring at its Coulomb
+        limit k_tan |r - anchor| >= mu F_n, the slip rate lambda = s v_r - mu dF_s/dt / k_tan
+        (s the side of the foot from the anchor) moves the anchor, anchor' = s lambda, if
+        lambda > 0 (this holds k_tan |r - anchor| = mu F_n; the rate of the (1 + chi d_dot)
+        factor is left out); otherwise the foot sticks (the consistency condition of
+        rigid-plastic slip, as in plasticity);
+      the dissipation channels from their power; slip energy mu F_n |anchor'| while slipping.
+    """
+    s = from_ode(t, y)
+    acc, _, rec, power, _ = evaluate(vehicle, s, scene, derived)
+    gr = vehicle.ground
+    vr_f, vz_f = s.v[1], s.v[2]
+    v_b = rec["buffer_velocity_mps"]
+    dx_max = jnp.where(rec["stroke_m"] >= s.x_max, jnp.maximum(v_b, 0.0), 0.0)
+    d, d_dot = -s.q[2], -vz_f
+    dd_max = jnp.where(d >= s.d_max, jnp.maximum(d_dot, 0.0), 0.0)
+    f_n = rec["normal_force_N"]
+    contact = f_n > 0.0
+    gap = s.q[1] - s.anchor
+    side = jnp.sign(gap)
+    at_limit = gr.k_tan * jnp.abs(gap) >= gr.mu * f_n
+    rate = side * vr_f - gr.mu * jnp.where(contact, derived["k_r"] * d_dot, 0.0) / gr.k_tan
+    slip_rate = jnp.where(contact & at_limit, jnp.maximum(rate, 0.0), 0.0)
+    anchor_rate = jnp.where(contact, side * slip_rate, vr_f)
+    mem = jnp.stack([dx_max, dd_max, anchor_rate])
+    return jnp.concatenate([s.v, acc, mem, power,
+                            jnp.stack([gr.mu * f_n * slip_rate, slip_rate])])

@@ -232,8 +232,9 @@ def stability_margin(com, feet, frame):
 
 
 def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
-             derived: dict | None = None):
-    """Accelerations at state ``s`` (see ``jaxland._quarter.evaluate`` for the contract)."""
+             derived: dict | None = None, kick=None):
+    """Accelerations at state ``s`` (see ``jaxland._quarter.evaluate`` for the contract,
+    ``kick`` included)."""
     scene = Scene() if scene is None else scene
     derived = prepare(vehicle, scene) if derived is None else derived
     leg, hc, gr = vehicle.leg, derived["curve"], vehicle.ground
@@ -256,7 +257,6 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
     x_b = leg.L_h0 - length
     v_b = -jnp.sum(u * (vf - vP), axis=-1)
     hco = honeycomb(x_b, s.x_max, hc)
-    st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
 
     aux_force_vecs, aux_torques, aux_energy, aux_axial = 0.0, 0.0, 0.0, 0.0
     for A_b in (Ap_b, Am_b):
@@ -277,8 +277,14 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
     f_ground = (nc.force[:, None] * n_g[None, :] + tc.force[0][:, None] * t1[None, :]
                 + tc.force[1][:, None] * t2[None, :])
 
-    f_strut = st.force[:, None] * u
     gz = jnp.array([0.0, 0.0, 1.0])
+    if kick is None:
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
+    else:  # implicit damping: the stroke rate after the kick from the other foot forces
+        other_u = jnp.sum(u * (aux_force_vecs + f_ground), axis=-1) - m2 * g * u[:, 2]
+        a = kick / m2
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u)
+    f_strut = st.force[:, None] * u
     f_feet = f_strut + aux_force_vecs + f_ground - m2 * g * gz[None, :]
     f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
     torque_w = jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques
