@@ -102,6 +102,12 @@ class Solver(eqx.Module):
     # differentiation of the variable-step methods: "forward" (jax.jacfwd / jvp) or "reverse"
     # (jax.grad); the fixed-step methods take both
     adjoint: str = eqx.field(static=True, default="forward")
+    # opt-in smoothing of the force-law switches, for gradient quality in fits (jaxland._laws.
+    # _smooth; benchmarks/gradient_quality.py): width of the rounded kinks in length [m] (ground
+    # contact, honeycomb unloading, stick/slip, top-out) and in force [N] (the strut's no-pull
+    # floor). 0 (default) = the hard switches, bit-identical to the unsmoothed code.
+    smoothing_m: float = eqx.field(static=True, default=0.0)
+    smoothing_N: float = eqx.field(static=True, default=0.0)
 
     @property
     def save_every(self) -> int:
@@ -117,6 +123,12 @@ class Solver(eqx.Module):
 
     def validate_values(self) -> Solver:
         """Each setting on its own."""
+        for name in ("smoothing_m", "smoothing_N"):
+            val = getattr(self, name)
+            if isinstance(val, bool) or not (
+                    isinstance(val, numbers.Real) and math.isfinite(val) and val >= 0):
+                raise ConfigError(f"solver.{name}", val,
+                                  f"must be a finite number >= 0 {name[-1]}")
         for name in ("dt", "t_end", "save_dt", "impulse", "rtol", "atol"):
             val = getattr(self, name)
             if isinstance(val, bool) or not (
@@ -164,7 +176,7 @@ def check_method(model, method: str) -> None:
 
 
 def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
-                bottomed: bool = False, method: str = "euler"):
+                bottomed: bool = False, method: str = "euler", impulse=None):
     """Estimated stability limit of the fixed-step methods [s].
 
     The lightest mass (the foot, m2) is held at once by the stiffest elastic element of the strut
@@ -175,9 +187,14 @@ def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
     depends on the landing. For x'' = -omega^2 x - c x' symplectic Euler is stable while
     dt^2 omega^2 + 2 dt c <= 4, i.e. dt <= (sqrt(c^2 + 4 omega^2) - c) / omega^2
     (= 2/omega without damping, 2/c without stiffness). ``"euler_implicit"`` and ``"verlet"``
-    take the strut damping implicitly, so only the (small) ground damping remains in c;
-    ``"impulse"`` caps its step at solver.dt with explicit forces, so the Euler limit applies
-    to that cap. (``"tsit5"`` chooses its own steps.)
+    take the strut damping implicitly, so only the (small) ground damping remains in c.
+
+    ``"impulse"`` steps dt = min(dI / F, cap) with explicit forces, and its damping grows with
+    the same force F that shortens the step: c dt <= (D_b + chi) dI / m2 whatever F. The worst
+    case of dt^2 omega^2 + 2 dt c <= 4 is at F = dI / cap, so the limit on the cap [s] returned
+    here is sqrt(4 - 2 dI (D_b + chi) / m2) / omega, for the step ``impulse`` = dI [N s], and
+    there is none (0) once dI >= 2 m2 / (D_b + chi): a limit on the impulse step itself,
+    independent of the landing. (``"tsit5"`` chooses its own steps.)
 
     Without forces given, the a-priori limit assumes the second plateau F2 for both; after a run,
     pass the peak honeycomb and normal forces it reached (and whether it bottomed out).
@@ -191,14 +208,21 @@ def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
     f_hc = hc.F2 if honeycomb_force is None else jnp.maximum(hc.F2, honeycomb_force)
     f_n = hc.F2 if normal_force is None else jnp.maximum(hc.F2, normal_force)
     w2 = k_sum / m
+    if method == "impulse":
+        d_impulse = Solver.impulse if impulse is None else impulse
+        room = 4.0 - 2.0 * d_impulse * (leg.D_b + gr.chi) / m
+        return jnp.min(jnp.sqrt(jnp.maximum(room, 0.0) / w2))
     strut = 0.0 if method in ("euler_implicit", "verlet") else leg.D_b * f_hc
     c = (strut + gr.chi * f_n) / m
     return jnp.min((jnp.sqrt(c**2 + 4.0 * w2) - c) / w2)
 
 
-def _setup(model, vehicle: Vehicle, scene: Scene):
+def _setup(model, vehicle: Vehicle, scene: Scene, solver: Solver | None = None):
     vehicle = model.apply_scene(vehicle, scene)  # scene-level friction and honeycomb scatter
     derived = model.prepare(vehicle, scene)  # parameter-derived numbers, once, outside the loop
+    if solver is not None and (solver.smoothing_m or solver.smoothing_N):  # static floats
+        derived = dict(derived, smoothing_m=float(solver.smoothing_m),
+                       smoothing_N=float(solver.smoothing_N))
     s0 = model.initial_state(vehicle, scene)
     acc0, _, rec0, _, en0 = model.evaluate(vehicle, s0, scene, derived)
     e0 = sum(en0.values()) + jnp.sum(s0.diss_rate)
@@ -319,7 +343,7 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
     check_method(model, method)
     if method == "tsit5":
         return _integrate_diffrax(model, vehicle, scene, solver)
-    vehicle, derived, s0, e0, peaks0 = _setup(model, vehicle, scene)
+    vehicle, derived, s0, e0, peaks0 = _setup(model, vehicle, scene, solver)
     e_scale = model.energy_scale(vehicle, scene)
 
     def tracked(step):
@@ -350,7 +374,8 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
         return inner(carry, i), out
 
     carry0 = (s0, _track_init(peaks0))
-    (s_end, track), traj = jax.lax.scan(save_block, carry0, jnp.arange(solver.n_saves))
+    (s_end, track), traj = jax.lax.scan(save_block, carry0,
+                                        jnp.arange(solver.n_saves, dtype=jnp.float64))
     return traj, _summary(model, s_end, track, e0, e_scale, vehicle, scene, derived)
 
 
@@ -373,7 +398,7 @@ def _impulse_block(model, vehicle, scene, derived, solver, tracked):
         return step
 
     def inner(carry, i):
-        target = (i + 1) * t_save
+        target = (i + 1.0) * t_save
         body = tracked(step_to(target))
         # the last step lands on the save time exactly (up to round-off in t)
         cond = lambda c: c[0].t < target - 1e-9 * t_save  # noqa: E731
@@ -392,9 +417,9 @@ def _integrate_diffrax(model, vehicle, scene, solver):
     at the save points."""
     import diffrax
 
-    vehicle, derived, s0, e0, peaks0 = _setup(model, vehicle, scene)
+    vehicle, derived, s0, e0, peaks0 = _setup(model, vehicle, scene, solver)
     e_scale = model.energy_scale(vehicle, scene)
-    ts = jnp.arange(solver.n_saves) * solver.save_dt
+    ts = jnp.arange(solver.n_saves, dtype=jnp.float64) * solver.save_dt
     t1 = solver.n_saves * solver.save_dt
     g, v0, h = vehicle.g, scene.sink_speed, scene.drop_height
     t_touch = (jnp.sqrt(v0 * v0 + 2.0 * g * h) - v0) / g

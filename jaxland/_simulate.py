@@ -22,7 +22,7 @@ import numpy as np
 from . import _quarter, _vehicle3d
 from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
-from ._integrate import Solver, integrate, stable_step
+from ._integrate import Solver, check_method, integrate, stable_step
 from ._params import Vehicle
 from ._scene import Scene, batch_axes, is_symmetric
 
@@ -30,6 +30,14 @@ __all__ = ["landing", "landings", "simulate", "Landing", "impacts_from_events", 
            "MODELS"]
 
 MODELS = {"quarter": _quarter, "full": _vehicle3d}
+
+STABILITY_REASON = {
+    "euler": "stiffest springs and the strut damping on the 1 kg foot",
+    "euler_implicit": "stiffest springs on the 1 kg foot; the strut damping is implicit",
+    "verlet": "stiffest springs on the 1 kg foot; the strut damping is implicit",
+    "impulse": "its explicit steps are capped at dt: stiffest springs on the 1 kg foot, and "
+               "the strut damping over one impulse step",
+}
 
 # Contact gaps shorter than this are foot chatter within one impact, not a new impact [s]. The
 # paper drop's hops after the first impact last 6-10 ms; chatter within an impact is sub-ms.
@@ -174,7 +182,9 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         "drop_height_m": float(scene.drop_height),
         "sink_speed_mps": float(scene.sink_speed),
         "touchdown_speed_mps": float(scene.touchdown_speed(float(vehicle.g))),
+        "method": solver.method,
         "dt_s": solver.dt,
+        "n_steps": int(s["n_steps"]),
         "t_end_s": solver.t_end,
         "touchdown_time_s": impacts[0][0] if impacts else None,
         "impacts": [{"start_s": a, "end_s": b} for a, b in impacts],
@@ -207,42 +217,54 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
 CLOSURE_LIMIT = 1e-2
 
 
-def _check_numerics(summary: dict, vehicle: Vehicle, dt: float) -> None:
+def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver) -> None:
     """Refuse to return a landing whose integration was unstable: a non-finite state, a ledger
-    that does not close, or a step above the stability limit of the forces it reached. After a
-    tip-over the integrator stops checking (the body has no ground contact of its own)."""
+    that does not close, a step above the stability limit of the forces it reached, or an
+    adaptive solver that stopped early. After a tip-over the integrator stops checking (the body
+    has no ground contact of its own)."""
+    dt, method = solver.dt, solver.method
+    if not bool(summary["solver_ok"]):
+        raise SimulationError(
+            f"the adaptive solver ({method}) stopped at t = "
+            f"{float(summary['failure_time_s']):.6g} s after {int(summary['n_steps'])} steps "
+            f"(max_steps = {solver.max_steps} reached, or the step size collapsed at a "
+            f"discontinuity); loosen rtol = {solver.rtol:g} / atol = {solver.atol:g}, raise "
+            f"max_steps, or use a fixed-step method")
     hc_peak = float(np.max(summary["peak_honeycomb_force_N"]))
     n_peak = float(np.max(summary["peak_normal_force_N"]))
     bottomed = bool(np.max(summary["max_stroke_m"]) > float(np.min(vehicle.honeycomb.x_L4)))
+    fixed = method != "tsit5"
     reached = float(stable_step(vehicle, honeycomb_force=hc_peak, normal_force=n_peak,
-                                bottomed=bottomed))
+                                bottomed=bottomed, method=method, impulse=solver.impulse))
     why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force of "
            f"{n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt to "
-           f"{reached:.3g} s; rerun with dt <= {0.5 * reached:.2g} s")
+           f"{reached:.3g} s for {method}; rerun with dt <= {0.5 * reached:.2g} s"
+           if fixed else f"tighten rtol = {solver.rtol:g}")
     if bool(summary["failed"]):
         raise SimulationError(
             f"integration failed at t = {float(summary['failure_time_s']):.6g} s (non-finite "
             f"state or energy ledger off by more than 10 % of the landing's energy) with "
-            f"dt = {dt:.3g} s; {why}")
+            f"{method} dt = {dt:.3g} s; {why}")
     closure = float(summary["ledger_error_rel"])
-    if closure > CLOSURE_LIMIT or dt > reached:
+    if closure > CLOSURE_LIMIT or (fixed and dt > reached):
         raise SimulationError(
-            f"dt = {dt:.3g} s is too large for this landing (energy ledger closure "
+            f"{method} dt = {dt:.3g} s is too large for this landing (energy ledger closure "
             f"{closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
-
 
 
 def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
              dt: float = 1e-5, t_end: float = 1.2, save_dt: float | None = None,
-             model: str = "auto") -> Landing:
-    """Simulate one symmetric landing of ``vehicle`` (default: the paper's) in ``scene``
-    (default: the paper's 0.2 m drop) with symplectic Euler at step ``dt`` [s] for ``t_end`` [s],
-    sampling the trajectory every ``save_dt`` [s] (default: max(1e-4 s, dt)).
+             model: str = "auto", method: str = "euler", **solver_options) -> Landing:
+    """Simulate one landing of ``vehicle`` (default: the paper's) in ``scene`` (default: the
+    paper's 0.2 m drop) with ``method`` (see ``jaxland.Solver``: "euler", "euler_implicit",
+    "verlet", "impulse", "tsit5") at step ``dt`` [s] for ``t_end`` [s], sampling the trajectory
+    every ``save_dt`` [s] (default: max(1e-4 s, dt)). ``solver_options`` are the other
+    ``Solver`` fields (``impulse``, ``rtol``, ``atol``, ``max_steps``).
 
     ``model`` is ``"auto"`` (the smallest exact model for the scene: ``choose_model``),
     ``"quarter"`` or ``"full"``. Raises ``ConfigError`` for invalid inputs or a step above the
-    stability limit and
-    ``SimulationError`` if the integration blows up.
+    method's stability limit (stated in the message) and ``SimulationError`` if the
+    integration blows up or an adaptive solver stalls.
     """
     scene = Scene() if scene is None else scene
     vehicle = paper_vehicle() if vehicle is None else vehicle
@@ -260,17 +282,29 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
                           "drops; this scene needs model='full'")
     if save_dt is None and isinstance(dt, (int, float)):
         save_dt = max(1e-4, dt)
-    solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt)
+    unknown = sorted(set(solver_options) - {"impulse", "rtol", "atol", "max_steps", "adjoint"})
+    if unknown:
+        raise ConfigError("solver", unknown[0], "is not a solver option (impulse, rtol, atol, "
+                          "max_steps, adjoint)")
+    solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **solver_options)
     solver.validate_values()
-    limit = float(stable_step(vehicle))
-    if dt > limit:
-        raise ConfigError("solver.dt", dt, f"exceeds the stability limit {limit:.3g} s of "
-                          "symplectic Euler for this vehicle (stiffest spring and strut damping "
-                          "on the foot); use dt <= that")
+    check_method(MODELS[model], method)
+    if method != "tsit5":
+        limit = float(stable_step(vehicle, method=method, impulse=solver.impulse))
+        if method == "impulse" and limit <= 0.0:
+            leg, chi = vehicle.leg, vehicle.ground.chi
+            raise ConfigError("solver.impulse", solver.impulse, "must be below the stability "
+                              f"limit 2 m2 / (D_b + chi) = "
+                              f"{float(2 * vehicle.m_foot / (leg.D_b + chi)):.3g} N s")
+        if dt > limit:
+            what = ("its time-step cap" if method == "impulse" else "dt")
+            raise ConfigError("solver.dt", dt, f"exceeds the stability limit {limit:.3g} s of "
+                              f"{method} for this vehicle ({STABILITY_REASON[method]}); use "
+                              f"{what} <= that")
     solver.validate()
     traj, summary = _landing_jit(vehicle, scene, solver, model)
     traj = {k: np.asarray(traj[k]) for k in MODELS[model].COLUMNS}
-    _check_numerics(summary, vehicle, dt)
+    _check_numerics(summary, vehicle, solver)
     outcomes = _outcomes(summary, traj, vehicle, scene, solver, model)
     if outcomes["tipped_over"]:
         outcomes["note"] = ("the vehicle tipped over; after tip_over_time_s the body, which has "

@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 
 from ._errors import ConfigError, SimulationError
+from ._integrate import METHODS
 
 
 def _cmd_config(args) -> int:
@@ -101,8 +102,10 @@ def _cmd_simulate(args) -> int:
         raise ConfigError("--out", str(out), "exists and is not a folder")
     vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
     scene = _scene_from_args(args)
+    options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
+               if getattr(args, k) is not None}
     result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
-                      model=args.model)
+                      model=args.model, method=args.method, **options)
     model = result.outcomes["model"]
     out.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
@@ -215,7 +218,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--friction", type=float, help="foot-ground friction mu (overrides config)")
     s.add_argument("--plateau-scale", type=float, nargs="+",
                    help="honeycomb plateau-force scale per leg (scatter), one value per leg")
-    s.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
+    s.add_argument("--method", default="euler", choices=METHODS,
+                   help="integrator (default euler; see README 'Integrators')")
+    s.add_argument("--dt", type=float, default=1e-5,
+                   help="integration step [s] (default 1e-5; impulse: the step cap; tsit5: the "
+                        "first step)")
+    s.add_argument("--impulse", type=float, help="impulse step dI of --method impulse [N s]")
+    s.add_argument("--rtol", type=float, help="relative tolerance of --method tsit5")
+    s.add_argument("--atol", type=float, help="absolute tolerance of --method tsit5")
+    s.add_argument("--max-steps", type=int, help="step budget of --method tsit5")
     s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
     s.add_argument("--save-dt", type=float, default=None,
                    help="output sample interval [s] (default max(1e-4, dt))")
@@ -237,6 +248,10 @@ def build_parser() -> argparse.ArgumentParser:
     from calibration.cli import add_subcommands
 
     add_subcommands(sub)
+
+    from ._design_cli import add_subcommands as add_design  # `design`: gear design
+
+    add_design(sub)
 
     b = sub.add_parser("bench", help="time compile, one landing and a vmapped batch; "
                                      "write JSON and a plot")

@@ -1,0 +1,151 @@
+"""The integrator family: agreement with a converged reference, stability boundaries pinned
+against theory (just inside: accurate; just outside: detected, never returned silently),
+refusals with the limit stated, adaptive stalls surfaced, and differentiability of each method.
+
+The theory is ``jaxland.stable_step`` (the stiffest springs and the damping on the 1 kg foot,
+per method); the boundaries below were measured on the paper drop and are pinned here.
+"""
+
+import equinox as eqx
+import jax
+import numpy as np
+import pytest
+
+import jaxland as jl
+from jaxland import _simulate
+
+VEH = jl.paper_vehicle()
+SCENE = jl.Scene()  # the paper's 0.2 m drop: touchdown at 0.2 s, first peak stroke by 0.3 s
+T_END = 0.4
+FIXED = ("euler", "euler_implicit", "verlet")
+
+
+def _run(method, dt, vehicle=VEH, scene=SCENE, t_end=T_END, **kw):
+    save = max(1, round(1e-3 / dt)) * dt
+    solver = jl.Solver(dt=dt, t_end=t_end, save_dt=save, method=method, **kw)
+    return jax.jit(lambda v: jl.landing(v, scene, solver, "quarter"))(vehicle)[1]
+
+
+@pytest.fixture(scope="module")
+def reference():
+    """Converged reference: symplectic Euler at 1.25e-6 s (it moves by < 2e-6 relative from
+    2.5e-6 s, checked here)."""
+    fine, finer = _run("euler", 2.5e-6), _run("euler", 1.25e-6)
+    ref = float(finer["max_stroke_m"])
+    assert abs(float(fine["max_stroke_m"]) / ref - 1.0) < 2e-6
+    return ref
+
+
+@pytest.mark.parametrize("method,kw,tol", [
+    ("euler", {}, 2e-4), ("euler_implicit", {}, 2e-4), ("verlet", {}, 2e-4),
+    ("impulse", {"impulse": 0.05}, 2e-4), ("tsit5", {"rtol": 1e-6, "atol": 1e-9}, 1e-4),
+])
+def test_every_method_converges_to_the_reference(reference, method, kw, tol):
+    s = _run(method, 1e-5, **kw)
+    assert not bool(s["failed"]) and bool(s["solver_ok"])
+    assert abs(float(s["max_stroke_m"]) / reference - 1.0) < tol
+    assert float(s["ledger_error_rel"]) < 1e-3
+
+
+@pytest.mark.parametrize("method,inside,outside", [
+    ("euler", 0.95, 1.1),  # fails between 1.05 and 1.1 x theory (measured)
+    ("verlet", 0.95, 1.1),  # fails between 1.05 and 1.1 x theory
+    ("euler_implicit", 0.95, 1.5),  # theory is conservative here: fails at 1.35-1.4 x
+])
+def test_stability_boundary_of_fixed_step_methods(reference, method, inside, outside):
+    limit = float(jl.stable_step(VEH, method=method))
+    ok = _run(method, inside * limit)
+    assert not bool(ok["failed"])
+    assert abs(float(ok["max_stroke_m"]) / reference - 1.0) < 5e-3
+    bad = _run(method, outside * limit)
+    assert bool(bad["failed"]) or float(bad["ledger_error_rel"]) > _simulate.CLOSURE_LIMIT
+
+
+def test_implicit_damping_moves_the_limit_from_damping_to_springs():
+    """Explicit Euler is limited by the strut damping D_b F2 on the foot; with the damping
+    implicit only the springs remain: 2 / omega, omega^2 = sum k / m2."""
+    hc, leg, gr = VEH.honeycomb, VEH.leg, VEH.ground
+    w2 = float(max(hc.k_b1, hc.k_b3, leg.k_topout) + leg.k_a + gr.k / (1 - gr.gamma)
+               + gr.k_tan) / float(VEH.m_foot)
+    c = float(leg.D_b * hc.F2) / float(VEH.m_foot)
+    assert float(jl.stable_step(VEH)) < 2.0 / c < 2.0 / np.sqrt(w2)
+    np.testing.assert_allclose(float(jl.stable_step(VEH, method="verlet")), 2 / np.sqrt(w2),
+                               rtol=1e-3)  # the ground damping chi F2 is all that is left
+
+
+@pytest.mark.parametrize("d_impulse", [0.05, 0.8])
+def test_impulse_method_cap_boundary(reference, d_impulse):
+    """The impulse method's explicit step dt = min(dI / F, cap): its damping limit is on dI
+    (c dt <= (D_b + chi) dI / m2 whatever the force), so the cap limit depends on dI."""
+    cap = float(jl.stable_step(VEH, method="impulse", impulse=d_impulse))
+    ok = _run("impulse", 0.9 * cap, impulse=d_impulse)
+    assert not bool(ok["failed"])
+    assert abs(float(ok["max_stroke_m"]) / reference - 1.0) < 5e-3
+    bad = _run("impulse", 1.25 * cap, impulse=d_impulse)
+    assert bool(bad["failed"]) or float(bad["ledger_error_rel"]) > _simulate.CLOSURE_LIMIT
+
+
+def test_impulse_step_beyond_the_damping_limit_is_refused():
+    limit = 2 * float(VEH.m_foot) / float(VEH.leg.D_b + VEH.ground.chi)
+    assert float(jl.stable_step(VEH, method="impulse", impulse=1.01 * limit)) == 0.0
+    with pytest.raises(jl.ConfigError, match=r"solver\.impulse.*2 m2 / \(D_b \+ chi\)"):
+        jl.simulate(method="impulse", impulse=1.01 * limit, t_end=0.1)
+
+
+@pytest.mark.parametrize("method", ["euler", "euler_implicit", "verlet", "impulse"])
+def test_a_step_above_the_limit_is_refused_with_the_limit_stated(method):
+    limit = float(jl.stable_step(VEH, method=method))
+    with pytest.raises(jl.ConfigError, match=rf"solver\.dt.*stability limit {limit:.3g} s "
+                                             rf"of {method}"):
+        jl.simulate(dt=1.2 * limit, t_end=0.1, method=method)
+
+
+def test_blow_up_past_the_limit_is_raised_by_simulate(monkeypatch):
+    limit = float(jl.stable_step(VEH, method="verlet"))
+    monkeypatch.setattr(_simulate, "stable_step", lambda v, **kw: 1.0)
+    with pytest.raises(jl.SimulationError, match="rerun with dt"):
+        jl.simulate(dt=1.3 * limit, t_end=T_END, save_dt=1.3 * limit, method="verlet")
+
+
+def test_adaptive_stall_is_reported():
+    with pytest.raises(jl.SimulationError, match="max_steps = 200 reached"):
+        jl.simulate(method="tsit5", max_steps=200, t_end=T_END, rtol=1e-8, atol=1e-11)
+
+
+def test_full_model_takes_fixed_step_methods_and_refuses_the_others():
+    scene = jl.Scene(drop_height=0.05)
+    solver = jl.Solver(dt=1e-5, t_end=0.15, save_dt=1e-3, method="verlet")
+    full = jax.jit(lambda v: jl.landing(v, scene, solver, "full"))(VEH)[1]
+    quarter = jax.jit(lambda v: jl.landing(v, scene, solver, "quarter"))(VEH)[1]
+    np.testing.assert_allclose(np.asarray(full["max_stroke_m"]),
+                               float(quarter["max_stroke_m"]), rtol=1e-8)
+    for method in ("impulse", "tsit5"):
+        with pytest.raises(jl.ConfigError, match="quarter model only"):
+            jl.landing(VEH, scene, jl.Solver(method=method), "full")
+
+
+@pytest.mark.parametrize("method,adjoint,rtol", [
+    ("euler", "forward", 0.02), ("euler_implicit", "forward", 0.02), ("verlet", "forward", 0.02),
+    ("impulse", "forward", 0.02), ("impulse", "reverse", 0.02),
+    # adaptive steps chosen from the parameters make the loss piecewise smooth: 13 % measured
+    ("tsit5", "forward", 0.25), ("tsit5", "reverse", 0.25),
+])
+def test_each_method_differentiates(method, adjoint, rtol):
+    """jacfwd (forward) or grad (reverse) of max stroke in D_b and F1 is finite and matches a
+    central difference at the first impact (h = 1e-4 relative; loose: gradient quality is
+    measured in benchmarks/gradient_quality.py and tests/test_gradient_quality.py)."""
+    solver = jl.Solver(dt=1e-5, t_end=0.3, save_dt=1e-3, method=method, adjoint=adjoint)
+
+    def stroke(p):
+        veh = eqx.tree_at(lambda v: (v.leg.D_b, v.honeycomb.F1), VEH,
+                          (VEH.leg.D_b * p[0], VEH.honeycomb.F1 * p[1]))
+        return jl.landing(veh, SCENE, solver, "quarter")[1]["max_stroke_m"]
+
+    p0 = np.ones(2)
+    diff = jax.jacfwd if adjoint == "forward" else jax.grad
+    g = np.asarray(jax.jit(diff(stroke))(p0))
+    f = jax.jit(stroke)
+    h = 1e-4
+    fd = np.array([(f(p0 + h * e) - f(p0 - h * e)) / (2 * h) for e in np.eye(2)])
+    assert np.all(np.isfinite(g))
+    np.testing.assert_allclose(g, fd, rtol=rtol)
