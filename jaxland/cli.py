@@ -179,6 +179,12 @@ def _cmd_montecarlo(args) -> int:
 
 
 def _cmd_bench(args) -> int:
+    if args.integrators:
+        from ._bench_integrators import run_integrator_benchmark
+
+        run_integrator_benchmark(Path(args.out), small=args.quick)
+        print(f"wrote {Path(args.out) / 'integrators.json'} and integrators_*.png")
+        return 0
     from ._bench import run_benchmark
 
     result = run_benchmark(Path(args.out), quick=args.quick, batch=args.batch)
@@ -258,6 +264,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", default="benchmarks/results", help="output folder")
     b.add_argument("--batch", type=int, default=1000, help="largest vmapped batch (default 1000)")
     b.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
+    b.add_argument("--integrators", action="store_true",
+                   help="speed against accuracy of every integrator: work-precision chart, "
+                        "throughput, gradient cost, stability map (integrators.json, "
+                        "integrators_*.png)")
     b.set_defaults(func=_cmd_bench)
     return p
 

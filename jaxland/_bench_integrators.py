@@ -1,0 +1,349 @@
+"""``jaxland bench --integrators``: speed against accuracy for every integrator.
+
+For two scenes (the paper's 0.2 m drop, and a harsh one with separations: 0.5 m drop and no
+strut damping, D_b = 0) and a ladder of settings per method (step dt, impulse step dI, or
+tolerance rtol), it measures the wall time per landing (median of repeats after compile) and
+the error against a converged reference (symplectic Euler at the finest step, its convergence
+checked against the next coarser one) in max stroke, final stroke, peak buffer force, peak
+normal force and the RMS of the stroke trace. It also measures landings/s against batch size,
+compile time, the cost of gradients (jacfwd over 6 parameters, grad) per method, and the
+stability map: the step where each method fails, found by bisection, next to the theory
+(``stable_step``). The non-JAX baselines (numba, scipy), when ``benchmarks/results/
+baselines.json`` exists, are put on the same chart against the same reference.
+
+Writes ``integrators.json`` and ``integrators_*.png``. Timings are never asserted by tests.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._config import paper_vehicle
+from ._integrate import Solver, stable_step
+from ._scene import Scene
+from ._simulate import CLOSURE_LIMIT, landing, landings
+
+METRICS = ("max_stroke_m", "final_stroke_m", "peak_honeycomb_force_N", "peak_normal_force_N")
+COLORS = dict(euler="C0", euler_implicit="C1", verlet="C2", impulse="C3", tsit5="C4",
+              numba_euler="k", scipy_LSODA="C5", scipy_Radau="C6")
+
+
+def scenes(t_end=1.2):
+    """name -> (vehicle, scene, t_end)."""
+    veh = paper_vehicle()
+    harsh = eqx.tree_at(lambda v: v.leg.D_b, veh, 0.0)
+    return {"paper": (veh, Scene(), t_end), "harsh": (harsh, Scene(drop_height=0.5), t_end)}
+
+
+def ladders(vehicle, small=False):
+    """method -> list of Solver keyword sets, coarse to fine."""
+    lim_e = float(stable_step(vehicle))
+    lim_i = float(stable_step(vehicle, method="verlet"))
+
+    def steps(limit, n):
+        top = 2.0 ** math.floor(math.log2(0.9 * limit / 1e-6)) * 1e-6  # binary ladder in us
+        return [top / 2**i for i in range(n)]
+
+    n = 3 if small else 6
+    out = {
+        "euler": [dict(dt=d) for d in steps(lim_e, n)],
+        "euler_implicit": [dict(dt=d) for d in steps(lim_i, n + 1)],
+        "verlet": [dict(dt=d) for d in steps(lim_i, n + 1)],
+        "tsit5": [dict(dt=1e-5, rtol=r, atol=r * 1e-3)
+                  for r in (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)[:n]],
+    }
+    imp = []
+    for d_i in (0.4, 0.2, 0.1, 0.05, 0.025, 0.0125)[:n]:
+        cap = float(stable_step(vehicle, method="impulse", impulse=d_i))
+        cap = 2.0 ** math.floor(math.log2(0.9 * cap / 1e-6)) * 1e-6
+        imp.append(dict(dt=cap, impulse=d_i))
+    out["impulse"] = imp
+    return out
+
+
+def _solver(method, t_end, save_dt=1e-3, **kw):
+    dt = kw.pop("dt")
+    save = max(1, round(save_dt / dt)) * dt
+    return Solver(dt=dt, t_end=t_end, save_dt=save, method=method, **kw)
+
+
+def _timed(fn, args, repeats):
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t0)
+    return out, compile_s, statistics.median(times)
+
+
+def _run(vehicle, scene, solver, repeats):
+    def fn(v):
+        traj, s = landing(v, scene, solver, "quarter")
+        return traj["time_s"], traj["stroke_m"], s
+    (t, stroke, s), compile_s, run_s = _timed(fn, (vehicle,), repeats)
+    s = {k: np.asarray(v) for k, v in s.items()}
+    ok = (not bool(s["failed"]) and bool(s["solver_ok"])
+          and float(s["ledger_error_rel"]) <= CLOSURE_LIMIT)
+    return dict(time=np.asarray(t), stroke=np.asarray(stroke), summary=s, ok=ok,
+                compile_s=compile_s, run_s=run_s)
+
+
+def _errors(run, ref):
+    out = {m: abs(float(run["summary"][m]) / max(float(ref["summary"][m]), 1e-300) - 1.0)
+           for m in METRICS}
+    n = min(len(run["stroke"]), len(ref["stroke"]))
+    t_ref = ref["time"][:n]
+    trace = np.interp(t_ref, run["time"], run["stroke"])
+    scale = np.sqrt(np.mean(ref["stroke"][:n] ** 2))
+    out["trace_rms"] = float(np.sqrt(np.mean((trace - ref["stroke"][:n]) ** 2)) / scale)
+    return out
+
+
+def work_precision(small=False, repeats=5, progress=print):
+    results = {}
+    for name, (veh, scene, t_end) in scenes(0.55 if small else 1.2).items():
+        fine_dt = 5e-6 if small else 1.25e-6
+        ref = _run(veh, scene, _solver("euler", t_end, dt=fine_dt), 1)
+        check = _run(veh, scene, _solver("euler", t_end, dt=2 * fine_dt), 1)
+        entry = dict(reference=dict(method="euler", dt=fine_dt,
+                                    **{m: float(ref["summary"][m]) for m in METRICS},
+                                    change_from_2dt=_errors(check, ref)),
+                     runs=[])
+        for method, settings in ladders(veh, small).items():
+            for kw in settings:
+                r = _run(veh, scene, _solver(method, t_end, **kw), repeats)
+                row = dict(method=method, **kw, ok=r["ok"], wall_s=r["run_s"],
+                           compile_s=r["compile_s"], n_steps=int(r["summary"]["n_steps"]),
+                           ledger_error_rel=float(r["summary"]["ledger_error_rel"]))
+                if r["ok"]:
+                    row["errors"] = _errors(r, ref)
+                entry["runs"].append(row)
+                progress(f"  {name:6s} {method:15s} {kw} -> {r['run_s'] * 1e3:8.2f} ms, "
+                         f"max-stroke error "
+                         f"{row.get('errors', {}).get('max_stroke_m', float('nan')):.2e}")
+        entry["baseline_reference"] = dict(
+            t=ref["time"].tolist(), stroke_m=ref["stroke"].tolist())
+        results[name] = entry
+    return results
+
+
+def _params(v):
+    return (v.leg.D_b, v.honeycomb.k_b1, v.honeycomb.F1, v.honeycomb.F2, v.ground.k,
+            v.ground.gamma)
+
+
+DEFAULT_SETTINGS = dict(euler=dict(dt=1e-5), euler_implicit=dict(dt=2e-5),
+                        verlet=dict(dt=2e-5), impulse=dict(dt=5e-5, impulse=0.05),
+                        tsit5=dict(dt=1e-5, rtol=1e-6, atol=1e-9))
+
+
+def throughput_and_gradients(small=False, repeats=3, progress=print):
+    """Landings/s against batch size, and gradient cost, at each method's chart setting."""
+    veh, scene, _ = scenes()["paper"]
+    t_end = 0.3 if small else 1.2
+    sizes = (1, 8) if small else (1, 10, 100, 1000)
+    out = {}
+    for method, kw in DEFAULT_SETTINGS.items():
+        solver = _solver(method, t_end, **dict(kw))
+        rows = []
+        for n in sizes:
+            batch = Scene.batch(drop_height=jnp.linspace(0.1, 0.4, n))
+            _, c_s, r_s = _timed(
+                lambda sc: landings(veh, sc, solver, "quarter")[1]["max_stroke_m"], (batch,),
+                1 if n >= 1000 else repeats)
+            rows.append(dict(batch=n, compile_s=c_s, run_s=r_s, landings_per_s=n / r_s))
+
+        def loss(theta, solver):
+            new = tuple(p * jnp.exp(t) for p, t in zip(_params(veh), theta))
+            _, s = landing(eqx.tree_at(_params, veh, new), scene, solver, "quarter")
+            return s["max_stroke_m"] + 1e-6 * s["peak_normal_force_N"]
+
+        theta = jnp.zeros(6)
+        fwd_solver = eqx.tree_at(lambda s: s, solver)
+        _, c_f, t_f = _timed(lambda th: loss(th, fwd_solver), (theta,), repeats)
+        _, c_j, t_j = _timed(jax.jacfwd(lambda th: loss(th, fwd_solver)), (theta,), repeats)
+        rev = Solver(**{**{f: getattr(solver, f) for f in (
+            "dt", "t_end", "save_dt", "method", "impulse", "rtol", "atol", "max_steps")},
+            "adjoint": "reverse"})
+        try:
+            _, c_g, t_g = _timed(jax.grad(lambda th: loss(th, rev)), (theta,), repeats)
+        except Exception as err:  # noqa: BLE001 - record what failed, keep benchmarking
+            c_g, t_g = float("nan"), float("nan")
+            progress(f"  grad failed for {method}: {type(err).__name__}")
+        out[method] = dict(setting=kw, batches=rows, forward_s=t_f, compile_forward_s=c_f,
+                           jacfwd6_s=t_j, jacfwd_ratio=t_j / t_f, grad_s=t_g,
+                           grad_ratio=t_g / t_f, compile_jacfwd_s=c_j, compile_grad_s=c_g)
+        progress(f"  {method:15s} forward {t_f * 1e3:.2f} ms, jacfwd {t_j / t_f:.1f}x, "
+                 f"grad {t_g / t_f:.1f}x, batch {sizes[-1]}: {rows[-1]['landings_per_s']:.0f}/s")
+    return out
+
+
+def _fails(veh, scene, method, t_end, **kw):
+    r = _run(veh, scene, _solver(method, t_end, save_dt=kw["dt"], **kw), 1)
+    return not r["ok"]
+
+
+def stability_map(small=False, progress=print):
+    """Largest step each fixed-step method survives, by bisection, next to the theory."""
+    out = {}
+    t_end = 0.4 if small else 0.6
+    iters = 4 if small else 7
+    for name, (veh, scene, _) in scenes().items():
+        rows = []
+        cases = [(m, {}, float(stable_step(veh, method=m)))
+                 for m in ("euler", "euler_implicit", "verlet")]
+        cases.append(("impulse", {"impulse": 0.05},
+                      float(stable_step(veh, method="impulse", impulse=0.05))))
+        for method, kw, theory in cases:
+            lo, hi = 0.5 * theory, 2.0 * theory
+            if _fails(veh, scene, method, t_end, dt=lo, **kw) or not _fails(
+                    veh, scene, method, t_end, dt=hi, **kw):
+                rows.append(dict(method=method, **kw, theory_s=theory, failure_s=None))
+                continue
+            for _ in range(iters):
+                mid = math.sqrt(lo * hi)
+                lo, hi = (lo, mid) if _fails(veh, scene, method, t_end, dt=mid, **kw) \
+                    else (mid, hi)
+            rows.append(dict(method=method, **kw, theory_s=theory, survives_s=lo,
+                             failure_s=hi, ratio=math.sqrt(lo * hi) / theory))
+            progress(f"  {name:6s} {method:15s} theory {theory:.3g} s, fails at "
+                     f"{math.sqrt(lo * hi):.3g} s ({math.sqrt(lo * hi) / theory:.2f}x)")
+        out[name] = rows
+    return out
+
+
+def _baselines(path: Path, refs: dict):
+    """Numba/scipy runs from benchmarks/baselines.py, with errors against our references."""
+    if not path.exists():
+        return {}
+    data = json.loads(path.read_text())
+    out = {}
+    for name, ref in refs.items():
+        rows = []
+        for run in (data.get("scenes", {}).get(name, {}).get("runs", [])):
+            if not run.get("ok", run.get("success", False)):
+                continue
+            errs = {m: abs(run[m] / ref[m] - 1.0) for m in METRICS if m in run}
+            rows.append(dict(method=run.get("method"), setting=run.get("setting"),
+                             wall_s=run.get("wall_s"), errors=errs))
+        out[name] = rows
+    return out
+
+
+def plot(results: dict, out_dir: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    wp = results["work_precision"]
+    cols = (*METRICS, "trace_rms")
+    fig, axes = plt.subplots(len(wp), len(cols), figsize=(4 * len(cols), 3.6 * len(wp)),
+                             squeeze=False)
+    for i, (name, entry) in enumerate(wp.items()):
+        for j, metric in enumerate(cols):
+            ax = axes[i, j]
+            for method in COLORS:
+                pts = [(r["wall_s"], r["errors"][metric]) for r in entry["runs"]
+                       if r["method"] == method and r.get("errors")]
+                pts += [(r["wall_s"], r["errors"][metric])
+                        for r in results.get("baselines", {}).get(name, [])
+                        if r["method"] == method and metric in r["errors"]]
+                if pts:
+                    x, y = zip(*sorted(pts))
+                    ax.loglog(x, np.maximum(y, 1e-12), "o-", color=COLORS[method], label=method,
+                              ms=4)
+            ax.set_xlabel("wall time per landing [s]")
+            ax.set_ylabel(f"relative error, {metric}")
+            ax.set_title(f"{name}: {metric}", fontsize=9)
+            ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    p = out_dir / "integrators_work_precision.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+
+    tg = results["throughput"]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    for method, d in tg.items():
+        a1.loglog([r["batch"] for r in d["batches"]], [r["landings_per_s"] for r in d["batches"]],
+                  "o-", color=COLORS[method], label=f"{method} {d['setting']}")
+    a1.set_xlabel("batch size (vmap)")
+    a1.set_ylabel("landings per second")
+    a1.legend(fontsize=6)
+    a1.grid(True, which="both", alpha=0.3)
+    names = list(tg)
+    x = np.arange(len(names))
+    a2.bar(x - 0.2, [tg[m]["jacfwd_ratio"] for m in names], 0.4, label="jacfwd, 6 parameters")
+    a2.bar(x + 0.2, [tg[m]["grad_ratio"] for m in names], 0.4, label="grad")
+    a2.set_xticks(x, names, rotation=20, fontsize=8)
+    a2.set_ylabel("cost / one forward landing [1]")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    p = out_dir / "integrators_throughput.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+
+    sm = results["stability"]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for k, (name, rows) in enumerate(sm.items()):
+        for i, r in enumerate(rows):
+            y = i + 0.2 * k
+            ax.plot(r["theory_s"], y, "k|", ms=14)
+            if r.get("failure_s"):
+                ax.plot([r["survives_s"], r["failure_s"]], [y, y], "-",
+                        color="C3" if k else "C0", lw=4, label=name if i == 0 else None)
+    ax.set_yticks(range(len(sm["paper"])), [r["method"] for r in sm["paper"]])
+    ax.set_xscale("log")
+    ax.set_xlabel("step dt (impulse: its cap, dI = 0.05 N s) [s]; | = theory (stable_step)")
+    ax.set_title("stability boundary: last stable .. first failing step")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p = out_dir / "integrators_stability.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=print) -> dict:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    progress("work-precision ...")
+    wp = work_precision(small, repeats=2 if small else 5, progress=progress)
+    progress("throughput and gradient cost ...")
+    tg = throughput_and_gradients(small, progress=progress)
+    progress("stability map ...")
+    sm = stability_map(small, progress=progress)
+    refs = {n: e["reference"] for n, e in wp.items()}
+    base = _baselines(Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+                      / "baselines.json", refs)
+    for e in wp.values():
+        e.pop("baseline_reference")
+    results = dict(
+        machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
+                     jax=jax.__version__, device=str(jax.devices()[0])),
+        small=small, work_precision=wp, throughput=tg, stability=sm, baselines=base)
+    path = out_dir / "integrators.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(results, indent=1, default=float))
+    os.replace(tmp, path)
+    plot(results, out_dir)
+    return results
