@@ -26,6 +26,15 @@ from ._config import (
     vehicle_to_toml as vehicle_to_toml,
 )
 from ._crush import plateau_force as plateau_force
+from ._design import (
+    DesignProblem as DesignProblem,
+    DesignResult as DesignResult,
+    DesignSpec as DesignSpec,
+    design_spec_from_dict as design_spec_from_dict,
+    load_design_spec as load_design_spec,
+    optimise_design as optimise_design,
+    verify_design as verify_design,
+)
 from ._errors import (
     ConfigError as ConfigError,
     JaxlandError as JaxlandError,
@@ -52,5 +61,7 @@ __all__ = [
     "vehicle_to_toml", "plateau_force", "ConfigError", "JaxlandError", "SimulationError",
     "Solver", "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "load_scene",
     "scene_from_dict", "Landing", "choose_model", "landing", "landings", "simulate", "batch_axes",
+    "DesignProblem", "DesignResult", "DesignSpec", "design_spec_from_dict", "load_design_spec",
+    "optimise_design", "verify_design",
 ]
 __version__ = "0.1.0"

@@ -1,0 +1,133 @@
+"""``jaxland design``: robust gradient-based gear design from a spec TOML.
+
+``add_subcommands(subparsers)`` registers it on an ``argparse`` subparsers object. The handler
+writes, through a staging folder moved into place only once every file exists:
+``design_vehicle.toml`` (loadable by ``jaxland simulate --config``; only for a feasible design),
+``design_report.json`` and ``figures/design_*.png``. Exit codes: 0 feasible design, 4 no
+feasible design found (the report names the violated constraints), 2 invalid input, 3 numerical
+failure.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+__all__ = ["add_subcommands", "EXIT_INFEASIBLE"]
+
+EXIT_INFEASIBLE = 4
+
+
+def _publish(staging: Path, out: Path) -> None:
+    for path in sorted(staging.rglob("*")):
+        if path.is_file():
+            dest = out / path.relative_to(staging)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            path.replace(dest)
+
+
+class _Progress:
+    """One stderr line per iteration."""
+
+    def __init__(self, quiet: bool, total: int):
+        self.quiet, self.total = quiet, total
+
+    def __call__(self, rec: dict) -> None:
+        if self.quiet:
+            return
+        cons = "  ".join(f"{k} {v:+.3f}" for k, v in rec["constraints"].items())
+        vals = "  ".join(f"{k} {v:.5g}" for k, v in rec["values"].items())
+        print(f"design iter {rec['iteration']:3d}/{self.total}  objective "
+              f"{rec['objective_measure_mps2']:.4g} m/s^2  g: {cons}  rho {rec['penalty']:.3g}"
+              f"{'  REJECTED' if rec['rejected'] else ''}  |  {vals}  {rec['wall_s']:6.1f} s",
+              file=sys.stderr, flush=True)
+
+
+def _cmd_design(args) -> int:
+    import jaxland as jl
+
+    from ._design import load_design_spec, optimise_design, verify_design
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise jl.ConfigError("--out", str(out), "exists and is not a folder")
+    spec = load_design_spec(args.spec)
+    if args.iterations is not None:
+        if args.iterations < 0:
+            raise jl.ConfigError("--iterations", args.iterations, "must be >= 0")
+        spec.iterations = args.iterations
+    if args.verify_n is not None:
+        if args.verify_n < 0:
+            raise jl.ConfigError("--verify-n", args.verify_n, "must be >= 0")
+        spec.montecarlo.n = max(args.verify_n, 1)
+    vehicle = (jl.load_vehicle(args.config) if args.config else
+               jl.load_vehicle(spec.vehicle) if spec.vehicle else jl.paper_vehicle())
+    print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
+          f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
+          file=sys.stderr)
+    result = optimise_design(spec, vehicle, progress=_Progress(args.quiet, spec.iterations))
+    if args.verify_n != 0:
+        verify_design(result, progress=not args.quiet)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+    try:
+        if result.status == "feasible":
+            (staging / "design_vehicle.toml").write_text(result.to_toml())
+        result.to_json(staging / "design_report.json")
+        if not args.no_plots:
+            result.plot(staging / "figures")
+        _publish(staging, out)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    print(f"design {result.status} after {len(result.history) - 1} iterations in "
+          f"{result.wall_s:.1f} s (compile {result.compile_s:.1f} s)")
+    for v in result.problem.variables:
+        print(f"  {v.name:<28} {result.start_values[v.name]:<12.6g} -> "
+              f"{result.values[v.name]:.6g}   bounds [{v.low:g}, {v.high:g}]")
+    s0, s1 = result.at_start, result.at_design
+    print(f"  objective on the design scenes: {s0['objective_measure_mps2']:.4g} -> "
+          f"{s1['objective_measure_mps2']:.4g} m/s^2")
+    for name, c in s1["constraints"].items():
+        print(f"  constraint {name:<10} g {s0['constraints'][name]['g']:+.4f} -> {c['g']:+.4f}")
+    if result.verification:
+        v = result.verification
+        print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples)")
+        for tag in ("before", "after"):
+            r = v[tag]
+            tip, bot = r["tip_over"], r["bottoming"]
+            print(f"    {tag:<6} peak accel p50 {r['peak_body_accel_mps2']['p50']:.4g} p99 "
+                  f"{r['peak_body_accel_mps2']['p99']:.4g} m/s^2; max stroke p99 "
+                  f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; P(tip) {tip['probability']:.3g} "
+                  f"[{tip['ci95_wilson'][0]:.3g}, {tip['ci95_wilson'][1]:.3g}]; P(bottom) "
+                  f"{bot['probability']:.3g} [{bot['ci95_wilson'][0]:.3g}, "
+                  f"{bot['ci95_wilson'][1]:.3g}]")
+    if result.status != "feasible":
+        for name, c in result.violated.items():
+            print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
+                  f"({c['rule']})", file=sys.stderr)
+        print(f"wrote {out}/design_report.json" + ("" if args.no_plots else ", figures/*.png")
+              + " (no design_vehicle.toml: no feasible design)")
+        return EXIT_INFEASIBLE
+    print(f"wrote {out}/design_vehicle.toml, design_report.json"
+          + ("" if args.no_plots else ", figures/*.png"))
+    return 0
+
+
+def add_subcommands(subparsers) -> None:
+    """Register ``design`` on an argparse subparsers object."""
+    d = subparsers.add_parser(
+        "design", help="robust gradient-based gear design: cut peak overload under stroke, "
+                       "stability and slip constraints over dispersed touchdowns")
+    d.add_argument("spec", help="design spec TOML ([design], [objective], [variables.*], "
+                                "[constraints.*], Monte Carlo dispersion)")
+    d.add_argument("--out", default="out/design", help="output folder (default out/design)")
+    d.add_argument("--iterations", type=int, help="optimiser iterations (overrides the spec)")
+    d.add_argument("--verify-n", type=int,
+                   help="verification Monte Carlo size (overrides montecarlo.n; 0: skip)")
+    d.add_argument("--config", help="baseline vehicle TOML (default: design.vehicle or the "
+                                    "paper's vehicle)")
+    d.add_argument("--no-plots", action="store_true", help="skip the figures")
+    d.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")
+    d.set_defaults(func=_cmd_design)
