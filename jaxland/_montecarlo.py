@@ -31,7 +31,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError
-from ._integrate import Solver, stable_step
+from ._integrate import FIXED_STEP_METHODS, Solver, stable_step
 from ._params import Vehicle
 from ._scene import SCENE_FIELDS, Scene
 from ._simulate import CLOSURE_LIMIT, landings
@@ -134,6 +134,7 @@ class MonteCarloSpec:
     dt: float = 1e-5
     t_end: float = 1.0
     model: str = "auto"
+    method: str = "euler"  # a fixed-step integrator (FIXED_STEP_METHODS)
 
     def __post_init__(self):
         for key in [*self.dispersion, *self.fixed]:
@@ -164,6 +165,10 @@ class MonteCarloSpec:
             raise ConfigError("montecarlo.seed", self.seed, "must be an integer in [0, 2^31)")
         if self.model not in ("auto", "quarter", "full"):
             raise ConfigError("montecarlo.model", self.model, "must be auto, quarter or full")
+        if self.method not in FIXED_STEP_METHODS:
+            raise ConfigError("montecarlo.method", self.method,
+                              f"must be one of {', '.join(FIXED_STEP_METHODS)} (fixed-step "
+                              "methods batch without waiting for the slowest sample)")
 
     def smallest_model(self) -> str:
         """The quarter model if every dispersed or fixed input keeps the drop symmetric."""
@@ -180,7 +185,7 @@ class MonteCarloSpec:
 
 
 def load_montecarlo_spec(path) -> MonteCarloSpec:
-    """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model),
+    """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model, method),
     ``[dispersion.<input>]`` tables and an optional ``[fixed]`` table (see the README)."""
     data = read_toml(path, "spec")
     unknown = set(data) - {"montecarlo", "dispersion", "fixed"}
@@ -191,7 +196,8 @@ def load_montecarlo_spec(path) -> MonteCarloSpec:
         if not isinstance(data.get(section, {}), dict):
             raise ConfigError(section, data[section], f"must be a table ([{section}])")
     mc = dict(data.get("montecarlo", {}))
-    keys = {"n": "n", "seed": "seed", "dt_s": "dt", "t_end_s": "t_end", "model": "model"}
+    keys = {"n": "n", "seed": "seed", "dt_s": "dt", "t_end_s": "t_end", "model": "model",
+            "method": "method"}
     bad = set(mc) - set(keys)
     if bad:
         raise ConfigError(f"montecarlo.{sorted(bad)[0]}", "?",
@@ -388,7 +394,8 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     vehicle = paper_vehicle() if vehicle is None else vehicle
     validate_vehicle(vehicle)
     model = spec.resolved_model()
-    solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end).validate()
+    solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
+                    method=spec.method).validate()
     devices = list(jax.devices() if devices is None else devices)
     n_dev = len(devices)
     chunk = min(spec.n, 512 if model == "quarter" else 64) if chunk is None else int(chunk)
@@ -397,10 +404,11 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     chunk = int(math.ceil(chunk / n_dev) * n_dev)
     mesh = Mesh(np.array(devices), ("batch",))
     batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
-    limit = float(stable_step(vehicle))
+    limit = float(stable_step(vehicle, method=spec.method))
     if spec.dt > limit:
         raise ConfigError("montecarlo.dt_s", spec.dt,
-                          f"exceeds the a-priori stability limit {limit:.3g} s")
+                          f"exceeds the a-priori stability limit {limit:.3g} s of "
+                          f"{spec.method}")
 
     run = jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))
     outputs: dict = {}
@@ -430,12 +438,12 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
 
     failure = np.zeros(spec.n, dtype=int)
     limits = np.asarray(jax.vmap(lambda h, nf: stable_step(
-        vehicle, honeycomb_force=h, normal_force=nf, bottomed=True))(
+        vehicle, honeycomb_force=h, normal_force=nf, bottomed=True, method=spec.method))(
         outputs["peak_honeycomb_force_N"].max(axis=1),
         outputs["peak_normal_force_N"].max(axis=1)))
     bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
     limits_nb = np.asarray(jax.vmap(lambda h, nf: stable_step(
-        vehicle, honeycomb_force=h, normal_force=nf))(
+        vehicle, honeycomb_force=h, normal_force=nf, method=spec.method))(
         outputs["peak_honeycomb_force_N"].max(axis=1),
         outputs["peak_normal_force_N"].max(axis=1)))
     limits = np.where(bottomed, limits, limits_nb)
@@ -473,7 +481,8 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
     reasons = {_FAIL_REASONS[c]: int((failure == c).sum()) for c in (1, 2, 3, 4)
                if (failure == c).any()}
     return dict(
-        n=spec.n, seed=spec.seed, model=model, dt_s=spec.dt, t_end_s=spec.t_end,
+        n=spec.n, seed=spec.seed, model=model, method=spec.method, dt_s=spec.dt,
+        t_end_s=spec.t_end,
         devices=n_dev, chunk=chunk, wall_s=wall, landings_per_s=spec.n / wall,
         n_failed=int((~ok).sum()), failures=reasons,
         failed_samples=np.flatnonzero(~ok).tolist()[:100],
