@@ -125,6 +125,7 @@ def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
     """
     derived = prepare(vehicle, scene) if derived is None else derived
     leg, hc, gr = vehicle.leg, derived["curve"], vehicle.ground
+    sm, sn = derived.get("smoothing_m", 0.0), derived.get("smoothing_N", 0.0)  # Solver's
     z_b, r_f, z_f = s.q[0], s.q[1], s.q[2]
     vz_b, vr_f, vz_f = s.v[0], s.v[1], s.v[2]
     # Written on scalar components throughout: XLA then fuses the step into few kernels.
@@ -135,7 +136,7 @@ def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
     u_r, u_z = dr / length, dz / length
     x_b = leg.L_h0 - length
     v_b = -(u_r * vr_f + u_z * (vz_f - vz_b))
-    hco = honeycomb(x_b, s.x_max, hc)
+    hco = honeycomb(x_b, s.x_max, hc, sm)
 
     # Auxiliary struts: a pair with joints at A +/- h laterally; in a symmetric landing their
     # lateral components cancel and each carries half of k_a.
@@ -145,18 +146,19 @@ def evaluate(vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
     ax = aux_strut(length_a, derived["L_a0_pair"], leg.k_a)
 
     # Ground: normal with pit memory, tangential stick/slip (3-D law, lateral axis unused here).
-    nc = normal_contact(-z_f, -vz_f, s.d_max, gr, derived["k_r"])
+    nc = normal_contact(-z_f, -vz_f, s.d_max, gr, derived["k_r"], sm)
     zero = jnp.zeros_like(r_f)
-    tc = tangential_contact((r_f, zero), (s.anchor, zero), nc.force, gr)
+    tc = tangential_contact((r_f, zero), (s.anchor, zero), nc.force, gr, sm)
 
     m_q, m_f, g = derived["m_quarter"], vehicle.m_foot, vehicle.g
     if kick is None:
-        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn, smooth_m=sm)
     else:  # implicit damping: the stroke rate after the kick from the other foot forces
         other_u = (u_r * (ax.force * a_r + tc.force[0])
                    + u_z * (ax.force * a_z + nc.force - m_f * g))
         a = kick / m_f
-        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u)
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u,
+                         sn, sm)
     f_foot_r = st.force * u_r + ax.force * a_r + tc.force[0]
     f_foot_z = st.force * u_z + ax.force * a_z + nc.force - m_f * g
     f_body = -(st.force * u_z + ax.force * a_z) - m_q * g

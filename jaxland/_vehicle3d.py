@@ -238,6 +238,7 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
     scene = Scene() if scene is None else scene
     derived = prepare(vehicle, scene) if derived is None else derived
     leg, hc, gr = vehicle.leg, derived["curve"], vehicle.ground
+    sm, sn = derived.get("smoothing_m", 0.0), derived.get("smoothing_N", 0.0)  # Solver's
     m, m2, g = vehicle.m_body, vehicle.m_foot, vehicle.g
     inertia = derived["inertia"]
     p, quat, feet = s.q
@@ -256,7 +257,7 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
     u = d / length[:, None]
     x_b = leg.L_h0 - length
     v_b = -jnp.sum(u * (vf - vP), axis=-1)
-    hco = honeycomb(x_b, s.x_max, hc)
+    hco = honeycomb(x_b, s.x_max, hc, sm)
 
     aux_force_vecs, aux_torques, aux_energy, aux_axial = 0.0, 0.0, 0.0, 0.0
     for A_b in (Ap_b, Am_b):
@@ -272,18 +273,19 @@ def evaluate(vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
         aux_axial = aux_axial + ax.force
 
     n_g, t1, t2 = derived["ground"]
-    nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr, derived["k_r"])
-    tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr)
+    nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr, derived["k_r"], sm)
+    tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr, sm)
     f_ground = (nc.force[:, None] * n_g[None, :] + tc.force[0][:, None] * t1[None, :]
                 + tc.force[1][:, None] * t2[None, :])
 
     gz = jnp.array([0.0, 0.0, 1.0])
     if kick is None:
-        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout)
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn, smooth_m=sm)
     else:  # implicit damping: the stroke rate after the kick from the other foot forces
         other_u = jnp.sum(u * (aux_force_vecs + f_ground), axis=-1) - m2 * g * u[:, 2]
         a = kick / m2
-        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u)
+        st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u,
+                         sn, sm)
     f_strut = st.force[:, None] * u
     f_feet = f_strut + aux_force_vecs + f_ground - m2 * g * gz[None, :]
     f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz

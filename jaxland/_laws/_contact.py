@@ -26,6 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._params import Ground
+from ._smooth import ramp, ramp_integral, soft_min
 
 
 def safe_hypot(x, y):
@@ -45,13 +46,25 @@ class NormalOut(eqx.Module):
     damping_power: jnp.ndarray  # W, dissipated by contact damping (>= 0)
 
 
-def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None) -> NormalOut:
+def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None,
+                   smooth: float = 0.0) -> NormalOut:
     """Normal ground force [N] at penetration ``d`` [m] (below the original surface) and
     penetration rate ``d_dot`` [m/s], with memory ``d_max_prev`` [m]. ``k_r`` is the
-    restitution stiffness k / (1 - gamma); pass it precomputed in a time loop."""
-    d_max = jnp.maximum(d_max_prev, d)
+    restitution stiffness k / (1 - gamma); pass it precomputed in a time loop. ``smooth`` [m]
+    (static, opt-in): the spring's on/off kink is rounded over this much of the spring's
+    compression, and the virgin/restitution kink over this much penetration beyond the memory
+    (``_smooth.ramp``; exact elsewhere; within the bands the spring is softer by at most
+    k_r smooth)."""
     k_r = ground.k / (1.0 - ground.gamma) if k_r is None else k_r
-    e = jnp.maximum(d - ground.gamma * d_max, 0.0)
+    if smooth == 0.0:
+        d_max = jnp.maximum(d_max_prev, d)
+        e = jnp.maximum(d - ground.gamma * d_max, 0.0)
+        elastic = 0.5 * k_r * e**2
+    else:  # the memory advances by ramp(d - d_max_prev) <= max(., 0): it may lag, never creeps
+        d_max = d_max_prev + ramp(d - d_max_prev, smooth)
+        raw = d - ground.gamma * d_max
+        e = ramp(raw, smooth)
+        elastic = k_r * ramp_integral(raw, smooth)
     f_s = k_r * e
     factor = jnp.maximum(1.0 + ground.chi * d_dot, 0.0)
     f_n = f_s * factor
@@ -60,7 +73,7 @@ def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None) -> NormalOut:
         spring_force=f_s,
         d_max=d_max,
         pit_depth=ground.gamma * d_max,
-        elastic_energy=0.5 * k_r * e**2,
+        elastic_energy=elastic,
         plastic_energy=0.5 * ground.gamma * ground.k * d_max**2,
         damping_power=(f_n - f_s) * d_dot,
     )
@@ -75,9 +88,13 @@ class TangentialOut(eqx.Module):
     slip_energy: jnp.ndarray  # J, dissipated by this slip increment
 
 
-def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground) -> TangentialOut:
+def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground,
+                       smooth: float = 0.0) -> TangentialOut:
     """Tangential force [N] on the foot at tangent-plane position ``foot_t = (x, y)`` [m], given
-    the previous anchor ``(x, y)`` [m] and the current normal force [N].
+    the previous anchor ``(x, y)`` [m] and the current normal force [N]. ``smooth`` [m]
+    (static, opt-in): the stick/slip switch is rounded over this much spring stretch beyond the
+    Coulomb limit (exact stick below it, exact slip beyond limit + smooth; between them the
+    force exceeds mu F_n by at most 0.15 k_tan smooth).
 
     Tangent-plane vectors are (x, y) pairs of arrays rather than arrays of shape (2,): written on
     components, the law fuses with the rest of a step (a (2,)-vector form with its norm
@@ -88,7 +105,12 @@ def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground) -> Tan
     n = safe_hypot(ux, uy)
     limit = ground.mu * normal_force
     slipping = ground.k_tan * n > limit
-    scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(slipping, n, 1.0)), 1.0)
+    if smooth == 0.0:
+        scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(slipping, n, 1.0)), 1.0)
+    else:  # stretch kept: min(n, limit / k_tan), rounded; 0 <= n_kept <= n
+        n_kept = soft_min(n, limit / ground.k_tan, smooth)
+        pos = n > 0.0
+        scale = jnp.where(pos, n_kept / jnp.where(pos, n, 1.0), 1.0)
     ux, uy = ux * scale, uy * scale
     in_contact = normal_force > 0.0
     slip = jnp.where(in_contact, n * (1.0 - scale), 0.0)  # off the ground it is not slip

@@ -31,6 +31,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._params import Honeycomb, HoneycombCurve
+from ._smooth import ramp
 
 
 class HoneycombOut(eqx.Module):
@@ -55,13 +56,17 @@ def honeycomb_virgin_force(x, hc: Honeycomb | HoneycombCurve):
     )
 
 
-def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve) -> HoneycombOut:
+def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
+              smooth: float = 0.0) -> HoneycombOut:
     """Honeycomb force at stroke ``x`` [m] given the largest stroke reached so far [m].
 
     Returns the force (compressive positive), the updated memory ``x_max`` and the energies.
-    In a time loop pass ``hc.curve()`` computed once outside it.
+    In a time loop pass ``hc.curve()`` computed once outside it. ``smooth`` [m] (static,
+    opt-in): every kink is rounded over this much stroke (``_honeycomb_smooth``).
     """
     hc = hc.curve() if isinstance(hc, Honeycomb) else hc
+    if smooth != 0.0:
+        return _honeycomb_smooth(x, x_max_prev, hc, smooth)
     x_max = jnp.maximum(x_max_prev, x)
     p1 = _clip(x_max - hc.x_L1, 0.0, hc.x_L2 - hc.x_L1)
     p2 = _clip(x_max - hc.x_L3, 0.0, hc.x_L4 - hc.x_L3)
@@ -79,6 +84,35 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve) -> HoneycombOut:
         + hc.F2 * y3 + 0.5 * hc.k_bottom * y3**2
     )
     if hc.bonded:
+        force = force + hc.k_b1 * yt
+        elastic = elastic + 0.5 * hc.k_b1 * yt**2
+    crush = hc.F1 * p1 + hc.F2 * p2
+    return HoneycombOut(force, x_max, elastic, crush, x_p)
+
+
+def _honeycomb_smooth(x, x_max_prev, hc: HoneycombCurve, w: float) -> HoneycombOut:
+    """``honeycomb`` with every kink rounded by ``_smooth.ramp`` over ``w`` [m] (C1 in x and the
+    memory; exact outside the bands): the memory advances by ramp(x - x_max_prev), so it may lag
+    the largest stroke by < w but never passes it; each clip(u, a, b) is ramp(u - a) - ramp(u -
+    b). On a plateau reached by steps longer than w the force is exactly F1 (F2); elsewhere it
+    differs from the hard law by at most max(k_b1, k_b3, k_bottom) w. The energies keep the
+    hard law's closed forms, off the smoothed force's integral by O(k w^2)."""
+    x_max = x_max_prev + ramp(x - x_max_prev, w)
+    p1 = ramp(x_max - hc.x_L1, w) - ramp(x_max - hc.x_L2, w)
+    p2 = ramp(x_max - hc.x_L3, w) - ramp(x_max - hc.x_L4, w)
+    x_p = p1 + p2
+    y = x - x_p
+    y_2 = hc.x_L1 + hc.x_L3 - hc.x_L2  # elastic deflection at the start of the bottoming stage
+    r0, r1, r2 = ramp(y, w), ramp(y - hc.x_L1, w), ramp(y - y_2, w)
+    y1, y2, y3 = r0 - r1, r1 - r2, r2
+    force = hc.k_b1 * y1 + hc.k_b3 * y2 + hc.k_bottom * y3
+    elastic = (
+        0.5 * hc.k_b1 * y1**2
+        + hc.F1 * y2 + 0.5 * hc.k_b3 * y2**2
+        + hc.F2 * y3 + 0.5 * hc.k_bottom * y3**2
+    )
+    if hc.bonded:
+        yt = y - r0  # min(y, 0), rounded alike
         force = force + hc.k_b1 * yt
         elastic = elastic + 0.5 * hc.k_b1 * yt**2
     crush = hc.F1 * p1 + hc.F2 * p2

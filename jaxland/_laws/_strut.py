@@ -23,6 +23,8 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
+from ._smooth import ramp
+
 
 class StrutOut(eqx.Module):
     force: jnp.ndarray  # N, total axial force, compressive positive (what a strut load cell reads)
@@ -32,14 +34,16 @@ class StrutOut(eqx.Module):
     topout_energy: jnp.ndarray  # J, elastic energy in the top-out stop
 
 
-def strut_force(F_bh, x, v_b, D_b, k_topout, kick_per_mass=None, free_rate=None) -> StrutOut:
+def strut_force(F_bh, x, v_b, D_b, k_topout, kick_per_mass=None, free_rate=None,
+                smooth_N: float = 0.0, smooth_m: float = 0.0) -> StrutOut:
     """Axial force of the main strut [N] from the honeycomb force ``F_bh`` [N], stroke ``x``
     [m], stroke rate ``v_b`` [m/s], structural damping ``D_b`` [s/m] and top-out stiffness.
 
     Explicit by default; with ``kick_per_mass`` [s/kg] the damping is implicit: ``free_rate``
     [m/s] is then the stroke rate after the kick from all forces on the foot except the strut's
-    (see the module notes)."""
-    x_ext = jnp.minimum(x, 0.0)
+    (see the module notes). ``smooth_N`` [N] and ``smooth_m`` [m] (static, opt-in) round the
+    no-pull floor of the damped force and the top-out kink (``_smooth.ramp``)."""
+    x_ext = jnp.minimum(x, 0.0) if smooth_m == 0.0 else -ramp(-x, smooth_m)
     f_top = k_topout * x_ext
     if kick_per_mass is None:
         rate = v_b
@@ -48,7 +52,8 @@ def strut_force(F_bh, x, v_b, D_b, k_topout, kick_per_mass=None, free_rate=None)
         c = D_b * jnp.abs(F_bh)
         w = free_rate - kick_per_mass * (F_bh + f_top)
         f_raw = F_bh + c * (w / (1.0 + kick_per_mass * c))
-    f_total = jnp.where(F_bh >= 0.0, jnp.maximum(f_raw, 0.0), f_raw)
+    floored = jnp.maximum(f_raw, 0.0) if smooth_N == 0.0 else ramp(f_raw, smooth_N)
+    f_total = jnp.where(F_bh >= 0.0, floored, f_raw)
     f_damp = f_total - F_bh
     if kick_per_mass is not None:
         rate = w - kick_per_mass * f_damp
