@@ -290,7 +290,8 @@ def ode_rates(vehicle: Vehicle, t, y, scene: Scene | None, derived: dict):
       d_max' = max(d_dot, 0) while the penetration is at its deepest (d >= d_max), else 0;
       anchor' = foot velocity off the ground; in contact, with the trial spring at its Coulomb
         limit k_tan |r - anchor| >= mu F_n, the slip rate lambda = s v_r - mu dF_s/dt / k_tan
-        (s the side of the foot from the anchor) moves the anchor, anchor' = s lambda, if
+        (s the side of the foot from the anchor; dF_s/dt = k d_dot on virgin loading, k_r d_dot
+        on the restitution line) moves the anchor, anchor' = s lambda, if
         lambda > 0 (this holds k_tan |r - anchor| = mu F_n; the rate of the (1 + chi d_dot)
         factor is left out); otherwise the foot sticks (the consistency condition of
         rigid-plastic slip, as in plasticity);
@@ -309,7 +310,8 @@ def ode_rates(vehicle: Vehicle, t, y, scene: Scene | None, derived: dict):
     gap = s.q[1] - s.anchor
     side = jnp.sign(gap)
     at_limit = gr.k_tan * jnp.abs(gap) >= gr.mu * f_n
-    rate = side * vr_f - gr.mu * jnp.where(contact, derived["k_r"] * d_dot, 0.0) / gr.k_tan
+    k_now = jnp.where(d >= s.d_max, gr.k, derived["k_r"])  # virgin loading, or restitution
+    rate = side * vr_f - gr.mu * jnp.where(contact, k_now * d_dot, 0.0) / gr.k_tan
     slip_rate = jnp.where(contact & at_limit, jnp.maximum(rate, 0.0), 0.0)
     anchor_rate = jnp.where(contact, side * slip_rate, vr_f)
     mem = jnp.stack([dx_max, dd_max, anchor_rate])
