@@ -16,7 +16,11 @@ The problem (see the README section "Design" for the spec format)::
   (``jaxland._montecarlo.sample_scenes``); they stay fixed through the optimisation (sample
   average approximation), so the robust objective is a deterministic function of ``x``.
 * ``R`` is a risk measure over those scenes: ``mean``, ``cvar`` at ``level`` (the mean of the
-  worst (1 - level) fraction, with the fractional sample weighted) or ``max``.
+  worst (1 - level) fraction, with the fractional sample weighted), ``max``, or ``normal`` at
+  ``level``: mean + z_level std, the level-quantile of a normal fitted to the scenes. ``max``
+  and ``cvar`` of N scenes cannot see beyond the N-th worst outcome (a fresh landing exceeds
+  the max of N with probability 1/(N + 1)); ``normal`` extrapolates to quantiles the scenes do
+  not reach, and every scene carries gradient (no switching of the worst scene).
 * ``a_peak`` is the peak body acceleration of each landing as the integrator keeps it: the
   running maximum at every step. Its gradient is the slope at the step where the maximum
   occurs, which is the derivative of the maximum wherever that step is unique (Danskin). We
@@ -33,8 +37,13 @@ Method: the augmented Lagrangian of Powell-Hestenes-Rockafellar for inequalities
 
     L(z; lam, rho) = J + sum_i (rho / 2) [max(0, g_i + lam_i / rho)^2 - (lam_i / rho)^2],
 
-minimised in ``z`` by optax's Adam (``scale_by_adam`` with a cosine-decayed step); every
-``outer_every`` iterations the multipliers are updated, ``lam_i <- max(0, lam_i + rho g_i)``,
+minimised in ``z`` by optax: ``clip_by_global_norm(clip_norm)`` then ``scale_by_adam``, with
+the step from an optax schedule (``lr_schedule``: cosine or exponential decay to
+``lr_final`` x ``learning_rate``, or constant). The clip matters: one step across a stroke
+constraint returns a penalty gradient ~100x the objective's, and Adam's second moment would
+remember it for ~100 iterations (b2 = 0.9), shrinking every later step (measured in
+``benchmarks/bench_design.py``). Every ``outer_every`` iterations the multipliers are updated,
+``lam_i <- max(0, lam_i + rho g_i)``,
 and ``rho`` grows by ``penalty_growth`` when the worst violation did not at least halve. The
 gradients of J and every g_i come from one forward-mode Jacobian (``jax.jacfwd`` through the
 vmapped batch of landings, no trajectory memory), and L's gradient is assembled from them on the
@@ -49,6 +58,7 @@ from __future__ import annotations
 
 import json
 import math
+import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,7 +113,8 @@ _FORCE_VARS = ("F1_N", "F2_N")
 ORDER_RATIO = 1.02  # F2 >= 1.02 F1 (a distinct secondary stage)
 ORDER_GAP_M = 1e-3  # x_L4 >= x_L3 + 1 mm
 
-MEASURES = ("mean", "cvar", "max")
+MEASURES = ("mean", "cvar", "max", "normal")
+SCHEDULES = ("cosine", "exponential", "constant")
 CONSTRAINTS = {  # name: (threshold key, its unit factor to SI, default scale [SI], meaning)
     "stroke": ("margin_mm", 1e-3, 0.01,
                "max stroke (any leg) <= x_L4 - margin: no bottoming out"),
@@ -183,6 +194,11 @@ class DesignSpec:
     feasibility_tol: float = 1e-3
     adam_b1: float = 0.5
     adam_b2: float = 0.9
+    clip_norm: float = 0.3  # global-norm clip of the Lagrangian's gradient (0: none)
+    lr_schedule: str = "cosine"
+    lr_final: float = 0.02  # final step / learning_rate
+    patience: int = 0  # stop when the best feasible J has not improved by stop_rtol for this
+    stop_rtol: float = 1e-3  # many iterations (0: run all iterations)
     cells: dict = field(default_factory=lambda: dict(PAPER_CELLS))
     vehicle: str | None = None  # path of the baseline vehicle TOML (default: the paper's)
 
@@ -221,6 +237,9 @@ def _measure(prefix, table) -> tuple[str, float]:
     if not 0.0 <= level < 1.0:
         raise ConfigError(f"{prefix}.level", level, "must be in [0, 1) (CVaR: the mean of the "
                           "worst 1 - level fraction of the scenes)")
+    if measure == "normal" and not level > 0.0:
+        raise ConfigError(f"{prefix}.level", level, "must be in (0, 1) for measure = normal "
+                          "(the quantile mean + z_level std)")
     return measure, float(level)
 
 
@@ -238,7 +257,9 @@ _DESIGN_KEYS = {"iterations": "iterations", "n_scenes": "n_scenes", "scene_seed"
                 "learning_rate": "learning_rate", "outer_every": "outer_every",
                 "penalty": "penalty", "penalty_growth": "penalty_growth",
                 "penalty_max": "penalty_max", "feasibility_tol": "feasibility_tol",
-                "adam_b1": "adam_b1", "adam_b2": "adam_b2",
+                "adam_b1": "adam_b1", "adam_b2": "adam_b2", "clip_norm": "clip_norm",
+                "lr_schedule": "lr_schedule", "lr_final": "lr_final", "patience": "patience",
+                "stop_rtol": "stop_rtol",
                 "vehicle": "vehicle"}
 
 
@@ -254,9 +275,9 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
         if key not in d:
             continue
         val = d[key]
-        if key in ("iterations", "n_scenes", "outer_every"):
-            _num(f"design.{key}", val, integer=True, lo=0 if key == "iterations" else 1,
-                 hi={"iterations": 100000, "n_scenes": 100000, "outer_every": 100000}[key])
+        if key in ("iterations", "n_scenes", "outer_every", "patience"):
+            _num(f"design.{key}", val, integer=True,
+                 lo=0 if key in ("iterations", "patience") else 1, hi=100000)
         elif key == "scene_seed":
             _num(f"design.{key}", val, integer=True, lo=0, hi=2**31 - 1)
         elif key == "model":
@@ -273,6 +294,14 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
             _num(f"design.{key}", val, lo=0.0)
             if not val < 1.0:
                 raise ConfigError(f"design.{key}", val, "must be in [0, 1)")
+        elif key == "clip_norm":
+            _num(f"design.{key}", val, lo=0.0)
+        elif key == "lr_schedule":
+            if val not in SCHEDULES:
+                raise ConfigError("design.lr_schedule", val,
+                                  f"must be one of {', '.join(SCHEDULES)}")
+        elif key == "lr_final":
+            _num(f"design.{key}", val, positive=True, hi=1.0)
         else:
             _num(f"design.{key}", val, positive=True)
         kw[attr] = val
@@ -384,16 +413,25 @@ def load_design_spec(path) -> DesignSpec:
 # ------------------------------------------------------------------------------- mapping
 
 def risk_measure(values, measure: str, level: float = 0.9):
-    """A risk measure of per-scene values (larger = worse): ``mean``, ``max``, or ``cvar`` at
+    """A risk measure of per-scene values (larger = worse): ``mean``, ``max``, ``cvar`` at
     ``level``: the mean of the worst (1 - level) N values, the boundary sample weighted by its
-    fraction (Rockafellar-Uryasev's CVaR of the empirical distribution). Differentiable almost
-    everywhere (through a sort)."""
+    fraction (Rockafellar-Uryasev's CVaR of the empirical distribution), differentiable almost
+    everywhere (through a sort); or ``normal`` at ``level``: mean + z std (sample std, N - 1),
+    z = Phi^-1(level), the level-quantile of a normal with the scenes' mean and spread, smooth
+    in every scene's value."""
     values = jnp.asarray(values)
     if measure == "mean":
         return jnp.mean(values)
     if measure == "max":
         return jnp.max(values)
     n = values.shape[0]
+    if measure == "normal":
+        z = statistics.NormalDist().inv_cdf(level)
+        mean = jnp.mean(values)
+        var = jnp.sum((values - mean) ** 2) / max(n - 1, 1)
+        pos = var > 0.0  # double where: sqrt's gradient stays finite for equal values
+        sd = jnp.where(pos, jnp.sqrt(jnp.where(pos, var, 1.0)), 0.0)
+        return mean + z * sd
     tail = (1.0 - level) * n
     worst = -jnp.sort(-values)  # descending
     w = jnp.clip(tail - jnp.arange(n, dtype=values.dtype), 0.0, 1.0) / tail
@@ -692,6 +730,7 @@ class DesignResult:
     compile_s: float
     multipliers: list
     penalty: float
+    best_iteration: int = 0  # the iteration whose iterate is returned
     verification: dict | None = None
     mc_before: object = None
     mc_after: object = None
@@ -724,8 +763,17 @@ class DesignResult:
             model=prob.model,
             gradient="jax.jacfwd through the vmapped batch of landings (forward mode)",
             method=("augmented Lagrangian (Powell-Hestenes-Rockafellar) for inequalities, inner "
-                    "steps optax.scale_by_adam with a cosine-decayed step in the unconstrained "
-                    "coordinates; bounds by sigmoid (linear) or sigmoid-of-log transforms"),
+                    "steps optax.clip_by_global_norm + optax.scale_by_adam with a scheduled "
+                    "step in the unconstrained coordinates; bounds by sigmoid (linear) or "
+                    "sigmoid-of-log transforms"),
+            optimiser=dict(learning_rate=spec.learning_rate, lr_schedule=spec.lr_schedule,
+                           lr_final=spec.lr_final, clip_norm=spec.clip_norm,
+                           adam_b1=spec.adam_b1, adam_b2=spec.adam_b2,
+                           outer_every=spec.outer_every, penalty=spec.penalty,
+                           penalty_growth=spec.penalty_growth,
+                           feasibility_tol=spec.feasibility_tol, patience=spec.patience,
+                           stop_rtol=spec.stop_rtol),
+            best_iteration=self.best_iteration,
             smoothing=("none: peaks are the integrator's running maxima at every step, "
                        "differentiated at the step where they occur"),
             variables=[dict(name=v.name, unit=VARIABLES[v.name][0], low=v.low, high=v.high,
@@ -778,6 +826,20 @@ def _summaries(problem: DesignProblem, vec, per, z) -> dict:
     return out
 
 
+def step_schedule(spec: DesignSpec, n_iter: int):
+    """The optax schedule of the inner step over ``n_iter`` iterations: ``cosine`` decay or
+    ``exponential`` decay from ``learning_rate`` to ``lr_final`` x ``learning_rate``, or
+    ``constant``."""
+    import optax
+
+    lr, n = spec.learning_rate, max(int(n_iter), 1)
+    if spec.lr_schedule == "cosine":
+        return optax.cosine_decay_schedule(lr, decay_steps=n, alpha=spec.lr_final)
+    if spec.lr_schedule == "exponential":
+        return optax.exponential_decay(lr, transition_steps=n, decay_rate=spec.lr_final)
+    return optax.constant_schedule(lr)
+
+
 def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
                     iterations: int | None = None, progress=None,
                     problem: DesignProblem | None = None) -> DesignResult:
@@ -808,16 +870,19 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
     w = spec.objective.mass_weight
     start = _summaries(prob, vec, per, z)
     lam, rho = np.zeros(n_con), float(spec.penalty)
-    opt = optax.scale_by_adam(b1=spec.adam_b1, b2=spec.adam_b2)
+    opt = optax.chain(
+        optax.clip_by_global_norm(spec.clip_norm) if spec.clip_norm > 0 else optax.identity(),
+        optax.scale_by_adam(b1=spec.adam_b1, b2=spec.adam_b2))
+    schedule = step_schedule(spec, n_iter)
     # optax mixes int32 counters with floats: allow the standard promotion even where the
     # caller made it strict (as the test suite does)
     with jax.numpy_dtype_promotion("standard"):
         state = opt.init(jnp.asarray(z))
     history: list = []
-    best = None  # (J, z, vec, per)
-    least_bad = None  # (max violation, z, vec, per)
+    best = None  # (J, z, vec, per, iteration)
+    least_bad = None  # (max violation, z, vec, per, iteration)
     prev_viol = math.inf
-    lr_factor, n_rejected = 1.0, 0
+    lr_factor, n_rejected, best_improved = 1.0, 0, 0
     z_prev, state_prev = z, state
     t_loop = time.perf_counter()
     for it in range(n_iter + 1):
@@ -838,9 +903,11 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
         gL = gJ + (shifted[:, None] * jac[2:]).sum(axis=0) if n_con else gJ
         viol = float(np.max(np.maximum(g, 0.0))) if n_con else 0.0
         if viol <= spec.feasibility_tol and (best is None or J < best[0]):
-            best = (J, z.copy(), vec, per)
+            if best is None or J < best[0] * (1.0 - spec.stop_rtol):
+                best_improved = it
+            best = (J, z.copy(), vec, per, it)
         if least_bad is None or viol < least_bad[0]:
-            least_bad = (viol, z.copy(), vec, per)
+            least_bad = (viol, z.copy(), vec, per, it)
         rec = dict(iteration=it, objective=float(J), objective_measure_mps2=float(vec[0]),
                    gear_mass_kg=float(vec[1]), lagrangian=L,
                    constraints={c.name: float(g[i]) for i, c in enumerate(spec.constraints)},
@@ -852,6 +919,8 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
             progress(rec)
         if it == n_iter:
             break
+        if spec.patience and best is not None and it - best_improved >= spec.patience:
+            break  # the best feasible J has not improved by stop_rtol for `patience` iterations
         if it > 0 and it % spec.outer_every == 0 and n_con:
             lam = np.maximum(0.0, lam + rho * g)
             if viol > 0.5 * prev_viol:
@@ -860,16 +929,15 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
         z_prev, state_prev = z, state
         with jax.numpy_dtype_promotion("standard"):
             updates, state = opt.update(jnp.asarray(gL), state)
-        frac = it / max(n_iter, 1)
-        lr = spec.learning_rate * lr_factor * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * frac)))
-        z = z - lr * np.asarray(updates)
+            lr = float(schedule(it))
+        z = z - lr * lr_factor * np.asarray(updates)
     wall = time.perf_counter() - t0
     if best is not None:
-        status, (_, z_out, vec_out, per_out) = "feasible", best
+        status, (_, z_out, vec_out, per_out, it_out) = "feasible", best
         violated = {}
     else:
         status = "infeasible"
-        _, z_out, vec_out, per_out = least_bad
+        _, z_out, vec_out, per_out, it_out = least_bad
         violated = {c.name: dict(g=float(vec_out[2 + i]),
                                  value_si=float(vec_out[2 + i]) * c.scale,
                                  rule=CONSTRAINTS[c.name][3])
@@ -880,7 +948,8 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
         problem=prob, status=status, z=z_out, values=_toml_values(prob, z_out),
         start_values=_toml_values(prob, prob.z0), vehicle=veh, history=history,
         at_start=start, at_design=_summaries(prob, vec_out, per_out, z_out), violated=violated,
-        wall_s=wall, compile_s=compile_s, multipliers=lam.tolist(), penalty=rho)
+        wall_s=wall, compile_s=compile_s, multipliers=lam.tolist(), penalty=rho,
+        best_iteration=it_out)
 
 
 # ------------------------------------------------------------------------------- verification

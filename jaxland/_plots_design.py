@@ -38,7 +38,8 @@ def _history(result, path: Path) -> Path:
     fig = _figure(figsize=(14, 3.8))
     ax1, ax2, ax3 = fig.subplots(1, 3)
     obj = result.spec.objective
-    label = (f"CVaR{obj.level:g}" if obj.measure == "cvar" else obj.measure)
+    label = {"cvar": f"CVaR{obj.level:g}", "normal": f"normal q{obj.level:g}"}.get(obj.measure,
+                                                                              obj.measure)
     ax1.plot(it, [r["objective_measure_mps2"] for r in h], color="C0")
     ax1.set_xlabel("iteration")
     ax1.set_ylabel(f"{label} of peak body acceleration [m/s^2]")
@@ -47,7 +48,8 @@ def _history(result, path: Path) -> Path:
     ax1b.set_ylabel("gear mass proxy [kg]", color="C1")
     ax1.set_title("objective")
     for c in result.spec.constraints:
-        ax2.plot(it, [r["constraints"][c.name] for r in h], label=f"{c.name} ({c.measure})")
+        m = c.measure if c.measure in ("mean", "max") else f"{c.measure} {c.level:g}"
+        ax2.plot(it, [r["constraints"][c.name] for r in h], label=f"{c.name} ({m})")
     ax2.axhline(0.0, color="k", lw=0.8)
     ax2.set_xlabel("iteration")
     ax2.set_ylabel("normalised constraint g = R[badness] / scale [1] (feasible <= 0)")
@@ -66,7 +68,10 @@ def _history(result, path: Path) -> Path:
     ax3.set_ylabel("position within bounds [1] (0 = low, 1 = high)")
     ax3.set_title("design variables")
     ax3.legend(fontsize=8)
-    fig.suptitle(f"design history ({result.status}; {result.wall_s:.0f} s)")
+    for ax in (ax1, ax2, ax3):
+        ax.axvline(result.best_iteration, color="0.5", ls=":", lw=1)
+    fig.suptitle(f"design history ({result.status}; {len(h) - 1} iterations, {result.wall_s:.0f} s;"
+                 f" dotted: the returned iterate, {result.best_iteration})")
     return _save(fig, path)
 
 

@@ -84,6 +84,24 @@ def test_risk_measures_against_direct_definitions():
     # CVaR_0.7 of 5 samples: worst 1.5 samples -> (9 + 0.5 * 4) / 1.5
     assert float(risk_measure(x, "cvar", 0.7)) == pytest.approx((9.0 + 0.5 * 4.0) / 1.5)
     assert float(risk_measure(x, "cvar", 0.0)) == pytest.approx(x.mean())
+    # normal at 0.99: mean + Phi^-1(0.99) sample std (N - 1)
+    assert float(risk_measure(x, "normal", 0.99)) == pytest.approx(
+        x.mean() + 2.3263478740408408 * x.std(ddof=1), rel=1e-12)
+    assert float(risk_measure(x, "normal", 0.5)) == pytest.approx(x.mean())
+
+
+def test_normal_measure_gradient_is_finite_and_exact():
+    """d/dx_i (mean + z std) = 1/N + z (x_i - mean) / ((N - 1) std); finite (zero spread term)
+    when every value is equal (double where)."""
+    import jax
+
+    x = np.array([3.0, 1.0, 4.0, 1.5, 9.0])
+    z = 2.3263478740408408
+    g = np.asarray(jax.grad(lambda v: risk_measure(v, "normal", 0.99))(x))
+    expect = 1 / x.size + z * (x - x.mean()) / ((x.size - 1) * x.std(ddof=1))
+    np.testing.assert_allclose(g, expect, rtol=1e-12)
+    g0 = np.asarray(jax.grad(lambda v: risk_measure(v, "normal", 0.99))(np.full(4, 2.0)))
+    np.testing.assert_allclose(g0, 0.25)
 
 
 def test_gear_mass_proxy_matches_hand_calculation():
@@ -245,6 +263,12 @@ BAD = [
     (("design", "dt_s"), -1e-5, "design.dt_s", "> 0"),
     (("dispersion", "sink_speed_mps", "dist"), "gauss", "dispersion.sink_speed_mps.dist",
      "must be one of"),
+    (("design", "lr_schedule"), "linear", "design.lr_schedule", "must be one of"),
+    (("design", "clip_norm"), -1.0, "design.clip_norm", ">= 0"),
+    (("design", "lr_final"), 2.0, "design.lr_final", "<= 1"),
+    (("design", "patience"), -3, "design.patience", ">= 0"),
+    (("constraints", "stroke"), {"margin_mm": 20.0, "measure": "normal", "level": 0.0},
+     "constraints.stroke.level", "(0, 1)"),
 ]
 
 
