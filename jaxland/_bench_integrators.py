@@ -13,7 +13,8 @@ stability map: the step where each method fails, found by bisection, next to the
 (``stable_step``). The non-JAX baselines (numba, scipy), when ``benchmarks/results/
 baselines.json`` exists, are put on the same chart against the same reference.
 
-Writes ``integrators.json`` and ``integrators_*.png``. Timings are never asserted by tests.
+Writes ``integrators.json``, ``integrators.md`` (the README's tables) and
+``integrators_*.png``. Timings are never asserted by tests.
 """
 
 from __future__ import annotations
@@ -77,9 +78,9 @@ def ladders(vehicle, small=False):
     return out
 
 
-def _solver(method, t_end, save_dt=1e-3, **kw):
-    """A Solver for a chart label (``method`` or a label whose settings name the method)."""
-    method = kw.pop("method", method)
+def _solver(label, t_end, save_dt=1e-3, **kw):
+    """A Solver for a chart label (a method, or a label whose settings name the method)."""
+    method = kw.pop("method", label)
     dt = kw.pop("dt")
     save = max(1, round(save_dt / dt)) * dt
     return Solver(dt=dt, t_end=t_end, save_dt=save, method=method, **kw)
@@ -133,7 +134,8 @@ def work_precision(small=False, repeats=5, progress=print):
         for method, settings in ladders(veh, small).items():
             for kw in settings:
                 r = _run(veh, scene, _solver(method, t_end, **kw), repeats)
-                row = dict(method=method, **kw, ok=r["ok"], wall_s=r["run_s"],
+                row = dict(kw, method=method, solver_method=kw.get("method", method))
+                row.update(ok=r["ok"], wall_s=r["run_s"],
                            compile_s=r["compile_s"], n_steps=int(r["summary"]["n_steps"]),
                            ledger_error_rel=float(r["summary"]["ledger_error_rel"]))
                 if r["ok"]:
@@ -241,11 +243,18 @@ def _baselines(path: Path, refs: dict):
     for name, ref in refs.items():
         rows = []
         for run in (data.get("scenes", {}).get(name, {}).get("runs", [])):
-            if not run.get("ok", run.get("success", False)):
+            if not run.get("success") or run.get("skipped") or run.get("wall_s") is None:
                 continue
-            errs = {m: abs(run[m] / ref[m] - 1.0) for m in METRICS if m in run}
-            rows.append(dict(method=run.get("method"), setting=run.get("setting"),
-                             wall_s=run.get("wall_s"), errors=errs))
+            errs = {m: abs(run[m] / ref[m] - 1.0) for m in METRICS if run.get(m) is not None}
+            if run.get("stroke_m") is not None:  # the same 1 ms grid from t = 0
+                trace = np.asarray(ref["trace"])
+                got = np.asarray(run["stroke_m"], dtype=float)[:len(trace)]
+                errs["trace_rms"] = float(np.sqrt(np.mean((got - trace[:len(got)]) ** 2))
+                                          / np.sqrt(np.mean(trace ** 2)))
+            setting = (f"dt={run['dt_s']:g}" if run.get("dt_s") is not None
+                       else f"rtol={run['rtol']:g}")
+            rows.append(dict(method=run["method"], setting=setting, wall_s=run["wall_s"],
+                             errors=errs))
         out[name] = rows
     return out
 
@@ -338,7 +347,8 @@ def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=pri
     tg = throughput_and_gradients(small, progress=progress)
     progress("stability map ...")
     sm = stability_map(small, progress=progress)
-    refs = {n: e["reference"] for n, e in wp.items()}
+    refs = {n: dict(e["reference"], trace=e["baseline_reference"]["stroke_m"])
+            for n, e in wp.items()}
     base = _baselines(Path(__file__).resolve().parents[1] / "benchmarks" / "results"
                       / "baselines.json", refs)
     for e in wp.values():
@@ -351,5 +361,67 @@ def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=pri
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(results, indent=1, default=float))
     os.replace(tmp, path)
+    (out_dir / "integrators.md").write_text(markdown(results))
     plot(results, out_dir)
     return results
+
+
+def _cheapest(rows, metric, level):
+    ok = [r for r in rows if r.get("errors") and r["errors"].get(metric, math.inf) <= level]
+    return min(ok, key=lambda r: r["wall_s"]) if ok else None
+
+
+def markdown(results: dict) -> str:
+    """The tables the README quotes, generated from the results (never typed by hand)."""
+    lines = []
+    wp, base = results["work_precision"], results.get("baselines", {})
+    for name, entry in wp.items():
+        ref = entry["reference"]
+        lines += [f"**{name}** (reference: Euler at dt = {ref['dt']:g} s; it moved by "
+                  f"{ref['change_from_2dt']['max_stroke_m']:.1e} in max stroke from 2 dt)", "",
+                  "| method | cheapest setting with max-stroke error <= 1e-4 | wall [ms] "
+                  "| <= 1e-3 | wall [ms] |", "| --- | --- | --- | --- | --- |"]
+        labels = list(dict.fromkeys([r["method"] for r in entry["runs"]]
+                                    + [r["method"] for r in base.get(name, [])]))
+        for label in labels:
+            rows = [r for r in entry["runs"] if r["method"] == label] + [
+                dict(r, setting_text=str(r.get("setting"))) for r in base.get(name, [])
+                if r["method"] == label]
+            cells = []
+            for level in (1e-4, 1e-3):
+                best = _cheapest(rows, "max_stroke_m", level)
+                if best is None:
+                    cells += ["not reached", "-"]
+                    continue
+                setting = best.get("setting_text") or ", ".join(
+                    f"{k}={v:g}" for k, v in best.items()
+                    if k in ("dt", "impulse", "rtol") and v is not None)
+                cells += [setting, f"{best['wall_s'] * 1e3:.3g}"]
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        lines.append("")
+    tg = results["throughput"]
+    sizes = [r["batch"] for r in next(iter(tg.values()))["batches"]]
+    lines += ["| method | setting | one landing [ms] | "
+              + " | ".join(f"landings/s, batch {n}" for n in sizes)
+              + " | jacfwd 6 / forward | grad / forward | compile [s] |",
+              "| --- | --- | --- | " + " | ".join("---" for _ in sizes) + " | --- | --- | --- |"]
+    for method, d in tg.items():
+        setting = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+                            for k, v in d["setting"].items())
+        lines.append(f"| {method} | {setting} | {d['forward_s'] * 1e3:.3g} | "
+                     + " | ".join(f"{r['landings_per_s']:.0f}" for r in d["batches"])
+                     + f" | {d['jacfwd_ratio']:.1f} | {d['grad_ratio']:.1f} | "
+                     f"{d['batches'][0]['compile_s']:.2f} |")
+    lines.append("")
+    lines += ["| scene | method | theory (stable_step) [s] | last stable [s] | first failing [s] "
+              "| failure / theory |", "| --- | --- | --- | --- | --- | --- |"]
+    for name, rows in results["stability"].items():
+        for r in rows:
+            label = r["method"] + (f" (dI = {r['impulse']:g} N s)" if "impulse" in r else "")
+            if r.get("failure_s"):
+                lines.append(f"| {name} | {label} | {r['theory_s']:.3g} | {r['survives_s']:.3g} "
+                             f"| {r['failure_s']:.3g} | {r['ratio']:.2f} |")
+            else:
+                lines.append(f"| {name} | {label} | {r['theory_s']:.3g} | - | - | "
+                             "not bracketed in [0.5, 2] x theory |")
+    return "\n".join(lines) + "\n"
