@@ -1,13 +1,24 @@
-"""Benchmark of the calibration (issue #4): time a 6-parameter fit to one 1.2 s drop test at
-5 kHz, check the recovery of the virtual rig's truth and the prediction of other drop heights.
+"""Benchmark of the calibration (issue #4), per fitting integrator side by side: time a
+6-parameter fit to one 1.2 s drop test at 5 kHz, check convergence from a set of starts, the
+recovery of the virtual rig's truth, the prediction of other drop heights, and AD against
+central finite differences of the calibration loss.
 
-    .venv/bin/python benchmarks/bench_fit.py [--with-lbfgs] [--out benchmarks/results]
+    .venv/bin/python benchmarks/bench_fit.py [--with-lbfgs] [--variants euler,verlet_smooth]
+                                             [--out benchmarks/results]
+
+Variants (``VARIANTS``): ``euler`` (symplectic Euler, hard switches) and ``verlet_smooth``
+(velocity Verlet with 1e-6 m / 10 N switch smoothing, the gradient-quality study's fitting
+method, benchmarks/gradient_quality.py), both at dt = 1e-5 s on calibration's growing
+first-impact windows. Each variant's cold fit (compiling its own functions) runs before either
+warm fit; the warm time is the best of two.
 
 Writes ``bench_fit.json`` and ``bench_fit.png``. The data are the bundled SYNTHETIC drop tests
 (``data/synthetic``: noise, a 1.5 mm stroke offset and a +20 % honeycomb crush peak that the
-model does not have). Targets: fit <= 20 s on the 2-core CPU; fitted at one drop height, the
-prediction of another within 1 % on max stroke and 5 % on peak forces. Timings are wall-clock
-on whatever machine runs this (noisy on shared machines); tests never assert them.
+model does not have), and noise-free drops from the same rig. Targets: fit <= 20 s including
+compilation on the 2-core CPU; noise-free recovery within 0.5 %; fitted at one drop height, the
+prediction of another within 1 % on max stroke and 5 % on peak forces; AD = FD to 1e-4 (issue
+#3). Timings are wall-clock on whatever machine runs this (noisy on shared machines); tests
+never assert them.
 """
 
 from __future__ import annotations
@@ -32,8 +43,25 @@ import jaxland as jl  # noqa: E402
 from calibration import virtual_rig as vr  # noqa: E402
 from calibration._parameters import get_values  # noqa: E402
 
+jax.config.update("jax_enable_x64", True)
+
 DATA = ROOT / "data" / "synthetic"
-TARGETS = dict(fit_s=20.0, max_stroke_rel=0.01, peak_force_rel=0.05)
+TARGETS = dict(fit_s=20.0, clean_recovery_rel=0.005, max_stroke_rel=0.01, peak_force_rel=0.05,
+               ad_fd_rel=1e-4)
+VARIANTS = {
+    "euler": dict(integrator="euler", smoothing_m=0.0, smoothing_N=0.0),
+    "verlet_smooth": dict(integrator="verlet", smoothing_m=1e-6, smoothing_N=10.0),
+}
+STARTS = {  # factors on the truth of k, gamma, D_b, k_b1, F1, F2
+    "30% off": [1.3, 0.77, 1.3, 0.77, 1.3, 1.3],
+    "30% off (other signs)": [0.77, 1.3, 0.77, 1.3, 0.77, 0.77],
+    "2x off": [2.0] * 6,
+    "0.5x off": [0.5] * 6,
+    "2x off mixed": [0.5, 1.5, 2.0, 0.5, 2.0, 1.5],
+}
+FD_STEPS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
+FD_WINDOWS_S = (0.03, 0.15)  # a multi-start stage and the final stage of the default fit
+SAME_OPTIMUM_REL = 1e-3  # a start "converged" when it ends within this of the nominal fit
 
 
 def _fit(drops, **kw):
@@ -51,6 +79,7 @@ def _summary(res, wall, truth):
         stages=[{k: s[k] for k in ("stage", "iterations", "status", "wall_s")}
                 for s in res.stages],
         multistart=res.settings["multistart"]["n_starts_tried"],
+        integrator=res.settings["integrator"], loss=res.loss,
         values=dict(zip(res.names, res.values.tolist())),
         rel_error=dict(zip(res.names, (res.values / p_true - 1).tolist())),
         rel_std_error=dict(zip(res.names, (res.std_errors / res.values).tolist())),
@@ -58,79 +87,166 @@ def _summary(res, wall, truth):
         residual_variance_factor=res.sigma2)
 
 
+def ad_vs_fd(drop, opts, vehicle):
+    """AD (jacfwd, J^T r) against central differences of the calibration loss (plain least
+    squares) on the fit's windows, at ``vehicle``'s values and at a start 10-30 % off, per
+    parameter (and the touchdown shift t0, in ms) and FD step h (in the unconstrained
+    coordinates). ``robust``: the better of two neighbouring steps a decade apart must both
+    agree (benchmarks/gradient_quality.py), so a lucky secant on a jagged loss does not count."""
+    out = {}
+    names = [*cal.DEFAULT_PARAMS, "t0"]
+    for w in FD_WINDOWS_S:
+        prob = cal.CalibrationProblem([drop], cal.DEFAULT_PARAMS, vehicle=vehicle, window_s=w,
+                                      pre_s=0.005, **opts)
+        loss = jax.jit(prob.loss_fn())
+        th_fit = prob.theta_from()
+        points = {"fitted": th_fit,
+                  "start": th_fit + np.array([0.2, -0.3, -0.15, -0.2, -0.1, 0.1, 0.05])}
+        for label, th in points.items():
+            r, jac, _ = prob.residuals_and_jacobian(th)
+            g = jac.T @ r
+            fd = np.zeros((len(FD_STEPS), th.size))
+            for j, h in enumerate(FD_STEPS):
+                for i in range(th.size):
+                    e = np.zeros(th.size)
+                    e[i] = h
+                    fd[j, i] = (float(loss(th + e)) - float(loss(th - e))) / (2 * h)
+            rel = np.abs(fd - g[None]) / np.maximum(np.abs(g[None]), 1e-300)
+            robust = np.maximum(rel[:-1], rel[1:]).min(axis=0)
+            out[f"{w * 1e3:g} ms, {label}"] = dict(
+                ad=dict(zip(names, g.tolist())),
+                rel_err=dict(zip(names, rel.T.tolist())),
+                rel_err_at_1e6=dict(zip(names, rel[FD_STEPS.index(1e-6)].tolist())),
+                robust_rel_err=dict(zip(names, robust.tolist())),
+                worst_robust=float(robust.max()),
+                worst_robust_param=names[int(np.argmax(robust))])
+    worst = {n: max(v["robust_rel_err"][n] for v in out.values()) for n in names}
+    return dict(steps=list(FD_STEPS), cases=out, worst_robust_per_param=worst,
+                worst_robust=max(worst.values()),
+                meets_target=bool(max(worst.values()) <= TARGETS["ad_fd_rel"]))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     ap.add_argument("--with-lbfgs", action="store_true",
-                    help="also time optax.lbfgs on the same fit (about 2 minutes)")
+                    help="also time optax.lbfgs on the default variant's fit (minutes)")
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help=f"comma-separated, of {', '.join(VARIANTS)}")
     ap.add_argument("--replot", action="store_true", help="only redraw the plot from the JSON")
     args = ap.parse_args(argv)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"
         _plot(json.loads(path.read_text()), path.with_suffix(".png"))
         return 0
+    labels = [v.strip() for v in args.variants.split(",") if v.strip()]
+    for v in labels:
+        if v not in VARIANTS:
+            raise SystemExit(f"--variants: unknown variant {v!r}; known: {', '.join(VARIANTS)}")
     truth = jl.load_vehicle(DATA / "truth_vehicle.toml")
     drops = {h: cal.load_drop_test(DATA / f"drop_h{h:.2f}m.toml") for h in vr.HEIGHTS_M}
     fit_drop = drops[0.2]
     names = cal.DEFAULT_PARAMS
     p_true = get_values(truth, names)
+    clean = vr.drop_test(0.2, noise=None, stroke_offset_m=0.0, crush_peak=0.0)
     out = dict(
         data="data/synthetic/drop_h0.20m (SYNTHETIC: 1.2 s at 5 kHz, noise, stroke offset, "
-             "+20 % crush peak)",
-        targets=TARGETS,
+             "+20 % crush peak); noise-free: the rig's 0.2 m drop without noise, offset or "
+             "crush peak",
+        targets=TARGETS, default_integrator=dict(
+            integrator=cal.INTEGRATOR, smoothing_m=cal.SMOOTHING[cal.INTEGRATOR][0],
+            smoothing_N=cal.SMOOTHING[cal.INTEGRATOR][1]),
         machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
-                     backend=jax.default_backend()))
+                     backend=jax.default_backend()),
+        variants={v: dict(options=VARIANTS[v]) for v in labels})
+    res_of = {}
 
-    # 1. the default fit from the nominal (paper) vehicle, cold (compiles) and warm
-    res, cold = _fit([fit_drop])
-    res2, warm = _fit([fit_drop])
-    out["fit_from_nominal"] = dict(cold=_summary(res, cold, truth),
-                                   warm=_summary(res2, warm, truth))
-    print(f"fit from nominal: cold {cold:.1f} s, warm {warm:.1f} s", flush=True)
+    # 1. the fit from the nominal (paper) vehicle: every variant cold first, then warm
+    for v in labels:
+        res, cold = _fit([fit_drop], **VARIANTS[v])
+        res_of[v] = res
+        out["variants"][v]["fit_from_nominal"] = dict(cold=_summary(res, cold, truth))
+        print(f"[{v}] fit from nominal: cold {cold:.1f} s", flush=True)
+    for v in labels:
+        runs = [_fit([fit_drop], **VARIANTS[v]) for _ in range(2)]
+        res2, warm = min(runs, key=lambda rw: rw[1])
+        out["variants"][v]["fit_from_nominal"]["warm"] = _summary(res2, warm, truth)
+        print(f"[{v}] fit from nominal: warm {warm:.1f} s", flush=True)
 
-    # 2. prediction of the other heights with the fitted vehicle
-    preds = {}
-    for h, d in drops.items():
-        p = cal.predict(res.vehicle, d)
-        ref = cal.predict(truth, d)  # the truth itself against the data: the floor
-        preds[f"{h:.2f}"] = dict(
-            fitted={k: v["rel_error"] for k, v in p.metrics.items()},
-            truth_model={k: v["rel_error"] for k, v in ref.metrics.items()})
-        print(f"predict {h} m:", {k: f"{v['rel_error']:+.2%}" for k, v in p.metrics.items()})
-    out["prediction"] = preds
+    for v in labels:
+        o, opts, res = out["variants"][v], VARIANTS[v], res_of[v]
+        # 2. prediction of the other heights with the fitted vehicle
+        preds = {}
+        for h, d in drops.items():
+            p = cal.predict(res.vehicle, d)
+            ref = cal.predict(truth, d)  # the truth itself against the data: the floor
+            preds[f"{h:.2f}"] = dict(
+                fitted={k: v_["rel_error"] for k, v_ in p.metrics.items()},
+                truth_model={k: v_["rel_error"] for k, v_ in ref.metrics.items()})
+        o["prediction"] = preds
 
-    # 3. convergence from starts 30 % and 2x off the truth
-    starts = {
-        "30% off": [1.3, 0.77, 1.3, 0.77, 1.3, 1.3],
-        "30% off (other signs)": [0.77, 1.3, 0.77, 1.3, 0.77, 0.77],
-        "2x off": [2.0] * 6,
-        "0.5x off": [0.5] * 6,
-        "2x off mixed": [0.5, 1.5, 2.0, 0.5, 2.0, 1.5],
-    }
-    conv = {}
-    for label, f in starts.items():
-        r, w = _fit([fit_drop], start=dict(zip(names, p_true * np.array(f))),
-                    vehicle=jl.paper_vehicle())
-        conv[label] = _summary(r, w, truth)
-        print(f"start {label}: {w:.1f} s, max |rel err| "
-              f"{max(abs(x) for x in conv[label]['rel_error'].values()):.3%}", flush=True)
-    out["convergence"] = conv
+        # 3. convergence from the starts on the crush-peak data (same optimum as from nominal)
+        conv = {}
+        for label, f in STARTS.items():
+            r, w = _fit([fit_drop], start=dict(zip(names, p_true * np.array(f))),
+                        vehicle=jl.paper_vehicle(), **opts)
+            s = _summary(r, w, truth)
+            s["max_rel_diff_from_nominal_fit"] = float(np.max(np.abs(r.values / res.values
+                                                                      - 1)))
+            s["converged"] = s["max_rel_diff_from_nominal_fit"] <= SAME_OPTIMUM_REL
+            conv[label] = s
+            print(f"[{v}] crush-peak data, start {label}: {w:.1f} s, "
+                  f"{s['max_rel_diff_from_nominal_fit']:.2e} from the nominal fit", flush=True)
+        o["convergence"] = conv
 
-    # 4. noise-free data: recovery
-    clean = vr.drop_test(0.2, noise=None, stroke_offset_m=0.0, crush_peak=0.0)
-    r, w = _fit([clean], start=dict(zip(names, p_true * 2.0)), vehicle=jl.paper_vehicle())
-    out["clean_recovery_from_2x"] = _summary(r, w, truth)
+        # 4. noise-free data: recovery from every start
+        rec = {}
+        for label, f in STARTS.items():
+            r, w = _fit([clean], start=dict(zip(names, p_true * np.array(f))),
+                        vehicle=jl.paper_vehicle(), **opts)
+            s = _summary(r, w, truth)
+            s["max_abs_rel_error"] = float(max(abs(x) for x in s["rel_error"].values()))
+            s["converged"] = s["max_abs_rel_error"] <= TARGETS["clean_recovery_rel"]
+            rec[label] = s
+            print(f"[{v}] noise-free, start {label}: {w:.1f} s, max |rel err| "
+                  f"{s['max_abs_rel_error']:.3%}", flush=True)
+        o["clean_recovery"] = rec
+        o["clean_recovery_from_2x"] = rec["2x off"]
 
-    # 5. joint fit of two heights, predict the third
-    r, w = _fit([drops[0.15], drops[0.3]])
-    p = cal.predict(r.vehicle, drops[0.2])
-    out["joint_0.15_0.30"] = {"fit": _summary(r, w, truth),
-                              "predict_0.20": {k: v["rel_error"] for k, v in p.metrics.items()}}
+        # 5. joint fit of two heights, predict the third
+        r, w = _fit([drops[0.15], drops[0.3]], **opts)
+        p = cal.predict(r.vehicle, drops[0.2])
+        o["joint_0.15_0.30"] = {"fit": _summary(r, w, truth),
+                                "predict_0.20": {k: v_["rel_error"]
+                                                 for k, v_ in p.metrics.items()}}
+
+        # 6. AD against FD of the calibration loss (the bundled noisy crush-peak drop)
+        o["ad_vs_fd"] = ad_vs_fd(fit_drop, opts, res.vehicle)
+        print(f"[{v}] AD vs FD: worst robust {o['ad_vs_fd']['worst_robust']:.1e}",
+              {k: f"{x:.1e}" for k, x in o["ad_vs_fd"]["worst_robust_per_param"].items()},
+              flush=True)
+
+        fn = o["fit_from_nominal"]
+        o["summary"] = dict(
+            fit_cold_s=fn["cold"]["wall_s"], fit_warm_s=fn["warm"]["wall_s"],
+            crush_peak_rel_error=fn["cold"]["rel_error"],
+            clean_worst_rel_error={n: max(abs(s["rel_error"][n]) for s in rec.values())
+                                   for n in names},
+            starts_converged_crush_peak=f"{sum(s['converged'] for s in conv.values())}"
+                                        f"/{len(conv)}",
+            starts_recovered_noise_free=f"{sum(s['converged'] for s in rec.values())}"
+                                        f"/{len(rec)}",
+            ad_fd_worst_robust_per_param=o["ad_vs_fd"]["worst_robust_per_param"],
+            meets_targets=bool(fn["cold"]["wall_s"] <= TARGETS["fit_s"]
+                               and all(s["converged"] for s in rec.values())
+                               and all(s["converged"] for s in conv.values())))
+        print(f"[{v}] summary:", json.dumps(o["summary"]), flush=True)
 
     if args.with_lbfgs:
-        r, w = _fit([fit_drop], method="lbfgs", max_iter=300)
-        out["lbfgs_from_nominal"] = _summary(r, w, truth)
-        print(f"lbfgs: {w:.1f} s", flush=True)
+        v = cal.INTEGRATOR if cal.INTEGRATOR in labels else labels[0]
+        r, w = _fit([fit_drop], method="lbfgs", max_iter=300, **VARIANTS[v])
+        out["variants"][v]["lbfgs_from_nominal"] = _summary(r, w, truth)
+        print(f"[{v}] lbfgs: {w:.1f} s", flush=True)
 
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -147,39 +263,65 @@ def _plot(out, path):
 
     from calibration._report import atomic_savefig
 
-    fig = Figure(figsize=(15, 4.5), layout="constrained")
-    ax1, ax2, ax3 = fig.subplots(1, 3)
-    labels, times = ["nominal (cold)", "nominal (warm)"], [
-        out["fit_from_nominal"]["cold"]["wall_s"], out["fit_from_nominal"]["warm"]["wall_s"]]
-    for k, v in out["convergence"].items():
-        labels.append(k)
-        times.append(v["wall_s"])
-    if "lbfgs_from_nominal" in out:
-        labels.append("L-BFGS (optax)")
-        times.append(out["lbfgs_from_nominal"]["wall_s"])
-    ax1.barh(labels, times, color="C0")
+    variants = out["variants"]
+    labels = list(variants)
+    default = out["default_integrator"]["integrator"]
+    main_v = next((v for v in labels if VARIANTS.get(v, {}).get("integrator") == default),
+                  labels[0])
+    fig = Figure(figsize=(20, 4.8), layout="constrained")
+    ax1, ax2, ax4, ax3 = fig.subplots(1, 4)
+    width = 0.8 / len(labels)
+    rows = ["nominal (cold)", "nominal (warm)", *STARTS]
+    y = np.arange(len(rows))
+    for k, v in enumerate(labels):
+        o = variants[v]
+        times = [o["fit_from_nominal"]["cold"]["wall_s"], o["fit_from_nominal"]["warm"]["wall_s"],
+                 *[o["convergence"][s_]["wall_s"] for s_ in STARTS]]
+        ax1.barh(y + (k - (len(labels) - 1) / 2) * width, times, width, label=v)
+    ax1.set_yticks(y, rows)
+    ax1.invert_yaxis()
     ax1.axvline(TARGETS["fit_s"], color="C3", ls="--", label="target 20 s")
-    ax1.set_xlabel("fit wall time [s]")
+    ax1.set_xlabel("fit wall time [s] (crush-peak data)")
     ax1.set_title("6-parameter fit, 1.2 s drop at 5 kHz")
-    ax1.legend()
-    names = list(out["fit_from_nominal"]["cold"]["rel_error"])
+    ax1.legend(fontsize=8)
+    names = list(variants[labels[0]]["fit_from_nominal"]["cold"]["rel_error"])
     x = np.arange(len(names))
-    cold = out["fit_from_nominal"]["cold"]
-    clean = out["clean_recovery_from_2x"]
-    ax2.bar(x - 0.2, [abs(cold["rel_error"][n]) * 100 for n in names], 0.4,
-            label="crush-peak data (from nominal)")
-    ax2.bar(x + 0.2, [abs(clean["rel_error"][n]) * 100 for n in names], 0.4,
-            label="noise-free data (from 2x off)")
-    ax2.plot(x - 0.2, [2 * cold["rel_std_error"][n] * 100 for n in names], "k_", ms=14,
-             label="2 standard errors")
+    width = 0.8 / (2 * len(labels))
+    for k, v in enumerate(labels):
+        o = variants[v]
+        crush = o["fit_from_nominal"]["cold"]
+        clean = o["summary"]["clean_worst_rel_error"]
+        ax2.bar(x + (2 * k - len(labels) + 0.5) * width,
+                [abs(crush["rel_error"][n]) * 100 for n in names], width, color=f"C{k}",
+                label=f"{v}: crush-peak data")
+        ax2.bar(x + (2 * k + 1 - len(labels) + 0.5) * width, [clean[n] * 100 for n in names],
+                width, color=f"C{k}", alpha=0.5, hatch="//",
+                label=f"{v}: noise-free, worst of {len(STARTS)} starts")
+    ax2.axhline(TARGETS["clean_recovery_rel"] * 100, color="C3", ls="--",
+                label="0.5 % (noise-free target)")
     ax2.set_yscale("log")
     ax2.set_xticks(x, names)
     ax2.set_ylabel("|fitted / truth - 1| [%]")
+    ax2.set_ylim(top=30)
     ax2.set_title("recovery of the rig's truth")
-    ax2.legend(fontsize=8)
-    metrics = list(next(iter(out["prediction"].values()))["fitted"])
+    ax2.legend(fontsize=7, ncol=2, loc="upper left")
+    fd_names = list(variants[labels[0]]["ad_vs_fd"]["worst_robust_per_param"])
+    x = np.arange(len(fd_names))
+    width = 0.8 / len(labels)
+    for k, v in enumerate(labels):
+        w = variants[v]["ad_vs_fd"]["worst_robust_per_param"]
+        ax4.bar(x + (k - (len(labels) - 1) / 2) * width,
+                [max(w[n], 1e-12) for n in fd_names], width, label=v)
+    ax4.axhline(TARGETS["ad_fd_rel"], color="C3", ls="--", label="1e-4 (issue #3)")
+    ax4.set_yscale("log")
+    ax4.set_xticks(x, fd_names)
+    ax4.set_ylabel("|AD - FD| / |AD| (robust, worst case)")
+    ax4.set_title(f"calibration loss gradient ({', '.join(f'{w:g}' for w in FD_WINDOWS_S)} s)")
+    ax4.legend(fontsize=8)
+    pred = variants[main_v]["prediction"]
+    metrics = list(next(iter(pred.values()))["fitted"])
     x = np.arange(len(metrics))
-    for k, (h, v) in enumerate(out["prediction"].items()):
+    for k, (h, v) in enumerate(pred.items()):
         ax3.bar(x + (k - 1) * 0.27, [abs(v["fitted"][m]) * 100 for m in metrics], 0.27,
                 label=f"{h} m" + (" (fitted here)" if h == "0.20" else ""))
         ax3.plot(x + (k - 1) * 0.27, [abs(v["truth_model"][m]) * 100 for m in metrics], "kx",
@@ -188,7 +330,7 @@ def _plot(out, path):
     ax3.axhline(TARGETS["max_stroke_rel"] * 100, color="C2", ls=":", label="1 % (stroke)")
     ax3.set_xticks(x, [m.replace("_", " ") for m in metrics], rotation=20, fontsize=8)
     ax3.set_ylabel("|model / data - 1| [%]")
-    ax3.set_title("prediction, fitted at 0.20 m")
+    ax3.set_title(f"prediction, fitted at 0.20 m ({main_v})")
     ax3.legend(fontsize=8)
     atomic_savefig(fig, path)
 

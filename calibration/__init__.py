@@ -20,7 +20,10 @@ from ._data import (
     load_drop_tests as load_drop_tests,
 )
 from ._fit import (
+    INTEGRATOR as INTEGRATOR,
+    INTEGRATORS as INTEGRATORS,
     REFINE_WINDOW_S as REFINE_WINDOW_S,
+    SMOOTHING as SMOOTHING,
     WINDOWS_S as WINDOWS_S,
     FitResult as FitResult,
     IdentifiabilityWarning as IdentifiabilityWarning,
@@ -36,6 +39,7 @@ from ._problem import CalibrationProblem as CalibrationProblem
 
 __all__ = [
     "CHANNELS", "DropTest", "load_drop_test", "load_drop_tests", "fit", "FitResult",
-    "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S", "DEFAULT_PARAMS",
+    "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S", "INTEGRATOR", "INTEGRATORS",
+    "SMOOTHING", "DEFAULT_PARAMS",
     "OPTIONAL_PARAMS", "PARAMS", "predict", "Prediction", "CalibrationProblem",
 ]

@@ -44,11 +44,17 @@ import jaxland as jl
 from ._data import CHANNELS, DropTest
 from ._optim import lbfgs, levenberg_marquardt
 from ._parameters import DEFAULT_PARAMS, PARAMS, check_names, get_values, set_values
-from ._problem import MS, PLAIN, CalibrationProblem
+from ._problem import INTEGRATORS, MS, PLAIN, CalibrationProblem, check_integrator
 
-__all__ = ["fit", "FitResult", "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S"]
+__all__ = ["fit", "FitResult", "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S",
+           "INTEGRATOR", "INTEGRATORS", "SMOOTHING", "check_integrator"]
 
 WINDOWS_S = (0.01, 0.03, 0.1)
+# The fitting integrator (``jaxland.Solver.method``) and, per integrator, the switch-smoothing
+# widths (smoothing_m [m], smoothing_N [N]) used when none are given. Chosen from
+# benchmarks/bench_fit.py (both variants side by side; README "Calibration").
+INTEGRATOR = "euler"
+SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0)}
 REFINE_WINDOW_S = 0.15
 ROBUST_K = 1.5
 # Alternative starts of the multi-start phase: (k factor, gamma value) applied to the start.
@@ -56,6 +62,12 @@ ROBUST_K = 1.5
 # (gamma -> 0 or 1, k off); over 105 random and corner starts up to 2x off, the best of these
 # five always continued into the truth's basin.
 START_VARIANTS = ((1.0, None), (1.0, 0.2), (1.0, 0.8), (0.5, None), (2.0, None))
+# LM stops when a step lowers the loss by less than FTOL relative (MINPACK's and scipy's
+# default, sqrt(eps)). 1e-10 before: on the smoothed (C1) loss of the verlet option LM then
+# crept along a flat valley for 60 iterations per stage, each step gaining ~1e-9 (1.7e-6 in
+# all, parameters moving far below their standard errors); euler's results are unchanged
+# to 4 digits (benchmarks/bench_fit.py).
+FTOL = 1e-8
 PRE_S = 0.005  # samples this long before the detected touchdown are fitted too (they pin t0)
 # a parameter is "not identified" when its Jacobian column is this small against the largest
 # (scaled: d r / d log p), or when its relative standard error exceeds REL_SE_LIMIT
@@ -305,8 +317,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         windows=WINDOWS_S, refine_window_s: float | None = REFINE_WINDOW_S,
         robust: float | None = ROBUST_K, multistart: bool = True, method: str = "lm",
         max_iter: int = 60,
-        dt: float = 1e-5, save_dt: float = 2e-5, fit_touchdown: bool = True, channels=None,
-        progress=None) -> FitResult:
+        dt: float = 1e-5, save_dt: float = 2e-5, integrator: str = INTEGRATOR,
+        smoothing_m: float | None = None, smoothing_N: float | None = None,
+        fit_touchdown: bool = True, channels=None, progress=None) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -330,6 +343,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         (``optax.lbfgs`` on the jacfwd gradient)
     max_iter : iteration limit per stage (and per start)
     dt, save_dt : integration step and model sampling interval [s]
+    integrator : the model's integrator (``jaxland.Solver.method``), one of ``euler``,
+        ``euler_implicit``, ``verlet`` (default ``INTEGRATOR``)
+    smoothing_m, smoothing_N : widths of the rounded force-law switches [m], [N]
+        (``jaxland.Solver.smoothing_m`` / ``smoothing_N``; 0: hard switches). None (default):
+        ``SMOOTHING[integrator]`` (1e-6 m and 10 N for verlet, 0 otherwise)
     fit_touchdown : fit each drop's touchdown time (else use the detected one)
     channels : channels to fit (default: all present)
     progress : called with a dict after every iteration (``stage``, ``iteration``, ``loss``...)
@@ -350,6 +368,12 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         raise jl.ConfigError("max_iter", max_iter, "must be an integer >= 1")
     if robust is not None and not (isinstance(robust, (int, float)) and 0 < robust < 1e6):
         raise jl.ConfigError("robust", robust, "must be a number > 0 (robust std units) or None")
+    if isinstance(integrator, str) and integrator in INTEGRATORS:
+        default_m, default_n = SMOOTHING[integrator]
+        smoothing_m = default_m if smoothing_m is None else smoothing_m
+        smoothing_N = default_n if smoothing_N is None else smoothing_N
+    integrator, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
+                                                            smoothing_N)
     windows = tuple(float(w) for w in windows)
     if not windows or any(not (w > 0 and math.isfinite(w)) for w in windows) or list(
             windows) != sorted(windows):
@@ -357,10 +381,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     base = drops[0].vehicle if vehicle is None else vehicle
     jl.validate_vehicle(base)
     start_vehicle = _start_vehicle(base, names, start)
-    limit = float(jl.stable_step(start_vehicle))
+    limit = float(jl.stable_step(start_vehicle, method=integrator))
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
-                             "symplectic Euler for the start vehicle)")
+                             f"{integrator} for the start vehicle)")
     start_values = get_values(start_vehicle, names)
     shortest = min(d.duration_after_touchdown_s for d in drops)
     stages_w = list(windows)
@@ -373,7 +397,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
     # one problem (one compilation) for every stage: the windows are masks
     problem = CalibrationProblem(drops, names, vehicle=start_vehicle, window_s=stages_w[-1],
-                                 pre_s=PRE_S, dt=dt, save_dt=save_dt,
+                                 pre_s=PRE_S, dt=dt, save_dt=save_dt, integrator=integrator,
+                                 smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                                  fit_touchdown=fit_touchdown, channels=channels)
     theta0 = problem.theta_from()
     history, stages = [], []
@@ -381,8 +406,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
 
     def run(prob, theta, label, start_label=""):
         t_stage = time.perf_counter()
+        kw = dict(ftol=FTOL) if method == "lm" else {}
         theta, hist, status = optimiser(prob, theta, max_iter=max_iter, progress=progress,
-                                        stage=label + start_label, t_origin=t_start)
+                                        stage=label + start_label, t_origin=t_start, **kw)
         rec = dict(stage=label, window_s=prob.active_window_s, iterations=len(hist),
                    huber_c=None if prob.huber_c >= PLAIN else prob.huber_c,
                    wall_s=time.perf_counter() - t_stage, **status)
@@ -442,6 +468,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       if len(stages_w) > len(windows) else None, robust_k=robust,
                       huber_c_final=huber_c, multistart=multistart_info, dt_s=dt,
                       model_save_dt_s=save_dt,
+                      integrator=dict(method=integrator, dt_s=dt, smoothing_m=smoothing_m,
+                                      smoothing_N=smoothing_N),
                       pre_touchdown_s=PRE_S, fit_touchdown=fit_touchdown,
                       channels=list(final.channels), max_iter=max_iter,
                       model="quarter (jaxland.landing), from touchdown",

@@ -15,6 +15,10 @@ The unknowns are ``theta = (z, dt0)``: the unconstrained model parameters ``z``
 (``_parameters``) and one touchdown shift per drop in milliseconds from the detected touchdown.
 The vehicle is built from ``z`` inside the jitted function; every parameter that is not fitted
 stays a compile-time constant of the landing loop (several times faster on CPU).
+
+The integrator is configurable (``integrator``, ``smoothing_m``, ``smoothing_N``: the
+``jaxland.Solver`` fields ``method``, ``smoothing_m``, ``smoothing_N``), restricted to the
+fixed-step methods; the compiled functions are keyed on all three.
 """
 
 from __future__ import annotations
@@ -30,11 +34,32 @@ import jaxland as jl
 from ._data import CHANNELS, DropTest
 from ._parameters import check_names, from_unconstrained, set_values, to_unconstrained
 
-__all__ = ["CalibrationProblem"]
+__all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator"]
 
 MS = 1e-3  # the touchdown shifts are fitted in milliseconds
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
 _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
+# fixed-step methods only: the fit checks dt against their stability limit and samples the
+# model on a fixed time grid (impulse and tsit5 choose their own steps)
+INTEGRATORS = ("euler", "euler_implicit", "verlet")
+
+
+def check_integrator(integrator, smoothing_m, smoothing_N) -> tuple[str, float, float]:
+    """Validate the integrator settings; (method, smoothing_m, smoothing_N) as plain values.
+    Errors name the field, the value and the rule."""
+    if not isinstance(integrator, str) or integrator not in INTEGRATORS:
+        raise jl.ConfigError("integrator", integrator,
+                             "must be one of " + ", ".join(INTEGRATORS) + " (the fixed-step "
+                             "methods; impulse and tsit5 choose their own steps)")
+    out = []
+    for name, val, unit in (("smoothing_m", smoothing_m, "m"), ("smoothing_N", smoothing_N,
+                                                                 "N")):
+        if isinstance(val, bool) or not isinstance(val, (int, float, np.floating)) or not (
+                np.isfinite(val) and val >= 0):
+            raise jl.ConfigError(name, val, f"must be a finite number >= 0 {unit} (0: hard "
+                                 "switches)")
+        out.append(float(val))
+    return integrator, out[0], out[1]
 
 
 def _vehicle_key(vehicle):
@@ -45,8 +70,8 @@ def _vehicle_key(vehicle):
 def _compiled(vehicle, names, solver, channels, fit_t0):
     """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels;
     compiled once and shared (data, speeds and windows are arguments)."""
-    key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt, channels,
-           fit_t0)
+    key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
+           solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0)
     if key in _COMPILED:
         return _COMPILED[key]
     model_cols = tuple(CHANNELS[c][1] for c in channels)
@@ -96,13 +121,17 @@ class CalibrationProblem:
     window_s : fit window after each drop's detected touchdown [s]
     pre_s : samples this long before the detected touchdown are included [s] (they pin t0)
     dt, save_dt : integration step and model sampling interval [s]
+    integrator : ``jaxland.Solver.method``, one of ``INTEGRATORS`` (default ``"euler"``)
+    smoothing_m, smoothing_N : ``jaxland.Solver`` switch-smoothing widths [m], [N] (default 0:
+        hard switches)
     fit_touchdown : fit one touchdown-time shift per drop (else use the detected touchdown)
     channels : channels to fit (default: every channel any drop has)
     """
 
     def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
                  window_s: float = 0.1, pre_s: float = 0.005, dt: float = 1e-5,
-                 save_dt: float = 2e-5, fit_touchdown: bool = True, channels=None):
+                 save_dt: float = 2e-5, integrator: str = "euler", smoothing_m: float = 0.0,
+                 smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None):
         from ._parameters import DEFAULT_PARAMS
 
         if isinstance(drops, DropTest):
@@ -138,7 +167,11 @@ class CalibrationProblem:
             raise jl.ConfigError("channels", "", "select at least one channel")
         self.channels = channels
         # model time span: the window plus room for the touchdown shift
-        self.solver = jl.Solver(dt=dt, t_end=self.window_s + 0.005, save_dt=save_dt)
+        method, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
+                                                            smoothing_N)
+        self.solver = jl.Solver(dt=dt, t_end=self.window_s + 0.005, save_dt=save_dt,
+                                method=method, smoothing_m=smoothing_m,
+                                smoothing_N=smoothing_N)
         self.solver.validate()
         n = max(int(np.sum(self._in_window(d))) for d in drops)
         nd, nc = len(drops), len(channels)

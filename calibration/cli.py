@@ -86,14 +86,24 @@ def _cmd_fit(args) -> int:
     windows = _floats("--windows", args.windows)
     refine = args.refine_window_s if args.refine_window_s and args.refine_window_s > 0 else None
     robust = args.robust if args.robust and args.robust > 0 else None
+    integrator = args.integrator
+    if not (isinstance(integrator, str) and integrator in _fit.INTEGRATORS):
+        _fit.check_integrator(integrator, 0.0, 0.0)  # refuses it by name
+    default_m, default_n = _fit.SMOOTHING[integrator]
+    smoothing_m = default_m if args.smoothing_m is None else args.smoothing_m
+    smoothing_n = default_n if args.smoothing_n is None else args.smoothing_n
+    _fit.check_integrator(integrator, smoothing_m, smoothing_n)
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
-          f"parameters {', '.join(names)}, method {args.method}", file=sys.stderr)
+          f"parameters {', '.join(names)}, method {args.method}, integrator {integrator} "
+          f"(dt {args.dt:g} s, smoothing {smoothing_m:g} m / {smoothing_n:g} N)",
+          file=sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", _fit.IdentifiabilityWarning)
         result = _fit.fit(drops, names, vehicle=vehicle, start=_start(args.start),
                           windows=windows, refine_window_s=refine, robust=robust,
                           method=args.method, max_iter=args.max_iter, dt=args.dt,
-                          progress=_Progress(args.quiet))
+                          integrator=integrator, smoothing_m=smoothing_m,
+                          smoothing_N=smoothing_n, progress=_Progress(args.quiet))
     for w in caught:
         print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
@@ -149,7 +159,7 @@ def _cmd_predict(args) -> int:
 
 def add_subcommands(subparsers) -> None:
     """Register ``fit`` and ``predict`` on an argparse subparsers object."""
-    from ._fit import REFINE_WINDOW_S, ROBUST_K, WINDOWS_S
+    from ._fit import INTEGRATOR, INTEGRATORS, REFINE_WINDOW_S, ROBUST_K, SMOOTHING, WINDOWS_S
     from ._parameters import DEFAULT_PARAMS, PARAMS
 
     f = subparsers.add_parser(
@@ -177,6 +187,17 @@ def add_subcommands(subparsers) -> None:
                         "optax.lbfgs")
     f.add_argument("--max-iter", type=int, default=60, help="iterations per stage (default 60)")
     f.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
+    f.add_argument("--integrator", default=INTEGRATOR,
+                   help=f"the model's integrator, one of {', '.join(INTEGRATORS)} (default "
+                        f"{INTEGRATOR})")
+    f.add_argument("--smoothing-m", type=float, default=None,
+                   help="width of the rounded length switches (contact, unloading, stick/slip) "
+                        "[m]; 0: hard switches (default: "
+                        + ", ".join(f"{k} {v[0]:g}" for k, v in SMOOTHING.items()) + ")")
+    f.add_argument("--smoothing-n", type=float, default=None,
+                   help="width of the rounded force switch (the strut's no-pull floor) [N] "
+                        "(default: " + ", ".join(f"{k} {v[1]:g}" for k, v in SMOOTHING.items())
+                        + ")")
     f.add_argument("--out", default="out/fit", help="output folder (default out/fit)")
     f.add_argument("--no-plots", action="store_true", help="skip the figures")
     f.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")

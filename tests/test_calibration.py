@@ -302,6 +302,11 @@ def test_bad_fit_settings_are_refused(clean_drop):
         (dict(start={"F2": 1000.0}), "must exceed F1"),
         (dict(dt=1e-3), "stability limit"),
         (dict(windows=(0.5,)), "longer than the record"),
+        (dict(integrator="rk4"), "integrator.*rk4.*must be one of euler, euler_implicit, "
+                                 "verlet"),
+        (dict(integrator="tsit5"), "integrator.*tsit5.*fixed-step"),
+        (dict(integrator="verlet", smoothing_m=-1e-6), "smoothing_m.*must be a finite number"),
+        (dict(smoothing_N=float("nan")), "smoothing_N.*must be a finite number >= 0 N"),
     ]:
         with pytest.raises(jl.ConfigError, match=needle):
             cal.fit([clean_drop], **kwargs)
@@ -338,6 +343,9 @@ def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
     assert len(rep["correlation"]["matrix"]) == 6
     assert set(rep["residual_rms"]["drop_h0.20m"]) == set(cal.CHANNELS)
     assert rep["history"] and rep["stages"][-1]["status"] in ("converged", "no_decrease")
+    assert rep["settings"]["integrator"] == dict(
+        method=cal.INTEGRATOR, dt_s=1e-5, smoothing_m=cal.SMOOTHING[cal.INTEGRATOR][0],
+        smoothing_N=cal.SMOOTHING[cal.INTEGRATOR][1])
     figs = sorted(p.name for p in (cli_fit / "figures").glob("*.png"))
     assert figs == ["fit_drop_h0.20m.png", "fit_history.png"]
     assert not list(cli_fit.glob(".staging-*"))
@@ -373,6 +381,8 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "unknown parameter"),
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
     (["fit", "DATA/missing.toml"], "does not exist"),
+    (["fit", "DATA/drop_h0.20m.toml", "--integrator", "rk4"], "integrator"),
+    (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "-5"], "smoothing_N"),
     (["predict", "--config", "DATA/missing.toml", "DATA/drop_h0.20m.toml"], "does not exist"),
 ])
 def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
@@ -381,6 +391,40 @@ def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
     with pytest.raises(jl.ConfigError, match=needle):
         _run(argv)
     assert not out.exists()
+
+
+def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,
+                                                                            monkeypatch,
+                                                                            tmp_path):
+    """`fit(integrator=, smoothing_m=, smoothing_N=)` and `jaxland fit --integrator
+    --smoothing-m --smoothing-n` set the landing's jaxland.Solver, and the compiled functions
+    are keyed on them (no compilation here: construction only)."""
+    d = clean_drop
+    kw = dict(vehicle=TRUTH, window_s=0.03)
+    plain = cal.CalibrationProblem([d], NAMES, **kw)
+    smooth = cal.CalibrationProblem([d], NAMES, integrator="verlet", smoothing_m=1e-6,
+                                    smoothing_N=10.0, **kw)
+    assert (plain.solver.method, plain.solver.smoothing_m) == ("euler", 0.0)
+    assert (smooth.solver.method, smooth.solver.smoothing_m, smooth.solver.smoothing_N) == (
+        "verlet", 1e-6, 10.0)
+    assert smooth._jac is not plain._jac
+    again = cal.CalibrationProblem([d], NAMES, integrator="verlet", smoothing_m=1e-6,
+                                   smoothing_N=10.0, **kw)
+    assert again._jac is smooth._jac
+    seen = {}
+
+    def fake_fit(drops, names, **kwargs):
+        seen.update(kwargs)
+        raise jl.ConfigError("fake", 0, "stop here")
+
+    from calibration import _fit
+
+    monkeypatch.setattr(_fit, "fit", fake_fit)
+    with pytest.raises(jl.ConfigError, match="stop here"):
+        _run(["fit", str(DATA / "drop_h0.20m.toml"), "--integrator", "verlet",
+              "--smoothing-m", "2e-6", "--out", str(tmp_path / "o")])
+    assert (seen["integrator"], seen["smoothing_m"], seen["smoothing_N"]) == (
+        "verlet", 2e-6, cal.SMOOTHING["verlet"][1])
 
 
 def test_lbfgs_path_reaches_the_levenberg_marquardt_optimum(window_problem):
