@@ -178,8 +178,10 @@ def outcomes(name, solver):
 
 SMOOTH = dict(smoothing_m=1e-6, smoothing_N=10.0)  # the recommended fitting widths
 SMOOTH_WIDE = dict(smoothing_m=1e-5, smoothing_N=100.0)
-# the recommended default fitting method: calibration's growing first-impact windows (up to
-# 150 ms after touchdown) on velocity Verlet with the switches smoothed at 1 um / 10 N
+# the smoothed fitting option (labelled DEFAULT below, as first recommended): calibration's
+# growing first-impact windows (up to 150 ms after touchdown) on velocity Verlet with the
+# switches smoothed at 1 um / 10 N. Calibration itself keeps plain Euler by default: on its
+# noise-weighted loss Euler meets AD = FD to 1e-4 and fits 3.6x faster (benchmarks/bench_fit.py)
 DEFAULT_FIT = dict(method="verlet", dt=1e-5, **SMOOTH)
 DEFAULT_WINDOWS = (0.03, 0.15)
 

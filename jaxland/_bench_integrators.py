@@ -8,7 +8,8 @@ per landing (median of repeats after compile) and the error against a converged 
 max stroke, final stroke, peak buffer force, peak
 normal force and the RMS of the stroke trace. It also measures landings/s against batch size,
 compile time, the cost of gradients (jacfwd over 6 parameters, grad) per method (and for the
-fitting default, Verlet with the switches smoothed at 1 um / 10 N, ``verlet_smooth``), and the
+smoothed fitting option, Verlet with the switches smoothed at 1 um / 10 N, ``verlet_smooth``),
+and the
 stability map: the step where each method fails, found by bisection, next to the theory
 (``stable_step``). The non-JAX baselines (numba, scipy), when ``benchmarks/results/
 baselines.json`` exists, are put on the same chart against the same reference.
@@ -41,7 +42,7 @@ from ._simulate import CLOSURE_LIMIT, landing, landings
 METRICS = ("max_stroke_m", "final_stroke_m", "peak_honeycomb_force_N", "peak_normal_force_N")
 COLORS = dict(euler="C0", euler_implicit="C1", verlet="C2", verlet_smooth="C7", impulse="C3",
               tsit5="C4", numba_euler="k", scipy_LSODA="C5", scipy_Radau="C6")
-SMOOTH = dict(method="verlet", smoothing_m=1e-6, smoothing_N=10.0)  # the fitting default
+SMOOTH = dict(method="verlet", smoothing_m=1e-6, smoothing_N=10.0)  # smoothed fitting option
 
 
 def scenes(t_end=1.2):

@@ -1,8 +1,10 @@
-"""Gradient quality of the recommended fitting method (issue #3 point 4; numbers and the
+"""Gradient quality of the smoothed fitting option (issue #3 point 4; numbers and the
 comparison of all methods in benchmarks/gradient_quality.py).
 
-The default fitting method is velocity Verlet at dt = 1e-5 s with the force-law switches
-smoothed over 1 um / 10 N (``Solver.smoothing_m`` / ``smoothing_N``), on first-impact windows.
+The smoothed fitting option is velocity Verlet at dt = 1e-5 s with the force-law switches
+smoothed over 1 um / 10 N (``Solver.smoothing_m`` / ``smoothing_N``), on first-impact windows;
+calibration's default stays plain Euler, whose noise-weighted fit loss already meets AD = FD to
+1e-4 (benchmarks/bench_fit.py), and the smoothed option is for windows with separations.
 Its AD gradient (jacfwd) of a stroke/normal-force trace loss equals central finite differences
 to 1e-4 relative for k, gamma, chi, D_b, k_b1, F1 and F2 in a scene where the foot chatters
 (30 ms window) and in the paper's drop (first impact, 150 ms), where hard switches miss by up to
@@ -111,7 +113,7 @@ def test_chatter_exact_locally_rough_at_small_scale():
     """Foot chatter (30 ms, >= 8 contact changes): AD is the exact local derivative (FD agrees
     to 1e-4 at some step down to 1e-7 for every parameter), but the loss is rough below ~1e-5
     relative in gamma, so two neighbouring steps agree only to ~1e-2 there: the known limit of
-    the default fitting method (benchmarks/gradient_quality.py)."""
+    the smoothed fitting option (benchmarks/gradient_quality.py)."""
     loss, jac, n_changes = _problem("chatter", **FIT)
     assert n_changes >= 8
     rel, g = _errors(loss, jac, STEPS + (1e-7,))
