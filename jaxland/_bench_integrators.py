@@ -9,9 +9,8 @@ max stroke, final stroke, peak buffer force, peak
 normal force and the RMS of the stroke trace. It also measures landings/s against batch size,
 compile time, the cost of gradients (jacfwd over 6 parameters, grad) per method (and for the
 smoothed fitting option, Verlet with the switches smoothed at 1 um / 10 N, ``verlet_smooth``),
-and the
-stability map: the step where each method fails, found by bisection, next to the theory
-(``stable_step``). The non-JAX baselines (numba, scipy), when ``benchmarks/results/
+and the stability map: the step where each method fails, found by bisection, next to the
+theory (``stable_step``). The non-JAX baselines (numba, scipy), when ``benchmarks/results/
 baselines.json`` exists, are put on the same chart against the same reference.
 
 Writes ``integrators.json``, ``integrators.md`` (the README's tables) and
