@@ -202,6 +202,42 @@ def throughput_and_gradients(small=False, repeats=3, progress=print):
     return out
 
 
+def full_model_batch(small=False, progress=print):
+    """Full 3-D model, a batch of dispersed landings (the Monte Carlo example spec): landings/s
+    of the fixed-step methods against their max-stroke and peak-acceleration difference from
+    Euler at a quarter of the default step."""
+    from ._montecarlo import load_montecarlo_spec, sample_scenes
+
+    spec = load_montecarlo_spec(Path(__file__).resolve().parents[1] / "examples"
+                                / "montecarlo_dispersed.toml")
+    n, t_end = (8, 0.3) if small else (64, 1.0)
+    scenes, _ = sample_scenes(spec, 0, n)
+    veh = paper_vehicle()
+
+    def run(method, dt, repeats):
+        solver = Solver(dt=dt, t_end=t_end, save_dt=t_end, method=method)
+        f = lambda sc: {k: landings(veh, sc, solver, "full")[1][k]  # noqa: E731
+                        for k in ("max_stroke_m", "peak_body_accel_mps2", "failed")}
+        out, c_s, r_s = _timed(f, (scenes,), repeats)
+        return {k: np.asarray(v) for k, v in out.items()}, c_s, r_s
+
+    ref, _, _ = run("euler", 2.5e-6, 1)
+    rows = []
+    for method, dt in (("euler", 1e-5), ("euler_implicit", 2e-5), ("euler_implicit", 4e-5),
+                       ("verlet", 4e-5)):
+        out, c_s, r_s = run(method, dt, 1 if small else 3)
+        d_stroke = np.abs(out["max_stroke_m"].max(axis=1) / ref["max_stroke_m"].max(axis=1) - 1)
+        d_acc = np.abs(out["peak_body_accel_mps2"] / ref["peak_body_accel_mps2"] - 1)
+        rows.append(dict(method=method, dt=dt, batch=n, t_end_s=t_end, compile_s=c_s,
+                         run_s=r_s, landings_per_s=n / r_s, n_failed=int(out["failed"].sum()),
+                         max_stroke_diff_median=float(np.median(d_stroke)),
+                         max_stroke_diff_max=float(np.max(d_stroke)),
+                         peak_accel_diff_median=float(np.median(d_acc))))
+        progress(f"  full 3-D {method:15s} dt {dt:g}: {n / r_s:.1f} landings/s, max stroke "
+                 f"off by {np.median(d_stroke):.1e} (median), {np.max(d_stroke):.1e} (max)")
+    return rows
+
+
 def _fails(veh, scene, method, t_end, **kw):
     r = _run(veh, scene, _solver(method, t_end, save_dt=kw["dt"], **kw), 1)
     return not r["ok"]
@@ -354,6 +390,8 @@ def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=pri
     tg = throughput_and_gradients(small, progress=progress)
     progress("stability map ...")
     sm = stability_map(small, progress=progress)
+    progress("full 3-D model, batched ...")
+    full = full_model_batch(small, progress=progress)
     refs = {n: dict(e["reference"], trace=e["baseline_reference"]["stroke_m"])
             for n, e in wp.items()}
     base_path = (Path(__file__).resolve().parents[1] / "benchmarks" / "results"
@@ -366,8 +404,8 @@ def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=pri
     results = dict(
         machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
                      jax=jax.__version__, device=str(jax.devices()[0])),
-        small=small, work_precision=wp, throughput=tg, stability=sm, baselines=base,
-        numba_batch=numba_batch)
+        small=small, work_precision=wp, throughput=tg, stability=sm, full_model=full,
+        baselines=base, numba_batch=numba_batch)
     path = out_dir / "integrators.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(results, indent=1, default=float))
@@ -435,4 +473,14 @@ def markdown(results: dict) -> str:
             else:
                 lines.append(f"| {name} | {label} | {r['theory_s']:.3g} | - | - | "
                              "not bracketed in [0.5, 2] x theory |")
+    full = results.get("full_model")
+    if full:
+        lines += ["", "| full 3-D, dispersed batch | dt [s] | landings/s | max stroke vs Euler "
+                  "at 2.5e-6 s: median / max | peak body accel: median |",
+                  "| --- | --- | --- | --- | --- |"]
+        for r in full:
+            lines.append(f"| {r['method']} (batch {r['batch']}, {r['t_end_s']:g} s) | "
+                         f"{r['dt']:g} | {r['landings_per_s']:.1f} | "
+                         f"{r['max_stroke_diff_median']:.1e} / {r['max_stroke_diff_max']:.1e} | "
+                         f"{r['peak_accel_diff_median']:.1e} |")
     return "\n".join(lines) + "\n"
