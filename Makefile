@@ -10,7 +10,7 @@ endif
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench paper lint clean
+.PHONY: demo test bench bench-integrators paper lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,9 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/jaxland bench --out benchmarks/results
+
+bench-integrators: $(STAMP)
+	$(VENV)/bin/jaxland bench --integrators --out benchmarks/results
 
 paper: $(STAMP)
 	$(VENV)/bin/python benchmarks/paper_reproduction.py
