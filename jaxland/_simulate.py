@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import functools
 import json
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -252,14 +253,34 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver) -> None:
             f"{closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
 
 
+DEFAULT_DT = 1e-5  # s, the accuracy default (README "Integrators": every output within 1e-4)
+STEP_SAFETY = 0.5  # default step as a fraction of the stability limit, when that is smaller
+
+
+def default_step(vehicle: Vehicle, method: str = "euler", impulse: float = Solver.impulse):
+    """The step ``simulate`` uses when none is given [s]: ``DEFAULT_DT``, or ``STEP_SAFETY``
+    times the a-priori stability limit of ``method`` for ``vehicle`` (its stiffest spring and
+    damping on the foot) if that is smaller, rounded down to a whole fraction of 1e-4 s so the
+    default output interval is a whole number of steps."""
+    if method == "tsit5":
+        return DEFAULT_DT
+    safe = STEP_SAFETY * float(stable_step(vehicle, method=method, impulse=impulse))
+    if not safe > 0.0:  # the impulse step itself is beyond its limit: simulate says so
+        return DEFAULT_DT
+    return DEFAULT_DT if safe >= DEFAULT_DT else 1e-4 / math.ceil(1e-4 / safe)
+
+
 def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
-             dt: float = 1e-5, t_end: float = 1.2, save_dt: float | None = None,
+             dt: float | None = None, t_end: float = 1.2, save_dt: float | None = None,
              model: str = "auto", method: str = "euler", **solver_options) -> Landing:
     """Simulate one landing of ``vehicle`` (default: the paper's) in ``scene`` (default: the
     paper's 0.2 m drop) with ``method`` (see ``jaxland.Solver``: "euler", "euler_implicit",
     "verlet", "impulse", "tsit5") at step ``dt`` [s] for ``t_end`` [s], sampling the trajectory
     every ``save_dt`` [s] (default: max(1e-4 s, dt)). ``solver_options`` are the other
     ``Solver`` fields (``impulse``, ``rtol``, ``atol``, ``max_steps``).
+
+    ``dt=None`` chooses the step (``default_step``): 1e-5 s, the accuracy default, or the
+    method's stability limit for this vehicle times ``STEP_SAFETY`` if that is smaller.
 
     ``model`` is ``"auto"`` (the smallest exact model for the scene: ``choose_model``),
     ``"quarter"`` or ``"full"``. Raises ``ConfigError`` for invalid inputs or a step above the
@@ -280,6 +301,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     elif model == "quarter" and not is_symmetric(scene):
         raise ConfigError("model", model, "the quarter model represents only symmetric vertical "
                           "drops; this scene needs model='full'")
+    if dt is None:
+        dt = default_step(vehicle, method, solver_options.get("impulse", Solver.impulse))
     if save_dt is None and isinstance(dt, (int, float)):
         save_dt = max(1e-4, dt)
     unknown = sorted(set(solver_options) - {"impulse", "rtol", "atol", "max_steps", "adjoint"})

@@ -134,7 +134,8 @@ def _cmd_simulate(args) -> int:
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
-          f"sink {float(scene.sink_speed):g} m/s, dt {args.dt:g} s, {args.t_end:g} s")
+          f"sink {float(scene.sink_speed):g} m/s, {result.solver.method} dt "
+          f"{result.solver.dt:g} s, {args.t_end:g} s")
     _print_summary(result.outcomes)
     print(f"wrote {out}/trajectory.csv, summary.json, vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
@@ -226,8 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="honeycomb plateau-force scale per leg (scatter), one value per leg")
     s.add_argument("--method", default="euler", choices=METHODS,
                    help="integrator (default euler; see README 'Integrators')")
-    s.add_argument("--dt", type=float, default=1e-5,
-                   help="integration step [s] (default 1e-5; impulse: the step cap; tsit5: the "
+    s.add_argument("--dt", type=float, default=None,
+                   help="integration step [s] (default 1e-5, or half the method's stability "
+                        "limit for this vehicle if smaller; impulse: the step cap; tsit5: the "
                         "first step)")
     s.add_argument("--impulse", type=float, help="impulse step dI of --method impulse [N s]")
     s.add_argument("--rtol", type=float, help="relative tolerance of --method tsit5")

@@ -149,3 +149,17 @@ def test_each_method_differentiates(method, adjoint, rtol):
     fd = np.array([(f(p0 + h * e) - f(p0 - h * e)) / (2 * h) for e in np.eye(2)])
     assert np.all(np.isfinite(g))
     np.testing.assert_allclose(g, fd, rtol=rtol)
+
+
+def test_default_step_is_chosen_from_the_physics():
+    """Without dt, simulate takes 1e-5 s, or half the method's stability limit for a stiffer
+    vehicle, on a whole fraction of 1e-4 s; that step runs and is inside the limit."""
+    assert _simulate.default_step(VEH) == 1e-5
+    stiff = eqx.tree_at(lambda v: v.honeycomb.k_b1, VEH, 1e11)  # 1e4 x the paper k_b1
+    limit = float(jl.stable_step(stiff))
+    dt = _simulate.default_step(stiff)
+    assert 0.4 * limit < dt <= 0.5 * limit
+    assert abs(1e-4 / dt - round(1e-4 / dt)) < 1e-9
+    res = jl.simulate(jl.Scene(drop_height=0.02), stiff, t_end=0.1)
+    assert res.outcomes["dt_s"] == dt and res.outcomes["energy_closure_rel"] < 1e-2
+    assert _simulate.default_step(stiff, "verlet") > dt  # implicit damping: a larger step
