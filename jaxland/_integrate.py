@@ -21,7 +21,8 @@
     ``IMPULSE_NOTES``. ``solver.impulse`` is the impulse step dI [N s]; ``solver.dt`` caps the
     time step and is the step in the air.
 ``"tsit5"``
-    diffrax's adaptive Tsit5 with a PID controller on the model's ODE form (quarter model):
+    diffrax's adaptive Tsit5 with a PIDController (integral gains only, the classic controller)
+    on the model's ODE form (quarter model):
     ``solver.rtol``/``atol``; ``solver.max_steps`` bounds the work, and reaching it (a stall at
     a discontinuity) is reported as a failure, as is any other solver failure.
 
@@ -84,6 +85,11 @@ Where the paper is ambiguous, and what we chose:
   method share one time grid.
 - The primary force is the total normal force (the spring force times the damping factor
   1 + chi d_dot, which differs from the spring force by < 1e-3 on the paper's gear).
+- A stability guard the paper does not have: the step also satisfies dt <= dI / F_bh, the
+  honeycomb force (``impulse_step_force``). Near a lift-off the ground force fades while the
+  buffer still carries kilonewtons, and dt = dI / F_zs alone would let the strut damping
+  D_b F_bh act over a step past its explicit limit. With the guard, c dt <= (D_b + chi) dI / m2
+  holds whatever the forces, which is the limit ``stable_step`` states.
 """
 
 
@@ -188,6 +194,7 @@ def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
     dt^2 omega^2 + 2 dt c <= 4, i.e. dt <= (sqrt(c^2 + 4 omega^2) - c) / omega^2
     (= 2/omega without damping, 2/c without stiffness). ``"euler_implicit"`` and ``"verlet"``
     take the strut damping implicitly, so only the (small) ground damping remains in c.
+    ``"tsit5"`` has no fixed-step limit: inf.
 
     ``"impulse"`` steps dt = min(dI / F, cap) with explicit forces, and its damping grows with
     the same force F that shortens the step: c dt <= (D_b + chi) dI / m2 whatever F. The worst
@@ -207,6 +214,10 @@ def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
     m = jnp.minimum(vehicle.m_foot, vehicle.m_quarter)
     f_hc = hc.F2 if honeycomb_force is None else jnp.maximum(hc.F2, honeycomb_force)
     f_n = hc.F2 if normal_force is None else jnp.maximum(hc.F2, normal_force)
+    if method not in METHODS:
+        raise ConfigError("solver.method", method, f"must be one of {', '.join(METHODS)}")
+    if method == "tsit5":  # adaptive: no fixed-step limit
+        return jnp.asarray(jnp.inf)
     w2 = k_sum / m
     if method == "impulse":
         d_impulse = Solver.impulse if impulse is None else impulse
@@ -322,8 +333,10 @@ def _summary(model, s_end, track, e0, e_scale, vehicle, scene, derived):
     )
 
 
-def _save_record(model, vehicle, s, scene, derived, e0):
-    acc, _, rec, _, energy = model.evaluate(vehicle, s, scene, derived)
+def _save_record(model, vehicle, s, scene, derived, e0, kick=None):
+    """The outputs at a saved state, with the forces as the next step applies them (``kick``:
+    the implicit-damping kick of the method, ``None`` for explicit)."""
+    acc, _, rec, _, energy = model.evaluate(vehicle, s, scene, derived, kick)
     out = dict(time_s=s.t, **rec, **model.accel_record(acc))
     for i, name in enumerate(model.RATE_CHANNELS):
         out[name] = s.diss_rate[i]
@@ -369,8 +382,10 @@ def integrate(model, vehicle: Vehicle, scene: Scene, solver: Solver):
                                     length=solver.save_every, unroll=UNROLL)
             return carry
 
+    kick = {"euler_implicit": solver.dt, "verlet": 0.5 * solver.dt}.get(method)
+
     def save_block(carry, i):
-        out = _save_record(model, vehicle, carry[0], scene, derived, e0)
+        out = _save_record(model, vehicle, carry[0], scene, derived, e0, kick)
         return inner(carry, i), out
 
     carry0 = (s0, _track_init(peaks0))
@@ -388,7 +403,7 @@ def _impulse_block(model, vehicle, scene, derived, solver, tracked):
     def step_to(target):
         def step(s):
             acc, s_m, rec, power, energy = model.evaluate(vehicle, s, scene, derived)
-            f_p = model.primary_force(rec)
+            f_p = model.impulse_step_force(rec)
             active = f_p > 0.0
             dt = jnp.where(active, d_impulse / jnp.where(active, f_p, 1.0), cap)
             dt = jnp.minimum(jnp.clip(dt, dt_floor, cap), target - s.t)
@@ -410,7 +425,7 @@ def _impulse_block(model, vehicle, scene, derived, solver, tracked):
 
 
 def _integrate_diffrax(model, vehicle, scene, solver):
-    """Adaptive Runge-Kutta (diffrax Tsit5 with a PID step-size controller) on the model's ODE
+    """Adaptive Runge-Kutta (diffrax Tsit5, PIDController with integral gain only) on the ODE
     form (``ode_rates``: memories in rate form). The first touchdown, found in closed form
     from the free fall, is a jump time of the controller so no step straddles it; later
     contact changes are found by step rejection. Peaks, the event log and the ledger are read
@@ -446,10 +461,15 @@ def _integrate_diffrax(model, vehicle, scene, solver):
     traj = jax.vmap(lambda s: _save_record(model, vehicle, s, scene, derived, e0))(
         jax.tree.map(lambda x: x[:-1], states))
     summary = _summary(model, s_end, track, e0, e_scale, vehicle, scene, derived)
+    # a solver that stopped early leaves the save points it never reached at inf
+    reached = jnp.isfinite(sol.ts)
+    t_stop = jnp.max(jnp.where(reached, sol.ts, 0.0))
     fail_t = jnp.where(ok, summary["failure_time_s"],
-                       jnp.where(summary["failure_time_s"] >= 0.0, summary["failure_time_s"],
-                                 t1))
+                       jnp.where((summary["failure_time_s"] >= 0.0)
+                                 & (summary["failure_time_s"] <= t_stop),
+                                 summary["failure_time_s"], t_stop))
     summary.update(failed=fail_t >= 0.0, failure_time_s=fail_t, solver_ok=ok,
-                   n_steps=sol.stats["num_accepted_steps"],
-                   n_rejected_steps=sol.stats["num_rejected_steps"])
+                   t_end_s=jnp.where(ok, summary["t_end_s"], t_stop),
+                   n_steps=sol.stats["num_accepted_steps"].astype(jnp.int32),
+                   n_rejected_steps=sol.stats["num_rejected_steps"].astype(jnp.int32))
     return traj, summary

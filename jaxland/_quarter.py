@@ -265,6 +265,12 @@ def primary_force(record):
     return jnp.where(f_n > 0.0, f_n, jnp.where(f_h > BUFFERING_THRESHOLD_N, f_h, 0.0))
 
 
+def impulse_step_force(record):
+    """The force that sets the impulse method's step, dt = dI / F [N]: the primary force, or the
+    honeycomb force if larger (a stability guard for the strut damping; ``IMPULSE_NOTES``)."""
+    return jnp.maximum(primary_force(record), record["honeycomb_force_N"])
+
+
 ODE_SIZE = 13  # q (3), v (3), x_max, d_max, anchor, RATE_CHANNELS (2), diss_slip, slip_distance
 
 

@@ -227,7 +227,8 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver) -> None:
     if not bool(summary["solver_ok"]):
         raise SimulationError(
             f"the adaptive solver ({method}) stopped at t = "
-            f"{float(summary['failure_time_s']):.6g} s after {int(summary['n_steps'])} steps "
+            f"{float(summary['failure_time_s']):.6g} s after "
+            f"{int(summary['n_steps']) + int(summary['n_rejected_steps'])} steps "
             f"(max_steps = {solver.max_steps} reached, or the step size collapsed at a "
             f"discontinuity); loosen rtol = {solver.rtol:g} / atol = {solver.atol:g}, raise "
             f"max_steps, or use a fixed-step method")
@@ -240,17 +241,18 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver) -> None:
     why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force of "
            f"{n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt to "
            f"{reached:.3g} s for {method}; rerun with dt <= {0.5 * reached:.2g} s"
-           if fixed else f"tighten rtol = {solver.rtol:g}")
+           if fixed else f"tighten rtol = {solver.rtol:g} / atol = {solver.atol:g}")
+    setting = f"{method} dt = {dt:.3g} s" if fixed else f"{method} rtol = {solver.rtol:g}"
     if bool(summary["failed"]):
         raise SimulationError(
             f"integration failed at t = {float(summary['failure_time_s']):.6g} s (non-finite "
             f"state or energy ledger off by more than 10 % of the landing's energy) with "
-            f"{method} dt = {dt:.3g} s; {why}")
+            f"{setting}; {why}")
     closure = float(summary["ledger_error_rel"])
     if closure > CLOSURE_LIMIT or (fixed and dt > reached):
         raise SimulationError(
-            f"{method} dt = {dt:.3g} s is too large for this landing (energy ledger closure "
-            f"{closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
+            f"{setting} is too {'large' if fixed else 'loose'} for this landing (energy ledger "
+            f"closure {closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
 
 
 DEFAULT_DT = 1e-5  # s, the accuracy default (README "Integrators": every output within 1e-4)
@@ -277,7 +279,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     paper's 0.2 m drop) with ``method`` (see ``jaxland.Solver``: "euler", "euler_implicit",
     "verlet", "impulse", "tsit5") at step ``dt`` [s] for ``t_end`` [s], sampling the trajectory
     every ``save_dt`` [s] (default: max(1e-4 s, dt)). ``solver_options`` are the other
-    ``Solver`` fields (``impulse``, ``rtol``, ``atol``, ``max_steps``).
+    ``Solver`` fields (``impulse``, ``rtol``, ``atol``, ``max_steps``, ``adjoint``,
+    ``smoothing_m``, ``smoothing_N``).
 
     ``dt=None`` chooses the step (``default_step``): 1e-5 s, the accuracy default, or the
     method's stability limit for this vehicle times ``STEP_SAFETY`` if that is smaller.
@@ -301,14 +304,16 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     elif model == "quarter" and not is_symmetric(scene):
         raise ConfigError("model", model, "the quarter model represents only symmetric vertical "
                           "drops; this scene needs model='full'")
+    options = ("impulse", "rtol", "atol", "max_steps", "adjoint", "smoothing_m", "smoothing_N")
+    unknown = sorted(set(solver_options) - set(options))
+    if unknown:
+        raise ConfigError(f"solver.{unknown[0]}", solver_options[unknown[0]],
+                          f"is not a solver option ({', '.join(options)})")
+    Solver(method=method, **solver_options).validate_values()  # options, before they are used
     if dt is None:
         dt = default_step(vehicle, method, solver_options.get("impulse", Solver.impulse))
     if save_dt is None and isinstance(dt, (int, float)):
         save_dt = max(1e-4, dt)
-    unknown = sorted(set(solver_options) - {"impulse", "rtol", "atol", "max_steps", "adjoint"})
-    if unknown:
-        raise ConfigError("solver", unknown[0], "is not a solver option (impulse, rtol, atol, "
-                          "max_steps, adjoint)")
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **solver_options)
     solver.validate_values()
     check_method(MODELS[model], method)

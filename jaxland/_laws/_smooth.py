@@ -12,6 +12,11 @@ force switches on exactly where the hard one does (the contact flag, the event l
 state machine are unchanged), it is never negative, and it differs from the hard law only
 inside the band, by at most 4w/27 (at x = w/3). Polynomial, so it costs a few flops and no
 transcendentals. ``w`` is a Python float, static: ``w = 0`` takes the hard code path unchanged.
+
+The memories (largest crush, deepest pit) advance by ramp(x - memory) at each force evaluation,
+so with smoothing on, how far they lag depends on how often the forces are evaluated: Verlet
+evaluates twice per step, Euler once, and the smoothed model is therefore not exactly the same
+across methods and steps (the lag stays below the width w).
 """
 
 from __future__ import annotations
