@@ -15,6 +15,7 @@ import warnings
 from pathlib import Path
 
 import jaxland as jl
+from jaxland._files import publish as _publish
 
 __all__ = ["add_subcommands"]
 
@@ -49,14 +50,6 @@ def _out_dir(path: str) -> Path:
     if out.exists() and not out.is_dir():
         raise jl.ConfigError("--out", str(out), "exists and is not a folder")
     return out
-
-
-def _publish(staging: Path, out: Path) -> None:
-    for path in sorted(staging.rglob("*")):
-        if path.is_file():
-            dest = out / path.relative_to(staging)
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            path.replace(dest)
 
 
 class _Progress:

@@ -297,6 +297,15 @@ def _baselines(path: Path, refs: dict):
     return out
 
 
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot(results: dict, out_dir: Path) -> list[Path]:
     import matplotlib
 
@@ -326,11 +335,7 @@ def plot(results: dict, out_dir: Path) -> list[Path]:
             ax.set_title(f"{name}: {metric}", fontsize=9)
             ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    p = out_dir / "integrators_work_precision.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(_save(fig, out_dir / "integrators_work_precision.png"))
 
     tg = results["throughput"]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
@@ -353,11 +358,7 @@ def plot(results: dict, out_dir: Path) -> list[Path]:
     a2.set_xticks(x, names, rotation=20, fontsize=8)
     a2.set_ylabel("cost / one forward landing [1]")
     a2.legend(fontsize=8)
-    fig.tight_layout()
-    p = out_dir / "integrators_throughput.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(_save(fig, out_dir / "integrators_throughput.png"))
 
     sm = results["stability"]
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -373,11 +374,7 @@ def plot(results: dict, out_dir: Path) -> list[Path]:
     ax.set_xlabel("step dt (impulse: its cap, dI = 0.05 N s) [s]; | = theory (stable_step)")
     ax.set_title("stability boundary: last stable .. first failing step")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    p = out_dir / "integrators_stability.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(_save(fig, out_dir / "integrators_stability.png"))
     return paths
 
 

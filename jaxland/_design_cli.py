@@ -15,17 +15,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+from ._files import publish as _publish
+
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE"]
 
 EXIT_INFEASIBLE = 4
-
-
-def _publish(staging: Path, out: Path) -> None:
-    for path in sorted(staging.rglob("*")):
-        if path.is_file():
-            dest = out / path.relative_to(staging)
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            path.replace(dest)
 
 
 class _Progress:

@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 
 from ._errors import ConfigError, SimulationError
+from ._files import publish
 from ._integrate import METHODS
 
 
@@ -126,11 +127,7 @@ def _cmd_simulate(args) -> int:
 
                 plot_landing_3d(result.trajectory, result.outcomes, staging / "figures",
                                 vehicle=vehicle, scene=scene)
-        for path in sorted(staging.rglob("*")):
-            if path.is_file():
-                dest = out / path.relative_to(staging)
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                path.replace(dest)
+        publish(staging, out)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
