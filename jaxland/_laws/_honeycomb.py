@@ -77,6 +77,12 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
     y2 = _clip(y - hc.x_L1, 0.0, dy3)
     y3 = jnp.maximum(y - hc.x_L1 - dy3, 0.0)
     yt = jnp.minimum(y, 0.0)  # tension side, only used when bonded
+    return _stack(hc, y1, y2, y3, yt, p1, p2, x_max)
+
+
+def _stack(hc: HoneycombCurve, y1, y2, y3, yt, p1, p2, x_max) -> HoneycombOut:
+    """Force and energies of the stack from the elastic deflections of its stages (y1, y2 and
+    the bottoming y3; yt the tension side, used when bonded) and the crush of each stage."""
     force = hc.k_b1 * y1 + hc.k_b3 * y2 + hc.k_bottom * y3
     elastic = (
         0.5 * hc.k_b1 * y1**2
@@ -87,7 +93,7 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
         force = force + hc.k_b1 * yt
         elastic = elastic + 0.5 * hc.k_b1 * yt**2
     crush = hc.F1 * p1 + hc.F2 * p2
-    return HoneycombOut(force, x_max, elastic, crush, x_p)
+    return HoneycombOut(force, x_max, elastic, crush, p1 + p2)
 
 
 def _honeycomb_smooth(x, x_max_prev, hc: HoneycombCurve, w: float) -> HoneycombOut:
@@ -105,15 +111,4 @@ def _honeycomb_smooth(x, x_max_prev, hc: HoneycombCurve, w: float) -> HoneycombO
     y_2 = hc.x_L1 + hc.x_L3 - hc.x_L2  # elastic deflection at the start of the bottoming stage
     r0, r1, r2 = ramp(y, w), ramp(y - hc.x_L1, w), ramp(y - y_2, w)
     y1, y2, y3 = r0 - r1, r1 - r2, r2
-    force = hc.k_b1 * y1 + hc.k_b3 * y2 + hc.k_bottom * y3
-    elastic = (
-        0.5 * hc.k_b1 * y1**2
-        + hc.F1 * y2 + 0.5 * hc.k_b3 * y2**2
-        + hc.F2 * y3 + 0.5 * hc.k_bottom * y3**2
-    )
-    if hc.bonded:
-        yt = y - r0  # min(y, 0), rounded alike
-        force = force + hc.k_b1 * yt
-        elastic = elastic + 0.5 * hc.k_b1 * yt**2
-    crush = hc.F1 * p1 + hc.F2 * p2
-    return HoneycombOut(force, x_max, elastic, crush, x_p)
+    return _stack(hc, y1, y2, y3, y - r0, p1, p2, x_max)  # y - r0: min(y, 0), rounded alike
