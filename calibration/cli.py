@@ -8,14 +8,12 @@ staging folder and moved into place only once all of them exist.
 
 from __future__ import annotations
 
-import shutil
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
 import jaxland as jl
-from jaxland._files import publish as _publish
+from jaxland._files import staged
 
 __all__ = ["add_subcommands"]
 
@@ -99,16 +97,11 @@ def _cmd_fit(args) -> int:
                           smoothing_N=smoothing_n, progress=_Progress(args.quiet))
     for w in caught:
         print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
-    try:
+    with staged(out) as staging:  # written into place only if all succeed
         (staging / "fitted_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "fit_report.json")
         if not args.no_plots:
             result.plot(staging / "figures")
-        _publish(staging, out)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     width = max(len(n) for n in result.names)
     print(f"fitted in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}")
@@ -131,16 +124,11 @@ def _cmd_predict(args) -> int:
     vehicle = jl.load_vehicle(args.config)
     drops = [load_drop_test(p, vehicle=vehicle) for p in args.data]
     preds = [predict(vehicle, d) for d in drops]
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
-    try:
+    with staged(out) as staging:  # written into place only if all succeed
         for p in preds:
             p.to_json(staging / f"prediction_{p.drop.name}.json")
             if not args.no_plots:
                 p.plot(staging / "figures" / f"prediction_{p.drop.name}.png")
-        _publish(staging, out)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     for p in preds:
         print(f"jaxland predict: {p.drop.name} with {args.config}")
         for k, v in p.metrics.items():

@@ -10,12 +10,10 @@ failure.
 
 from __future__ import annotations
 
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
-from ._files import publish as _publish
+from ._files import staged
 
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE"]
 
@@ -64,17 +62,12 @@ def _cmd_design(args) -> int:
     result = optimise_design(spec, vehicle, progress=_Progress(args.quiet, spec.iterations))
     if args.verify_n != 0:
         verify_design(result, progress=not args.quiet)
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
-    try:
+    with staged(out) as staging:  # written into place only if all succeed
         if result.status == "feasible":
             (staging / "design_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "design_report.json")
         if not args.no_plots:
             result.plot(staging / "figures")
-        _publish(staging, out)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     print(f"design {result.status} after {len(result.history) - 1} iterations in "
           f"{result.wall_s:.1f} s (compile {result.compile_s:.1f} s)")
     for v in result.problem.variables:

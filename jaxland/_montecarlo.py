@@ -333,13 +333,10 @@ class MonteCarloResult:
     def save(self, out_dir) -> list[Path]:
         """Write samples.csv and samples.npz (every sample with its inputs), summary.json and
         the figures into ``out_dir``, all through a staging folder."""
-        import shutil
-        import tempfile
+        from ._files import staged
 
         out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
-        try:
+        with staged(out) as staging:
             cols = self.columns()
             names = list(cols)
             data = np.column_stack([np.asarray(cols[c], dtype=float) for c in names])
@@ -351,15 +348,8 @@ class MonteCarloResult:
             from ._plots_mc import plot_montecarlo
 
             plot_montecarlo(self, staging / "figures")
-            written = []
-            for path in sorted(staging.rglob("*")):
-                if path.is_file():
-                    dest = out / path.relative_to(staging)
-                    dest.parent.mkdir(parents=True, exist_ok=True)
-                    path.replace(dest)
-                    written.append(dest)
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
+            written = sorted(out / p.relative_to(staging) for p in staging.rglob("*")
+                             if p.is_file())
         return written
 
 

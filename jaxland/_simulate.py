@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import csv
 import functools
+import io
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import numpy as np
 from . import _quarter, _vehicle3d
 from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
+from ._files import atomic_write_text
 from ._integrate import Solver, check_method, integrate, stable_step
 from ._params import Vehicle
 from ._scene import Scene, batch_axes, is_symmetric
@@ -122,37 +122,24 @@ class Landing:
                     cols.append(f"leg{i}_{name}")
                     arrays.append(arr[:, i])
         data = np.column_stack(arrays)
-        _atomic_write(path, lambda fh: _write_csv(fh, cols, data))
+        atomic_write_text(path, _csv_text(cols, data))
         return path
 
     def to_json(self, path) -> Path:
         """Write the outcomes as JSON. Atomic."""
         path = Path(path)
         text = json.dumps(self.outcomes, indent=2, default=float)
-        _atomic_write(path, lambda fh: fh.write(text + "\n"))
+        atomic_write_text(path, text + "\n")
         return path
 
 
-def _write_csv(fh, cols, data):
+def _csv_text(cols, data) -> str:
+    fh = io.StringIO(newline="")
     w = csv.writer(fh)
     w.writerow(cols)
     for row in data:
         w.writerow([f"{x:.9g}" for x in row])
-
-
-def _atomic_write(path: Path, writer):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            writer(fh)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    return fh.getvalue()
 
 
 def _py(x):

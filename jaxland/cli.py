@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 from ._errors import ConfigError, SimulationError
-from ._files import publish
+from ._files import staged
 from ._integrate import METHODS
 
 
@@ -108,9 +106,7 @@ def _cmd_simulate(args) -> int:
     result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
                       model=args.model, method=args.method, **options)
     model = result.outcomes["model"]
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
-    try:  # write everything into a staging folder, then move it into place
+    with staged(out) as staging:  # written into place only if all succeed
         result.to_csv(staging / "trajectory.csv")
         result.to_json(staging / "summary.json")
         (staging / "vehicle.toml").write_text(vehicle_to_toml(vehicle))
@@ -127,9 +123,6 @@ def _cmd_simulate(args) -> int:
 
                 plot_landing_3d(result.trajectory, result.outcomes, staging / "figures",
                                 vehicle=vehicle, scene=scene)
-        publish(staging, out)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
           f"sink {float(scene.sink_speed):g} m/s, {result.solver.method} dt "
           f"{result.solver.dt:g} s, {args.t_end:g} s")
