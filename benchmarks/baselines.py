@@ -349,6 +349,21 @@ def stroke_of(zb, rf, zf, P):
 # -------------------------------------------------------------------- symplectic Euler loop
 
 @njit(cache=False, fastmath=False, error_model="numpy")
+def _store(rec, k, zb, rf, zf, vzb, vrf, vzf, xmax, dmax, anchor, stroke):
+    """Row ``k`` of the record: the state, the memories and the stroke."""
+    rec[k, 0] = zb
+    rec[k, 1] = rf
+    rec[k, 2] = zf
+    rec[k, 3] = vzb
+    rec[k, 4] = vrf
+    rec[k, 5] = vzf
+    rec[k, 6] = xmax
+    rec[k, 7] = dmax
+    rec[k, 8] = anchor
+    rec[k, 9] = stroke
+
+
+@njit(cache=False, fastmath=False, error_model="numpy")
 def _euler_core(P, y0, dt, n_steps, save_ratio, n_save, e_scale, rec):
     """One landing of jaxland's fixed-step symplectic Euler. ``save_ratio`` = save_dt / dt
     (an integer-valued float when dt divides save_dt: then the record is exact; otherwise
@@ -381,16 +396,7 @@ def _euler_core(P, y0, dt, n_steps, save_ratio, n_save, e_scale, rec):
         while record and k_next < n_save and k_next * save_ratio < n + 1.0 - 1e-9:
             w = k_next * save_ratio - n
             if w < 1e-9:
-                rec[k_next, 0] = zb
-                rec[k_next, 1] = rf
-                rec[k_next, 2] = zf
-                rec[k_next, 3] = vzb
-                rec[k_next, 4] = vrf
-                rec[k_next, 5] = vzf
-                rec[k_next, 6] = xmax
-                rec[k_next, 7] = dmax
-                rec[k_next, 8] = anchor
-                rec[k_next, 9] = x_b
+                _store(rec, k_next, zb, rf, zf, vzb, vrf, vzf, xmax, dmax, anchor, x_b)
                 k_next += 1
             else:
                 break  # needs s_{n+1}: recorded after the update
@@ -423,16 +429,10 @@ def _euler_core(P, y0, dt, n_steps, save_ratio, n_save, e_scale, rec):
         while record and k_next < n_save and k_next * save_ratio < n + 1.0 - 1e-9:
             w = k_next * save_ratio - n
             x1 = stroke_of(zb1, rf1, zf1, P)
-            rec[k_next, 0] = zb + w * (zb1 - zb)
-            rec[k_next, 1] = rf + w * (rf1 - rf)
-            rec[k_next, 2] = zf + w * (zf1 - zf)
-            rec[k_next, 3] = vzb + w * (vzb1 - vzb)
-            rec[k_next, 4] = vrf + w * (vrf1 - vrf)
-            rec[k_next, 5] = vzf + w * (vzf1 - vzf)
-            rec[k_next, 6] = xmax + w * (xmax1 - xmax)
-            rec[k_next, 7] = dmax + w * (dmax1 - dmax)
-            rec[k_next, 8] = anchor + w * (anchor1 - anchor)
-            rec[k_next, 9] = x_b + w * (x1 - x_b)
+            _store(rec, k_next, zb + w * (zb1 - zb), rf + w * (rf1 - rf), zf + w * (zf1 - zf),
+                   vzb + w * (vzb1 - vzb), vrf + w * (vrf1 - vrf), vzf + w * (vzf1 - vzf),
+                   xmax + w * (xmax1 - xmax), dmax + w * (dmax1 - dmax),
+                   anchor + w * (anchor1 - anchor), x_b + w * (x1 - x_b))
             k_next += 1
         zb, rf, zf, vzb, vrf, vzf = zb1, rf1, zf1, vzb1, vrf1, vzf1
         xmax, dmax, anchor = xmax1, dmax1, anchor1
@@ -440,16 +440,7 @@ def _euler_core(P, y0, dt, n_steps, save_ratio, n_save, e_scale, rec):
     final_stroke = stroke_of(zb, rf, zf, P)
     if fail_t < 0.0:
         while record and k_next < n_save:  # t_k = t_N (the end of the landing)
-            rec[k_next, 0] = zb
-            rec[k_next, 1] = rf
-            rec[k_next, 2] = zf
-            rec[k_next, 3] = vzb
-            rec[k_next, 4] = vrf
-            rec[k_next, 5] = vzf
-            rec[k_next, 6] = xmax
-            rec[k_next, 7] = dmax
-            rec[k_next, 8] = anchor
-            rec[k_next, 9] = final_stroke
+            _store(rec, k_next, zb, rf, zf, vzb, vrf, vzf, xmax, dmax, anchor, final_stroke)
             k_next += 1
     while record and k_next < n_save:  # not reached after a failure
         for c in range(N_REC):

@@ -23,20 +23,22 @@ from ._scene import Scene
 from ._simulate import landing, landings
 
 
-def _timeit(fn, repeats):
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        out.append(time.perf_counter() - t0)
-    return statistics.median(out)
-
-
-def _compile_and_time(fn, args, repeats):
+def timed(fn, args, repeats):
+    """Compile ``fn`` for ``args``, then run it ``repeats`` times: (last output, compile time,
+    median run time) [s]."""
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t0
-    return compile_s, _timeit(lambda: compiled(*args), repeats)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t0)
+    return out, compile_s, statistics.median(times)
+
+
+def _compile_and_time(fn, args, repeats):
+    return timed(fn, args, repeats)[1:]
 
 
 def _params(v):

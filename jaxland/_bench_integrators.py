@@ -24,8 +24,6 @@ import json
 import math
 import os
 import platform
-import statistics
-import time
 from pathlib import Path
 
 import equinox as eqx
@@ -33,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._bench import _params, timed as _timed
 from ._config import paper_vehicle
 from ._integrate import Solver, stable_step
 from ._scene import Scene
@@ -88,18 +87,6 @@ def _solver(label, t_end, save_dt=1e-3, **kw):
     return Solver(dt=dt, t_end=t_end, save_dt=save, method=method, **kw)
 
 
-def _timed(fn, args, repeats):
-    t0 = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - t0)
-    return out, compile_s, statistics.median(times)
-
-
 def _run(vehicle, scene, solver, repeats):
     def fn(v):
         traj, s = landing(v, scene, solver, "quarter")
@@ -152,11 +139,6 @@ def work_precision(small=False, repeats=5, progress=print):
     return results
 
 
-def _params(v):
-    return (v.leg.D_b, v.honeycomb.k_b1, v.honeycomb.F1, v.honeycomb.F2, v.ground.k,
-            v.ground.gamma)
-
-
 DEFAULT_SETTINGS = dict(euler=dict(dt=1e-5), euler_implicit=dict(dt=2e-5),
                         verlet=dict(dt=2e-5), verlet_smooth=dict(dt=1e-5, **SMOOTH),
                         impulse=dict(dt=5e-5, impulse=0.05),
@@ -185,9 +167,8 @@ def throughput_and_gradients(small=False, repeats=3, progress=print):
             return s["max_stroke_m"] + 1e-6 * s["peak_normal_force_N"]
 
         theta = jnp.zeros(6)
-        fwd_solver = solver
-        _, c_f, t_f = _timed(lambda th: loss(th, fwd_solver), (theta,), repeats)
-        _, c_j, t_j = _timed(jax.jacfwd(lambda th: loss(th, fwd_solver)), (theta,), repeats)
+        _, c_f, t_f = _timed(lambda th: loss(th, solver), (theta,), repeats)
+        _, c_j, t_j = _timed(jax.jacfwd(lambda th: loss(th, solver)), (theta,), repeats)
         rev = dataclasses.replace(solver, adjoint="reverse")
         try:
             _, c_g, t_g = _timed(jax.grad(lambda th: loss(th, rev)), (theta,), repeats)
