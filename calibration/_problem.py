@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
+from jaxland._integrate import FIXED_STEP_METHODS
 
 from ._data import CHANNELS, DropTest
 from ._parameters import check_names, from_unconstrained, set_values, to_unconstrained
@@ -41,7 +42,7 @@ PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
 _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
 # fixed-step methods only: the fit checks dt against their stability limit and samples the
 # model on a fixed time grid (impulse and tsit5 choose their own steps)
-INTEGRATORS = ("euler", "euler_implicit", "verlet")
+INTEGRATORS = FIXED_STEP_METHODS
 
 
 def check_integrator(integrator, smoothing_m, smoothing_N) -> tuple[str, float, float]:

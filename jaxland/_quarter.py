@@ -271,11 +271,9 @@ def impulse_step_force(record):
     return jnp.maximum(primary_force(record), record["honeycomb_force_N"])
 
 
-ODE_SIZE = 13  # q (3), v (3), x_max, d_max, anchor, RATE_CHANNELS (2), diss_slip, slip_distance
-
-
 def ode_state(s: QuarterState):
-    """The state as one flat vector for an ODE solver (see ``ode_rates``)."""
+    """The state as one flat vector for an ODE solver (see ``ode_rates``): q (3), v (3),
+    x_max, d_max, anchor, RATE_CHANNELS (2), diss_slip, slip_distance."""
     mem = jnp.stack([s.x_max, s.d_max, s.anchor])
     return jnp.concatenate([s.q, s.v, mem, s.diss_rate, jnp.stack([s.diss_slip,
                                                                    s.slip_distance])])

@@ -251,8 +251,6 @@ def default_step(vehicle: Vehicle, method: str = "euler", impulse: float = Solve
     times the a-priori stability limit of ``method`` for ``vehicle`` (its stiffest spring and
     damping on the foot) if that is smaller, rounded down to a whole fraction of 1e-4 s so the
     default output interval is a whole number of steps."""
-    if method == "tsit5":
-        return DEFAULT_DT
     safe = STEP_SAFETY * float(stable_step(vehicle, method=method, impulse=impulse))
     if not safe > 0.0:  # the impulse step itself is beyond its limit: simulate says so
         return DEFAULT_DT
