@@ -23,3 +23,9 @@ def plateau_force(cell_size_m, foil_thickness_m, section_diameter_m, flow_stress
     """Plateau force [N] of a honeycomb buffer of circular section (Wierzbicki 1983)."""
     area = jnp.pi * section_diameter_m**2 / 4.0
     return wierzbicki_crush_stress(cell_size_m, foil_thickness_m, flow_stress_Pa) * area
+
+
+def foil_ratio(plateau_force_N, section_diameter_m, flow_stress_Pa):
+    """The inverse: foil thickness over cell size t/D [1] that gives ``plateau_force_N``."""
+    area = jnp.pi * section_diameter_m**2 / 4.0
+    return (plateau_force_N / (area * WIERZBICKI_COEFF * flow_stress_Pa)) ** 0.6

@@ -69,8 +69,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._config import PAPER_CELLS, paper_vehicle, validate_vehicle, vehicle_to_toml
-from ._crush import plateau_force
+from ._crush import foil_ratio, plateau_force
 from ._errors import ConfigError
+from ._files import atomic_write_text
 from ._integrate import Solver, stable_step
 from ._montecarlo import (
     Distribution,
@@ -80,7 +81,7 @@ from ._montecarlo import (
     wilson_interval,
 )
 from ._params import Vehicle
-from ._simulate import CLOSURE_LIMIT, landings
+from ._simulate import CLOSURE_LIMIT, _py, landings
 from ._toml import read_toml
 
 __all__ = ["VARIABLES", "DesignVariable", "Objective", "Constraint", "DesignSpec",
@@ -458,11 +459,11 @@ def gear_mass_kg(vehicle: Vehicle, cells: dict | None = None):
     """
     cells = PAPER_CELLS if cells is None else cells
     hc, leg = vehicle.honeycomb, vehicle.leg
-    area = math.pi * (cells["section_diameter_mm"] * 1e-3) ** 2 / 4.0
-    s0 = cells["flow_stress_Pa"]
+    diameter = cells["section_diameter_mm"] * 1e-3
+    area = math.pi * diameter**2 / 4.0
 
     def stage(force, stroke):
-        t_over_d = (force / (area * 6.6 * s0)) ** 0.6
+        t_over_d = foil_ratio(force, diameter, cells["flow_stress_Pa"])
         return RHO_FOIL_KG_M3 * HEX_DENSITY_FACTOR * t_over_d * area * stroke / STROKE_EFFICIENCY
 
     honey = stage(hc.F1, hc.x_L2) + stage(hc.F2, hc.x_L4 - hc.x_L3)
@@ -700,11 +701,6 @@ class DesignProblem:
 
 # ------------------------------------------------------------------------------- optimiser
 
-def _py(x):
-    x = np.asarray(x)
-    return x.item() if x.ndim == 0 else x.tolist()
-
-
 def _toml_values(problem: DesignProblem, z) -> dict:
     vals = problem.from_z(jnp.asarray(z))
     return {n: float(vals[n]) / VARIABLES[n][1] for n in problem.names}
@@ -800,9 +796,7 @@ class DesignResult:
         )
 
     def to_json(self, path) -> Path:
-        path = Path(path)
-        path.write_text(json.dumps(self.report(), indent=2, default=_py) + "\n")
-        return path
+        return atomic_write_text(path, json.dumps(self.report(), indent=2, default=_py) + "\n")
 
     def plot(self, out_dir) -> list[Path]:
         from ._plots_design import plot_design
