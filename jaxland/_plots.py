@@ -74,14 +74,20 @@ def _render(figures, out_dir, *args) -> list[Path]:
     return paths
 
 
-def _validate(trajectory, outcomes, breakpoints_m) -> _Landing:
-    missing = [c for c in REQUIRED_COLUMNS if c not in trajectory]
+def _columns(trajectory, required):
+    """The required columns as float arrays, and the time axis, checked (names the column)."""
+    missing = [c for c in required if c not in trajectory]
     if missing:
         raise ValueError(f"trajectory is missing column(s): {', '.join(missing)}")
-    d = {c: np.asarray(trajectory[c], dtype=float) for c in REQUIRED_COLUMNS}
+    d = {c: np.asarray(trajectory[c], dtype=float) for c in required}
     t = d["time_s"]
     if t.ndim != 1 or t.size < 2:
         raise ValueError(f"column 'time_s' must be 1-D with at least 2 samples, got {t.shape}")
+    return d, t
+
+
+def _validate(trajectory, outcomes, breakpoints_m) -> _Landing:
+    d, t = _columns(trajectory, REQUIRED_COLUMNS)
     bad = [c for c, v in d.items() if v.shape != t.shape]
     if bad:
         raise ValueError(f"column(s) {', '.join(bad)} do not have the shape {t.shape} of time_s")

@@ -22,6 +22,7 @@ from ._plots import (
     KN,
     MM,
     SHADE,
+    _columns,
     _fig16,
     _grid,
     _Landing,
@@ -71,13 +72,7 @@ def plot_landing_3d(trajectory: dict, outcomes: dict, out_dir, *, vehicle, scene
 
 
 def _validate(trajectory, outcomes, n_legs) -> _Landing:
-    missing = [c for c in REQUIRED_COLUMNS_3D if c not in trajectory]
-    if missing:
-        raise ValueError(f"trajectory is missing column(s): {', '.join(missing)}")
-    d = {c: np.asarray(trajectory[c], dtype=float) for c in REQUIRED_COLUMNS_3D}
-    t = d["time_s"]
-    if t.ndim != 1 or t.size < 2:
-        raise ValueError(f"column 'time_s' must be 1-D with at least 2 samples, got {t.shape}")
+    d, t = _columns(trajectory, REQUIRED_COLUMNS_3D)
     bad = [c for c in SCALAR_COLUMNS if d[c].shape != t.shape]
     bad += [c for c in PER_LEG_COLUMNS if d[c].shape != (t.size, n_legs)]
     if bad:
