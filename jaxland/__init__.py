@@ -40,8 +40,31 @@ from ._errors import (
     JaxlandError as JaxlandError,
     SimulationError as SimulationError,
 )
-from ._integrate import Solver as Solver, stable_step as stable_step
+from ._files import (
+    atomic_savefig as atomic_savefig,
+    atomic_write_text as atomic_write_text,
+    staged as staged,
+)
+from ._integrate import (
+    FIXED_STEP_METHODS as FIXED_STEP_METHODS,
+    METHODS as METHODS,
+    Solver as Solver,
+    stable_step as stable_step,
+)
+from ._montecarlo import (
+    Distribution as Distribution,
+    MonteCarloResult as MonteCarloResult,
+    MonteCarloSpec as MonteCarloSpec,
+    load_montecarlo_spec as load_montecarlo_spec,
+    run_montecarlo as run_montecarlo,
+    sample_scenes as sample_scenes,
+    wilson_interval as wilson_interval,
+)
 from ._params import Ground as Ground, Honeycomb as Honeycomb, Leg as Leg, Vehicle as Vehicle
+from ._plots import plot_landing as plot_landing
+from ._plots3d import plot_landing_3d as plot_landing_3d
+from ._plots_design import plot_design as plot_design
+from ._plots_mc import plot_montecarlo as plot_montecarlo
 from ._scene import (
     Scene as Scene,
     batch_axes as batch_axes,
@@ -62,6 +85,9 @@ __all__ = [
     "Solver", "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "load_scene",
     "scene_from_dict", "Landing", "choose_model", "landing", "landings", "simulate", "batch_axes",
     "DesignProblem", "DesignResult", "DesignSpec", "design_spec_from_dict", "load_design_spec",
-    "optimise_design", "verify_design",
+    "optimise_design", "verify_design", "METHODS", "FIXED_STEP_METHODS", "Distribution",
+    "MonteCarloResult", "MonteCarloSpec", "load_montecarlo_spec", "run_montecarlo",
+    "sample_scenes", "wilson_interval", "plot_landing", "plot_landing_3d", "plot_design",
+    "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged",
 ]
 __version__ = "0.1.0"
