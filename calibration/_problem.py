@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
-from jaxland._integrate import FIXED_STEP_METHODS
+from jaxland import FIXED_STEP_METHODS
 
 from ._data import CHANNELS, DropTest
 from ._parameters import check_names, from_unconstrained, set_values, to_unconstrained

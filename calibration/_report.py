@@ -2,6 +2,6 @@
 
 from __future__ import annotations
 
-from jaxland._files import atomic_savefig, atomic_write_text
+from jaxland import atomic_savefig, atomic_write_text
 
 __all__ = ["atomic_write_text", "atomic_savefig"]

@@ -13,7 +13,7 @@ import warnings
 from pathlib import Path
 
 import jaxland as jl
-from jaxland._files import staged
+from jaxland import staged
 
 __all__ = ["add_subcommands"]
 
