@@ -24,11 +24,13 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q
 
+# Measurements: write benchmarks/results/ (summaries, tracked) and benchmarks/results/raw/
+# (full dumps, ignored). Add --quick by hand for a smoke run; it writes out/bench-quick/.
 bench: $(STAMP)
-	$(VENV)/bin/jaxland bench --out benchmarks/results
+	$(VENV)/bin/python benchmarks/bench_landing.py
 
 bench-integrators: $(STAMP)
-	$(VENV)/bin/jaxland bench --integrators --out benchmarks/results
+	$(VENV)/bin/python benchmarks/bench_integrators.py
 
 paper: $(STAMP)
 	$(VENV)/bin/python benchmarks/paper_reproduction.py

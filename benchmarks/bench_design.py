@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
-from jaxland._design import DesignProblem, design_spec_from_dict, optimise_design
+from jaxland import DesignProblem, design_spec_from_dict, optimise_design
 
 ROOT = Path(__file__).resolve().parents[1]
 

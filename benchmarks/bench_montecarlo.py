@@ -21,7 +21,7 @@ OUT = Path(__file__).resolve().parent / "results"
 CHILD = """
 import json, sys, time
 import jax
-from jaxland._montecarlo import Distribution, MonteCarloSpec, run_montecarlo
+from jaxland import Distribution, MonteCarloSpec, run_montecarlo
 model, n = sys.argv[1], int(sys.argv[2])
 disp = {"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
         "mass_scale": Distribution("normal", 1.0, 0.03)}

@@ -1,5 +1,6 @@
 """The ``jaxland`` command: ``config``, ``simulate``, ``montecarlo``, ``fit``, ``predict``,
-``bench``.
+``design``. (The benchmarks are scripts in the repository's ``benchmarks/`` folder, not part
+of the installed package.)
 
 Exit codes: 0 success, 2 invalid input (the message names field, value and rule), 3 numerical
 failure of the integration.
@@ -8,7 +9,6 @@ failure of the integration.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -169,24 +169,10 @@ def _cmd_montecarlo(args) -> int:
     return 0
 
 
-def _cmd_bench(args) -> int:
-    if args.integrators:
-        from ._bench_integrators import run_integrator_benchmark
-
-        run_integrator_benchmark(Path(args.out), small=args.quick)
-        print(f"wrote {Path(args.out) / 'integrators.json'} and integrators_*.png")
-        return 0
-    from ._bench import run_benchmark
-
-    result = run_benchmark(Path(args.out), quick=args.quick, batch=args.batch)
-    print(json.dumps(result, indent=2))
-    return 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="jaxland", description="jaxland: landings of a legged vehicle on crushable "
-        "honeycomb gear (quarter and full 3-D models), Monte Carlo, calibration, benchmarks.")
+        "honeycomb gear (quarter and full 3-D models), Monte Carlo, calibration, design.")
     sub = p.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("config", help="print the vehicle configuration (default: the paper's) "
@@ -216,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--plateau-scale", type=float, nargs="+",
                    help="honeycomb plateau-force scale per leg (scatter), one value per leg")
     s.add_argument("--method", default="euler", choices=METHODS,
-                   help="integrator (default euler; see README 'Integrators')")
+                   help="integrator (default euler; see docs/integrators.md)")
     s.add_argument("--dt", type=float, default=None,
                    help="integration step [s] (default 1e-5, or half the method's stability "
                         "limit for this vehicle if smaller; impulse: the step cap; tsit5: the "
@@ -251,16 +237,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_design(sub)
 
-    b = sub.add_parser("bench", help="time compile, one landing and a vmapped batch; "
-                                     "write JSON and a plot")
-    b.add_argument("--out", default="benchmarks/results", help="output folder")
-    b.add_argument("--batch", type=int, default=1000, help="largest vmapped batch (default 1000)")
-    b.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
-    b.add_argument("--integrators", action="store_true",
-                   help="speed against accuracy of every integrator: work-precision chart, "
-                        "throughput, gradient cost, stability map (integrators.json, "
-                        "integrators_*.png)")
-    b.set_defaults(func=_cmd_bench)
     return p
 
 

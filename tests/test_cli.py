@@ -1,4 +1,4 @@
-"""The `jaxland` command: config, simulate (files, errors, nothing half-written), bench."""
+"""The `jaxland` command: config, simulate (files, errors, nothing half-written)."""
 
 import csv
 import json
@@ -65,11 +65,11 @@ def test_simulate_refuses_bad_config_file(tmp_path, capsys):
     assert "ground.gamma = 1.5" in err and "[0, 1)" in err
 
 
-def test_bench_quick_writes_json_and_plot(tmp_path):
-    assert main(["bench", "--quick", "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "bench_landing.json").read_text())
-    assert data["single"]["run_s"] > 0 and data["batched"][-1]["batch"] == 10
-    assert (tmp_path / "bench_landing.png").read_bytes().startswith(b"\x89PNG")
+def test_bench_is_not_a_subcommand(capsys):
+    """The benchmarks are scripts in benchmarks/ (tests/test_benchmarks.py), not the library."""
+    with pytest.raises(SystemExit) as exc:
+        main(["bench"])
+    assert exc.value.code == 2 and "invalid choice: 'bench'" in capsys.readouterr().err
 
 
 def test_simulate_3d_scene_from_file_and_flags(tmp_path, capsys):

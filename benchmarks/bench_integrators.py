@@ -1,4 +1,6 @@
-"""``jaxland bench --integrators``: speed against accuracy for every integrator.
+"""Speed against accuracy for every integrator.
+
+    python benchmarks/bench_integrators.py [--quick] [--out DIR]
 
 For two scenes (the paper's 0.2 m drop, and a harsh one with separations: 0.25 m drop and no
 strut damping, D_b = 0: 169 of 183 mm of stroke used, 17 contact changes) and a ladder of
@@ -13,29 +15,41 @@ and the stability map: the step where each method fails, found by bisection, nex
 theory (``stable_step``). The non-JAX baselines (numba, scipy), when ``benchmarks/results/
 baselines.json`` exists, are put on the same chart against the same reference.
 
-Writes ``integrators.json``, ``integrators.md`` (the README's tables) and
-``integrators_*.png``. Timings are never asserted by tests.
+Writes ``integrators.json`` (every number the tables and charts use, rounded to 4 significant
+digits), ``raw/integrators_raw.json`` (full precision, ignored by git) and
+``integrators_*.png``; ``benchmarks/docs_tables.py`` renders the tables in
+``docs/integrators.md`` from the JSON. Timings are never asserted by tests. ``--quick`` (small
+ladders) writes to ``out/bench-quick/`` unless ``--out`` says otherwise, never into
+``benchmarks/results/``.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
-import os
-import platform
 from pathlib import Path
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import (
+    RESULTS,
+    ROOT,
+    add_out_args,
+    machine,
+    out_dir,
+    params as _params,
+    raw_dir,
+    timed as _timed,
+    write_json,
+)
 
-from ._bench import _params, timed as _timed
-from ._config import paper_vehicle
-from ._integrate import Solver, stable_step
-from ._scene import Scene
-from ._simulate import CLOSURE_LIMIT, landing, landings
+import jaxland as jl
+from jaxland import Scene, Solver, landing, landings, stable_step
+from jaxland._simulate import CLOSURE_LIMIT  # private: simulate's ledger-closure acceptance limit
 
 # "peak buffer force" is the strut load (honeycomb plus damping, what a load cell reads): the
 # honeycomb force alone peaks at its plateau F2 in every run
@@ -47,7 +61,7 @@ SMOOTH = dict(method="verlet", smoothing_m=1e-6, smoothing_N=10.0)  # smoothed f
 
 def scenes(t_end=1.2):
     """name -> (vehicle, scene, t_end)."""
-    veh = paper_vehicle()
+    veh = jl.paper_vehicle()
     harsh = eqx.tree_at(lambda v: v.leg.D_b, veh, 0.0)
     return {"paper": (veh, Scene(), t_end), "harsh": (harsh, Scene(drop_height=0.25), t_end)}
 
@@ -187,13 +201,10 @@ def full_model_batch(small=False, progress=print):
     """Full 3-D model, a batch of dispersed landings (the Monte Carlo example spec): landings/s
     of the fixed-step methods against their max-stroke and peak-acceleration difference from
     Euler at a quarter of the default step."""
-    from ._montecarlo import load_montecarlo_spec, sample_scenes
-
-    spec = load_montecarlo_spec(Path(__file__).resolve().parents[1] / "examples"
-                                / "montecarlo_dispersed.toml")
+    spec = jl.load_montecarlo_spec(ROOT / "examples" / "montecarlo_dispersed.toml")
     n, t_end = (8, 0.3) if small else (64, 1.0)
-    scenes, _ = sample_scenes(spec, 0, n)
-    veh = paper_vehicle()
+    scenes, _ = jl.sample_scenes(spec, 0, n)
+    veh = jl.paper_vehicle()
 
     def run(method, dt, repeats):
         solver = Solver(dt=dt, t_end=t_end, save_dt=t_end, method=method)
@@ -253,11 +264,11 @@ def stability_map(small=False, progress=print):
     return out
 
 
-def _baselines(path: Path, refs: dict):
-    """Numba/scipy runs from benchmarks/baselines.py, with errors against our references."""
-    if not path.exists():
+def _baselines(data: dict | None, refs: dict):
+    """Numba/scipy runs from benchmarks/baselines.py, with errors against our references (the
+    stroke-trace error only where the raw baseline dump with its traces is there)."""
+    if not data:
         return {}
-    data = json.loads(path.read_text())
     out = {}
     for name, ref in refs.items():
         rows = []
@@ -279,24 +290,23 @@ def _baselines(path: Path, refs: dict):
 
 
 def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return jl.atomic_savefig(fig, path)
+
+
+def _figure(nrows=1, ncols=1, **kw):
+    """A figure without pyplot (no global backend state): (figure, axes)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=kw.pop("figsize"))
+    return fig, fig.subplots(nrows, ncols, **kw)
 
 
 def plot(results: dict, out_dir: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     paths = []
     wp = results["work_precision"]
     cols = (*METRICS, "trace_rms")
-    fig, axes = plt.subplots(len(wp), len(cols), figsize=(4 * len(cols), 3.6 * len(wp)),
+    fig, axes = _figure(len(wp), len(cols), figsize=(4 * len(cols), 3.6 * len(wp)),
                              squeeze=False)
     for i, (name, entry) in enumerate(wp.items()):
         for j, metric in enumerate(cols):
@@ -319,7 +329,7 @@ def plot(results: dict, out_dir: Path) -> list[Path]:
     paths.append(_save(fig, out_dir / "integrators_work_precision.png"))
 
     tg = results["throughput"]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (a1, a2) = _figure(1, 2, figsize=(11, 4))
     for method, d in tg.items():
         a1.loglog([r["batch"] for r in d["batches"]], [r["landings_per_s"] for r in d["batches"]],
                   "o-", color=COLORS[method], label=f"{method} {d['setting']}")
@@ -342,7 +352,7 @@ def plot(results: dict, out_dir: Path) -> list[Path]:
     paths.append(_save(fig, out_dir / "integrators_throughput.png"))
 
     sm = results["stability"]
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = _figure(figsize=(7, 4))
     for k, (name, rows) in enumerate(sm.items()):
         for i, r in enumerate(rows):
             y = i + 0.2 * k
@@ -359,9 +369,28 @@ def plot(results: dict, out_dir: Path) -> list[Path]:
     return paths
 
 
+def _baseline_data() -> dict | None:
+    """benchmarks/baselines.py's results: the raw dump (with stroke traces) if it is there,
+    else the committed summary."""
+    for path in (RESULTS / "raw" / "baselines_raw.json", RESULTS / "baselines.json"):
+        if path.exists():
+            return json.loads(path.read_text())
+    return None
+
+
+def rounded(x, digits=4):
+    """``x`` with every float rounded to ``digits`` significant digits (for the summary JSON)."""
+    if isinstance(x, dict):
+        return {k: rounded(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [rounded(v, digits) for v in x]
+    if isinstance(x, float) and math.isfinite(x) and x != 0.0:
+        return float(f"{x:.{digits}g}")
+    return x
+
+
 def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=print) -> dict:
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     progress("work-precision ...")
     wp = work_precision(small, repeats=2 if small else 5, progress=progress)
     progress("throughput and gradient cost ...")
@@ -372,25 +401,32 @@ def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=pri
     full = full_model_batch(small, progress=progress)
     refs = {n: dict(e["reference"], trace=e["baseline_reference"]["stroke_m"])
             for n, e in wp.items()}
-    base_path = (Path(__file__).resolve().parents[1] / "benchmarks" / "results"
-                 / "baselines.json")
-    base = _baselines(base_path, refs)
-    numba_batch = (json.loads(base_path.read_text()).get("batch_throughput")
-                   if base_path.exists() else None)
+    base_data = _baseline_data()
+    base = _baselines(base_data, refs)
+    numba_batch = base_data.get("batch_throughput") if base_data else None
     for e in wp.values():
         e.pop("baseline_reference")
-    results = dict(
-        machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
-                     jax=jax.__version__, device=str(jax.devices()[0])),
-        small=small, work_precision=wp, throughput=tg, stability=sm, full_model=full,
-        baselines=base, numba_batch=numba_batch)
-    path = out_dir / "integrators.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(results, indent=1, default=float))
-    os.replace(tmp, path)
-    (out_dir / "integrators.md").write_text(markdown(results))
+    results = dict(machine=machine(), small=small, work_precision=wp, throughput=tg,
+                   stability=sm, full_model=full, baselines=base, numba_batch=numba_batch)
+    write_json(raw_dir(out_dir) / "integrators_raw.json", results)
+    write_json(out_dir / "integrators.json", rounded(results))
     plot(results, out_dir)
     return results
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_out_args(p)
+    args = p.parse_args(argv)
+    out = out_dir(args.out, args.quick)
+    run_integrator_benchmark(out, small=args.quick)
+    print(f"wrote {out / 'integrators.json'}, integrators_*.png and "
+          f"{raw_dir(out) / 'integrators_raw.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
 
 
 def _cheapest(rows, metric, level):

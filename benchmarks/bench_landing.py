@@ -1,49 +1,31 @@
-"""``jaxland bench``: compile time and run time of one landing and of vmapped batches, and the
-cost of gradients, written as JSON plus a plot. Timings are medians of repeats after compile,
-measured side by side in one run (the machines are noisy); they are never asserted by tests.
+"""Compile time and run time of one landing and of vmapped batches (quarter and full 3-D model),
+and the cost of gradients, written as ``bench_landing.json`` plus ``bench_landing.png``.
+
+    python benchmarks/bench_landing.py [--quick] [--batch 1000] [--out DIR]
+
+Timings are medians of repeats after compile, measured side by side in one run (the machines
+are noisy); they are never asserted by tests. ``--quick`` (tiny sizes) writes to
+``out/bench-quick/`` unless ``--out`` says otherwise, never into ``benchmarks/results/``.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
-import os
-import platform
-import statistics
-import time
 from pathlib import Path
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import add_out_args, machine, out_dir, params, timed, write_json
 
-from ._config import paper_vehicle
-from ._integrate import Solver
-from ._scene import Scene
-from ._simulate import landing, landings
-
-
-def timed(fn, args, repeats):
-    """Compile ``fn`` for ``args``, then run it ``repeats`` times: (last output, compile time,
-    median run time) [s]."""
-    t0 = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - t0)
-    return out, compile_s, statistics.median(times)
+import jaxland as jl
+from jaxland import Scene, Solver, landing, landings
 
 
 def _compile_and_time(fn, args, repeats):
     return timed(fn, args, repeats)[1:]
-
-
-def _params(v):
-    return (v.leg.D_b, v.honeycomb.k_b1, v.honeycomb.F1, v.honeycomb.F2, v.ground.k,
-            v.ground.gamma)
 
 
 def _model_timings(vehicle, solver, model, sizes, repeats):
@@ -66,7 +48,7 @@ def _model_timings(vehicle, solver, model, sizes, repeats):
 
 def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> dict:
     """Run the benchmark and write ``bench_landing.json`` and ``bench_landing.png``."""
-    vehicle = paper_vehicle()
+    vehicle = jl.paper_vehicle()
     t_end = 0.3 if quick else 1.2
     solver = Solver(dt=1e-5, t_end=t_end, save_dt=1e-3)
     repeats = 2 if quick else 5
@@ -78,8 +60,8 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
     full_single, full_batched = _model_timings(vehicle, solver, "full", full_sizes, repeats)
 
     def stroke_of(theta):
-        new = tuple(p * jnp.exp(t) for p, t in zip(_params(vehicle), theta))
-        return landing(eqx.tree_at(_params, vehicle, new), scene, solver,
+        new = tuple(p * jnp.exp(t) for p, t in zip(params(vehicle), theta))
+        return landing(eqx.tree_at(params, vehicle, new), scene, solver,
                        "quarter")[1]["max_stroke_m"]
 
     th0 = jnp.zeros(6)
@@ -90,21 +72,18 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
     result = dict(
         scene="paper 0.2 m drop (symmetric), symplectic Euler; quarter and full 3-D model",
         dt_s=solver.dt, t_end_s=t_end, n_steps=solver.n_steps,
-        machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
-                     jax=jax.__version__, backend=jax.default_backend(),
-                     devices=[str(d) for d in jax.devices()]),
+        machine=machine(),
         single=single,
         batched=batched,
         full_model=dict(single=full_single, batched=full_batched,
                         cost_ratio_single=full_single["run_s"] / run_s),
-        gradients=dict(jacfwd_6_params=dict(compile_s=jf_compile, run_s=jf_run,
+        gradients=dict(jacfwd_6params=dict(compile_s=jf_compile, run_s=jf_run,
                                             ratio_to_forward=jf_run / run_s),
-                       grad_6_params=dict(compile_s=gr_compile, run_s=gr_run,
+                       grad_6params=dict(compile_s=gr_compile, run_s=gr_run,
                                           ratio_to_forward=gr_run / run_s)),
         quick=quick,
     )
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "bench_landing.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_json(out_dir / "bench_landing.json", result, indent=2)
     _plot(result, out_dir / "bench_landing.png")
     return result
 
@@ -125,10 +104,10 @@ def _plot(result: dict, path: Path) -> None:
     ax1.set_title(f"{result['t_end_s']:g} s landings at dt = {result['dt_s']:g} s")
     ax1.legend()
     labels = ["forward", "jacfwd (6)", "grad (6)"]
-    runs = [result["single"]["run_s"], result["gradients"]["jacfwd_6_params"]["run_s"],
-            result["gradients"]["grad_6_params"]["run_s"]]
-    comps = [result["single"]["compile_s"], result["gradients"]["jacfwd_6_params"]["compile_s"],
-             result["gradients"]["grad_6_params"]["compile_s"]]
+    runs = [result["single"]["run_s"], result["gradients"]["jacfwd_6params"]["run_s"],
+            result["gradients"]["grad_6params"]["run_s"]]
+    comps = [result["single"]["compile_s"], result["gradients"]["jacfwd_6params"]["compile_s"],
+             result["gradients"]["grad_6params"]["compile_s"]]
     x = np.arange(3)
     ax2.bar(x - 0.2, np.array(runs) * 1e3, 0.4, label="run [ms]")
     ax2.bar(x + 0.2, np.array(comps) * 1e3, 0.4, label="compile [ms]")
@@ -137,6 +116,22 @@ def _plot(result: dict, path: Path) -> None:
     ax2.set_ylabel("time [ms]")
     ax2.set_title("one landing: run and compile time")
     ax2.legend()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
+    jl.atomic_savefig(fig, path)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_out_args(p)
+    p.add_argument("--batch", type=int, default=1000, help="largest vmapped batch (default 1000)")
+    args = p.parse_args(argv)
+    if args.batch < 1:
+        p.error(f"--batch {args.batch}: must be at least 1")
+    out = out_dir(args.out, args.quick)
+    result = run_benchmark(out, quick=args.quick, batch=args.batch)
+    print(json.dumps(result, indent=2))
+    print(f"wrote {out / 'bench_landing.json'} and bench_landing.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,57 @@
+"""The benchmark scripts (benchmarks/): a smoke run, and smoke runs never touch the tracked
+results in benchmarks/results/."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = ROOT / "benchmarks"
+sys.path.insert(0, str(BENCH))
+
+import _common  # noqa: E402
+
+
+def _results_status() -> str:
+    return subprocess.run(["git", "status", "--porcelain", "--", "benchmarks/results"], cwd=ROOT,
+                          capture_output=True, text=True, check=True).stdout
+
+
+def test_quick_defaults_outside_the_tracked_results():
+    quick = _common.out_dir(None, quick=True)
+    assert quick == _common.QUICK_OUT
+    assert _common.RESULTS not in quick.parents and quick != _common.RESULTS
+    assert _common.out_dir(None, quick=False) == _common.RESULTS
+
+
+@pytest.mark.parametrize("out", ["benchmarks/results", "benchmarks/results/sub",
+                                 str(BENCH / "results")])
+def test_quick_into_the_tracked_results_is_refused(out, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    with pytest.raises(SystemExit) as exc:
+        _common.out_dir(out, quick=True)
+    assert "refusing --out" in str(exc.value)
+
+
+@pytest.mark.parametrize("script", ["bench_landing.py", "bench_integrators.py"])
+def test_scripts_refuse_quick_into_results_before_measuring(script):
+    before = _results_status()
+    run = subprocess.run([sys.executable, str(BENCH / script), "--quick", "--out",
+                          "benchmarks/results"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode != 0 and "refusing --out" in run.stderr
+    assert _results_status() == before
+
+
+def test_bench_landing_quick_writes_json_and_plot(tmp_path):
+    before = _results_status()
+    run = subprocess.run([sys.executable, str(BENCH / "bench_landing.py"), "--quick", "--out",
+                          str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    data = json.loads((tmp_path / "bench_landing.json").read_text())
+    assert data["quick"] and data["single"]["run_s"] > 0 and data["batched"][-1]["batch"] == 10
+    assert (tmp_path / "bench_landing.png").read_bytes().startswith(b"\x89PNG")
+    assert _results_status() == before
