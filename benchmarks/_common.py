@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import statistics
@@ -78,3 +79,62 @@ def params(v):
     stiffness and plateaus, ground stiffness and damping ratio)."""
     return (v.leg.D_b, v.honeycomb.k_b1, v.honeycomb.F1, v.honeycomb.F2, v.ground.k,
             v.ground.gamma)
+
+
+def rounded(x, digits: int = 4):
+    """``x`` with every float rounded to ``digits`` significant digits (summary JSON)."""
+    if isinstance(x, dict):
+        return {k: rounded(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [rounded(v, digits) for v in x]
+    if isinstance(x, float) and math.isfinite(x) and x != 0.0:
+        return float(f"{x:.{digits}g}")
+    return x
+
+
+def _drop(x, keys: set):
+    if isinstance(x, dict):
+        return {k: _drop(v, keys) for k, v in x.items() if k not in keys}
+    if isinstance(x, list):
+        return [_drop(v, keys) for v in x]
+    return x
+
+
+def summarise_baselines(data: dict) -> dict:
+    """baselines.py's summary: every run without its stroke trace and repeat times."""
+    out = _drop(data, {"stroke_m", "wall_all_s", "atol"})
+    out["raw"] = "stroke traces, repeat times and atol vectors: raw/baselines_raw.json"
+    return rounded(out)
+
+
+def summarise_gradient_quality(data: dict) -> dict:
+    """gradient_quality.py's summary: per variant the errors and outcomes, without the finite
+    differences themselves and the 201-point loss scans (their roughness stays)."""
+    out = json.loads(json.dumps(data))
+    for scene in out["scenes"].values():
+        for v in scene["variants"].values():
+            v.pop("fd", None)
+            v["scans"] = {p: {"roughness": s.get("roughness")}
+                          for p, s in v.get("scans", {}).items()}
+    out["raw"] = "finite differences and loss scans: raw/gradient_quality_raw.json"
+    return rounded(out)
+
+
+def save_png(fig, path: Path, dpi: int = 110) -> Path:
+    """Save a figure atomically, then shrink it to a palette PNG."""
+    jl.atomic_savefig(fig, path, dpi=dpi)
+    quantise_png(path)
+    return path
+
+
+def quantise_png(path) -> None:
+    """Rewrite a PNG as a 256-colour palette image (about a third of matplotlib's RGBA size for
+    charts, no visible change), through a temporary file and os.replace."""
+    from PIL import Image
+
+    path = Path(path)
+    with Image.open(path) as im:
+        q = im.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    tmp = path.with_name(f".{path.name}.quantised.png")
+    q.save(tmp, format="PNG", optimize=True)
+    os.replace(tmp, path)

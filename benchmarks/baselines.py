@@ -1,6 +1,7 @@
 """Non-JAX baselines for the quarter model (issue #3): a numba loop and scipy ``solve_ivp``.
 
     python benchmarks/baselines.py            # full benchmark -> benchmarks/results/baselines.json
+                                              #   (+ raw/baselines_raw.json with the traces)
     python benchmarks/baselines.py --check    # quick verification only; exit 1 on mismatch
     python benchmarks/baselines.py --quick    # fewer runs (smoke test of the benchmark itself)
 
@@ -33,9 +34,11 @@ What is here
    anchor), spring force > 0); the energies integrate the strut damping power, the ground
    damping power and mu F_n |anchor'| while slipping.
 4. ``run_benchmark``: numba Euler over dt, scipy LSODA and Radau over rtol, on the "paper" and
-   "harsh" scenes, plus batched numba throughput; writes ``benchmarks/results/baselines.json``.
+   "harsh" scenes, plus batched numba throughput; writes ``benchmarks/results/baselines.json``
+   (the summary: no stroke traces, repeat times or atol vectors; floats to 4 digits) and the
+   full dump ``benchmarks/results/raw/baselines_raw.json`` (ignored by git).
 
-JSON schema (benchmarks/results/baselines.json)
+JSON schema (benchmarks/results/raw/baselines_raw.json; the summary drops the marked fields)
 -----------------------------------------------
 {
   "schema": "jaxland-baselines/1",
@@ -53,11 +56,11 @@ JSON schema (benchmarks/results/baselines.json)
       "runs": [                          # one entry per (method, setting)
         {"method": "numba_euler" | "scipy_LSODA" | "scipy_Radau",
          "dt_s": float | null,           # numba Euler step
-         "rtol": float | null, "atol": [12 floats] | null,   # scipy tolerances
+         "rtol": float | null, "atol": [12 floats] | null,   # scipy tolerances (atol: raw only)
          "success": bool, "message": str, "warnings": [str],
          "skipped": bool,                # Radau beyond the wall-time cap (not run)
          "wall_s": float | null,         # wall time per landing, median of "repeats"
-         "repeats": int, "wall_all_s": [float],
+         "repeats": int, "wall_all_s": [float],   # (wall_all_s: raw only)
          "n_steps": int | null,          # Euler steps, or scipy accepted steps
          "nfev": int | null, "njev": int | null, "nlu": int | null,
          "max_stroke_m", "final_stroke_m", "peak_honeycomb_force_N", "peak_normal_force_N",
@@ -66,7 +69,8 @@ JSON schema (benchmarks/results/baselines.json)
          "rel_err": {"max_stroke_m", "final_stroke_m", "peak_honeycomb_force_N",
                      "peak_normal_force_N", "stroke_trace_rms_m"}   # vs "reference"
                                                                     # (trace RMS is absolute, m)
-         "stroke_m": [float] | null},    # stroke on the save grid (null if the run failed early)
+         "stroke_m": [float] | null},    # stroke on the save grid (null if the run failed early;
+                                         # raw only)
       ]
     }
   },
@@ -987,13 +991,14 @@ def run_benchmark(out_path=OUT, quick=False) -> dict:
     print("batched numba throughput:", flush=True)
     result["batch_throughput"] = batch_throughput(BATCH_SIZES if not quick else (1, 10, 100),
                                                   t_end=t_end)
+    from _common import summarise_baselines, write_json
+
     out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_path.with_suffix(".json.tmp")
     result = _json_clean(result)
-    tmp.write_text(json.dumps(result, indent=1, allow_nan=False) + "\n")
-    tmp.replace(out_path)
-    print(f"wrote {out_path}")
+    raw = out_path.parent / "raw" / f"{out_path.stem}_raw.json"
+    write_json(raw, result)
+    write_json(out_path, summarise_baselines(result))
+    print(f"wrote {out_path} and {raw}")
     return result
 
 

@@ -43,6 +43,8 @@ from _common import (
     out_dir,
     params as _params,
     raw_dir,
+    rounded,
+    save_png,
     timed as _timed,
     write_json,
 )
@@ -291,7 +293,7 @@ def _baselines(data: dict | None, refs: dict):
 
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
-    return jl.atomic_savefig(fig, path)
+    return save_png(fig, path)
 
 
 def _figure(nrows=1, ncols=1, **kw):
@@ -376,17 +378,6 @@ def _baseline_data() -> dict | None:
         if path.exists():
             return json.loads(path.read_text())
     return None
-
-
-def rounded(x, digits=4):
-    """``x`` with every float rounded to ``digits`` significant digits (for the summary JSON)."""
-    if isinstance(x, dict):
-        return {k: rounded(v, digits) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [rounded(v, digits) for v in x]
-    if isinstance(x, float) and math.isfinite(x) and x != 0.0:
-        return float(f"{x:.{digits}g}")
-    return x
 
 
 def run_integrator_benchmark(out_dir: Path, *, small: bool = False, progress=print) -> dict:

@@ -18,7 +18,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import add_out_args, machine, out_dir, params, timed, write_json
+from _common import add_out_args, machine, out_dir, params, save_png, timed, write_json
 
 import jaxland as jl
 from jaxland import Scene, Solver, landing, landings
@@ -116,7 +116,7 @@ def _plot(result: dict, path: Path) -> None:
     ax2.set_ylabel("time [ms]")
     ax2.set_title("one landing: run and compile time")
     ax2.legend()
-    jl.atomic_savefig(fig, path)
+    save_png(fig, path)
 
 
 def main(argv=None) -> int:

@@ -16,6 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from _common import save_png, write_json
+
 OUT = Path(__file__).resolve().parent / "results"
 
 CHILD = """
@@ -65,7 +67,7 @@ def main() -> None:
                                      next(r["wall_s"] for r in rows if r["model"] == m and
                                           r["devices"] == 2) for m in ("quarter", "full")})
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "bench_montecarlo.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_json(OUT / "bench_montecarlo.json", result, indent=2)
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 4), layout="constrained")
@@ -81,7 +83,7 @@ def main() -> None:
     ax.set_yscale("log")
     ax.set_ylabel("throughput [landings/s]")
     ax.set_title("Monte Carlo on this CPU: 1 vs 2 devices")
-    fig.savefig(OUT / "bench_montecarlo.png", dpi=110)
+    save_png(fig, OUT / "bench_montecarlo.png")
     print(json.dumps(result, indent=2))
 
 

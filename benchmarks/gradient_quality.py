@@ -22,8 +22,10 @@ whole record, smaller dt, a first-impact window, and the opt-in switch smoothing
 (``Solver.smoothing``), with its bias on max stroke and peak forces and its cost (forward and
 jacfwd time, measured side by side with plain Euler in this run).
 
-Writes ``gradient_quality.json`` and ``gradient_quality.png``. Timings are wall-clock on
-whatever machine runs this; tests never assert them.
+Writes ``gradient_quality.json`` (the summary: errors, bias, cost; floats to 4 digits),
+``raw/gradient_quality_raw.json`` (with the finite differences and loss scans; ignored by git)
+and ``gradient_quality.png``. Timings are wall-clock on whatever machine runs this; tests never
+assert them.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _common import save_png, summarise_gradient_quality, write_json  # noqa: E402
 
 import jaxland as jl  # noqa: E402
 
@@ -263,8 +266,8 @@ def run(quick=False, out_dir=ROOT / "benchmarks" / "results"):
               json.dumps(entry["cost_150ms_window"]), flush=True)
         res["scenes"][name] = entry
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "gradient_quality.json").write_text(json.dumps(res, indent=1))
+    write_json(out_dir / "raw" / "gradient_quality_raw.json", res)
+    write_json(out_dir / "gradient_quality.json", summarise_gradient_quality(res))
     plot(res, out_dir / "gradient_quality.png")
     return res
 
@@ -303,7 +306,7 @@ def plot(res, path):
         ax.set_title(f"{name}: 1-D loss scans")
         ax.legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_png(fig, path)
     plt.close(fig)
 
 
