@@ -1,0 +1,419 @@
+"""The measured tables in docs/ are generated from benchmarks/results/*.json, never typed.
+
+    python benchmarks/docs_tables.py           # rewrite every generated block in docs/*.md
+    python benchmarks/docs_tables.py --check   # exit 1 (with a diff) if any block is stale
+
+A generated block in a Markdown file looks like::
+
+    <!-- table:NAME -->
+    ...whatever this script renders for NAME...
+    <!-- /table -->
+
+NAME picks a renderer in ``TABLES``; an unknown name is an error. Only the lines between the
+markers are touched. This script reads JSON only (no jax, no jaxland), so the check is fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+import math
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+DOCS = ROOT / "docs"
+BLOCK = re.compile(r"(<!-- table:([\w-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
+
+
+def _load(name: str) -> dict:
+    return json.loads((RESULTS / name).read_text())
+
+
+def _g(x, nd=4) -> str:
+    """A number to ``nd`` significant digits ('-' for None)."""
+    if x is None:
+        return "-"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, int):
+        return str(x)
+    return f"{x:.{nd}g}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+# --- paper comparison (paper_table.json) -------------------------------------------------------
+
+# row key -> label (with unit); keys of one row in different columns are merged through ALIASES.
+# A key not listed here still gets a row (at the end), labelled from its name and unit suffix.
+PAPER_ROWS = {
+    "touchdown_s": "touchdown time [s]",
+    "first_impact_end_s": "end of first impact [s]",
+    "later_impacts_s": "later impacts [s]",
+    "third_impact_start_s": "third impact starts [s]",
+    "first_impact_stroke_mm": "first-impact stroke [mm]",
+    "max_stroke_mm": "max stroke [mm]",
+    "final_stroke_mm": "final stroke [mm]",
+    "foot_vz_end_first_impact_mps": "foot velocity at end of first impact [m/s]",
+    "peak_foot_accel_normal_mps2": "peak foot acceleration, normal (Fig. 12a) [m/s^2]",
+    "peak_foot_accel_mps2": "peak foot acceleration, magnitude [m/s^2]",
+    "peak_buffer_velocity_mps": "peak buffer velocity, first impact [m/s]",
+    "peak_body_accel_mps2": "peak body acceleration [m/s^2]",
+    "secondary_engaged_first_impact": "secondary honeycomb engaged in first impact",
+    "energy_closure_rel": "energy ledger closure (of dissipated) [-]",
+}
+PAPER_ALIASES = {"second_impact_s": "later_impacts_s"}
+PAPER_SKIP = {"n_impacts"}
+PAPER_COLUMNS = {"paper": "paper", "jaxland_default": "jaxland (default, rod slides free)",
+                 "jaxland_bonded": "jaxland (bonded honeycomb)"}
+UNITS = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_mm", "mm"), ("_kN", "kN"), ("_N", "N"),
+         ("_m", "m"), ("_s", "s"), ("_J", "J"), ("_kg", "kg"), ("_rel", "-"))
+
+
+def _label(key: str) -> str:
+    for suffix, unit in UNITS:
+        if key.endswith(suffix):
+            return f"{key[: -len(suffix)].replace('_', ' ')} [{unit}]"
+    return key.replace("_", " ")
+
+
+def _name(key: str) -> str:
+    """A column name without its unit suffix, in words."""
+    for suffix, _ in UNITS:
+        if key.endswith(suffix):
+            return key[: -len(suffix)].replace("_", " ")
+    return key.replace("_", " ")
+
+
+def _paper_cell(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, str):
+        return v
+    if isinstance(v, list):  # impact intervals [[start, end|None], ...]
+        return ", ".join(f"{a:.3f}-{'end' if b is None else format(b, '.3f')}" for a, b in v)
+    return _g(v)
+
+
+def paper_table() -> str:
+    data = _load("paper_table.json")
+    keys: list[str] = list(PAPER_ROWS)
+    for col in data.values():
+        for k in col:
+            k = PAPER_ALIASES.get(k, k)
+            if k not in keys and k not in PAPER_SKIP:
+                keys.append(k)
+    cols = list(data)
+    rows = []
+    for key in keys:
+        cells = []
+        for c in cols:
+            col = {PAPER_ALIASES.get(k, k): v for k, v in data[c].items()}
+            cells.append(_paper_cell(col.get(key)))
+        if any(cell != "-" for cell in cells):
+            rows.append([PAPER_ROWS.get(key, _label(key)), *cells])
+    return _table(["quantity", *(PAPER_COLUMNS.get(c, c.replace("_", " ")) for c in cols)], rows)
+
+
+# --- integrators (integrators.json) ------------------------------------------------------------
+
+def _cheapest(rows, metric, level):
+    ok = [r for r in rows if r.get("errors") and r["errors"].get(metric, math.inf) <= level]
+    return min(ok, key=lambda r: r["wall_s"]) if ok else None
+
+
+def _setting(row) -> str:
+    if row.get("setting_text"):
+        return row["setting_text"]
+    return ", ".join(f"{k} = {v:g}" + (" N s" if k == "impulse" else " s" if k == "dt" else "")
+                     for k, v in row.items() if k in ("dt", "impulse", "rtol") and v is not None)
+
+
+def integrators_accuracy() -> str:
+    res = _load("integrators.json")
+    out = []
+    base = res.get("baselines", {})
+    for name, entry in res["work_precision"].items():
+        ref = entry["reference"]
+        out.append(f"**{name}** (reference: Euler at dt = {ref['dt']:g} s; it moved by "
+                   f"{ref['change_from_2dt']['max_stroke_m']:.1e} in max stroke from 2 dt)\n")
+        labels = list(dict.fromkeys([r["method"] for r in entry["runs"]]
+                                    + [r["method"] for r in base.get(name, [])]))
+        rows = []
+        for label in labels:
+            runs = [r for r in entry["runs"] if r["method"] == label] + [
+                dict(r, setting_text=str(r.get("setting")).replace("=", " = "))
+                for r in base.get(name, []) if r["method"] == label]
+            cells = [label]
+            for level in (1e-4, 1e-3):
+                best = _cheapest(runs, "max_stroke_m", level)
+                cells += (["not reached", "-"] if best is None
+                          else [_setting(best), f"{best['wall_s'] * 1e3:.3g}"])
+            rows.append(cells)
+        out.append(_table(["method", "cheapest setting, max-stroke error <= 1e-4", "wall [ms]",
+                           "cheapest setting, <= 1e-3", "wall [ms]"], rows))
+    return "\n".join(out)
+
+
+def integrators_throughput() -> str:
+    tg = _load("integrators.json")["throughput"]
+    sizes = [r["batch"] for r in next(iter(tg.values()))["batches"]]
+    rows = []
+    for method, d in tg.items():
+        setting = ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}"
+                            for k, v in d["setting"].items())
+        rows.append([method, setting, f"{d['forward_s'] * 1e3:.3g}",
+                     *(f"{r['landings_per_s']:.0f}" for r in d["batches"]),
+                     f"{d['jacfwd_ratio']:.1f}", f"{d['grad_ratio']:.1f}",
+                     f"{d['batches'][0]['compile_s']:.2f}"])
+    return _table(["method", "setting [s, N s]", "one landing [ms]",
+                   *(f"landings/s, batch {n}" for n in sizes), "jacfwd 6 / forward [-]",
+                   "grad / forward [-]", "compile [s]"], rows)
+
+
+def integrators_full3d() -> str:
+    rows = [[f"{r['method']} (batch {r['batch']}, {r['t_end_s']:g} s)", f"{r['dt']:g}",
+             f"{r['landings_per_s']:.1f}",
+             f"{r['max_stroke_diff_median']:.1e} / {r['max_stroke_diff_max']:.1e}",
+             f"{r['peak_accel_diff_median']:.1e}"]
+            for r in _load("integrators.json")["full_model"]]
+    return _table(["full 3-D, dispersed batch", "dt [s]", "landings/s",
+                   "max stroke vs Euler at 2.5e-6 s: median / max [-]",
+                   "peak body accel vs the same: median [-]"], rows)
+
+
+def integrators_stability() -> str:
+    rows = []
+    for name, runs in _load("integrators.json")["stability"].items():
+        for r in runs:
+            label = r["method"] + (f" (dI = {r['impulse']:g} N s)" if "impulse" in r else "")
+            if r.get("failure_s"):
+                rows.append([name, label, f"{r['theory_s']:.3g}", f"{r['survives_s']:.3g}",
+                             f"{r['failure_s']:.3g}", f"{r['ratio']:.2f}"])
+            else:
+                rows.append([name, label, f"{r['theory_s']:.3g}", "-", "-",
+                             "not bracketed in [0.5, 2] x theory"])
+    return _table(["scene", "method", "theory (stable_step) [s]", "last stable [s]",
+                   "first failing [s]", "failure / theory [-]"], rows)
+
+
+# --- gradient quality (gradient_quality.json) --------------------------------------------------
+
+def gradient_quality() -> str:
+    res = _load("gradient_quality.json")
+    target = res["target"]
+    scenes = list(res["scenes"])
+    params = ", ".join(res["params"])
+    labels = list(dict.fromkeys(k for s in scenes for k in res["scenes"][s]["variants"]))
+    rows = []
+    for label in labels:
+        first = next(res["scenes"][s]["variants"][label] for s in scenes
+                     if label in res["scenes"][s]["variants"])
+        window = "whole record" if first["window_s"] is None else f"{first['window_s'] * 1e3:g} ms"
+        cells = []
+        for s in scenes:
+            v = res["scenes"][s]["variants"].get(label)
+            if v is None:
+                cells.append("-")
+                continue
+            errs = " ".join(f"{e:.0e}" for e in v["robust_rel_err"])
+            cells.append(errs + (" ✓" if max(v["robust_rel_err"]) <= target else ""))
+        name = label.replace("DEFAULT ", "").rsplit(" win", 1)[0]
+        if label.startswith("DEFAULT"):
+            name += " (smoothed option)"
+        rows.append([name, window, *cells])
+    return _table(["variant", "window", *(f"{s}: {params}" for s in scenes)], rows)
+
+
+# --- performance (bench_landing.json, bench_montecarlo.json) -----------------------------------
+
+def performance_landing() -> str:
+    b = _load("bench_landing.json")
+    q, f = b, b["full_model"]
+    qb, fb = q["batched"][-1], f["batched"][-1]
+    jf, gr = b["gradients"]["jacfwd_6_params"], b["gradients"]["grad_6_params"]
+    rows = [
+        ["compile one landing [s]", f"{q['single']['compile_s']:.2f}",
+         f"{f['single']['compile_s']:.2f}"],
+        ["one landing (jit, median) [ms]",
+         f"{q['single']['run_s'] * 1e3:.3g} ({q['single']['ns_per_step']:.0f} ns/step)",
+         f"{f['single']['run_s'] * 1e3:.3g} ({f['single']['ns_per_step']:.0f} ns/step, "
+         f"{f['cost_ratio_single']:.1f}x the quarter)"],
+        ["`jl.landings` (vmap) over drop height [landings/s]",
+         f"{qb['landings_per_s']:.0f} (batch {qb['batch']}, {qb['run_s']:.2f} s)",
+         f"{fb['landings_per_s']:.1f} (batch {fb['batch']}, {fb['run_s']:.2f} s)"],
+        ["`jacfwd` over 6 parameters [ms]",
+         f"{jf['run_s'] * 1e3:.3g} ({jf['ratio_to_forward']:.1f}x one forward run)", "-"],
+        ["`grad` over 6 parameters [ms]",
+         f"{gr['run_s'] * 1e3:.3g} ({gr['ratio_to_forward']:.1f}x; reverse mode stores the "
+         f"trajectory)", "-"],
+    ]
+    return _table(["what", "quarter model", "full 3-D model"], rows)
+
+
+def performance_montecarlo() -> str:
+    b = _load("bench_montecarlo.json")
+    rows = []
+    for model in dict.fromkeys(r["model"] for r in b["runs"]):
+        runs = {r["devices"]: r for r in b["runs"] if r["model"] == model}
+        n = next(iter(runs.values()))["n"]
+        cells = [f"{runs[d]['landings_per_s']:.1f}" if d in runs else "-" for d in (1, 2)]
+        rows.append([f"{model} (n = {n})", *cells,
+                     f"{b['speedup_2_devices'].get(model, float('nan')):.2f}"])
+    return _table(["model", "1 device [landings/s]", "2 devices [landings/s]",
+                   "2 / 1 devices [-]"], rows)
+
+
+# --- calibration (bench_fit.json) ---------------------------------------------------------------
+
+def calibration_fit() -> str:
+    b = _load("bench_fit.json")
+    variants = b["variants"]
+
+    def opts(v):
+        o = v["options"]
+        return o["integrator"] + (f", {o['smoothing_m']:g} m / {o['smoothing_N']:g} N"
+                                  if o.get("smoothing_m") else "")
+
+    def pct(d):
+        return ", ".join(f"{k} {v * 100:+.2g}" for k, v in d.items())
+
+    rows = [
+        ["fit, cold (with compilation) / warm [s]",
+         *(f"{v['summary']['fit_cold_s']:.2g} / {v['summary']['fit_warm_s']:.2g}"
+           for v in variants.values())],
+        ["starts converged, crush-peak data / noise-free",
+         *(f"{v['summary']['starts_converged_crush_peak']} / "
+           f"{v['summary']['starts_recovered_noise_free']}" for v in variants.values())],
+        ["noise-free recovery, worst of the starts [%]",
+         *(pct(v["summary"]["clean_worst_rel_error"]) for v in variants.values())],
+        ["crush-peak data, fitted against truth [%]",
+         *(pct(v["summary"]["crush_peak_rel_error"]) for v in variants.values())],
+        ["AD against FD of the calibration loss, worst parameter [-]",
+         *(f"{max(v['summary']['ad_fd_worst_robust_per_param'].values()):.1e}"
+           for v in variants.values())],
+        ["meets the calibration targets", *(_g(v["summary"]["meets_targets"])
+                                            for v in variants.values())],
+    ]
+    return _table(["", *(opts(v) for v in variants.values())], rows)
+
+
+def calibration_prediction() -> str:
+    b = _load("bench_fit.json")
+    name = b["default_integrator"]["integrator"]
+    pred = b["variants"][name]["prediction"]
+    quantities = list(next(iter(pred.values()))["fitted"])
+    rows = [[f"{h} m", *(f"{pred[h]['fitted'][q] * 100:+.2f} / "
+                         f"{pred[h]['truth_model'][q] * 100:+.2f}" for q in quantities)]
+            for h in pred]
+    return _table(["drop height", *(f"{_name(q)}: fitted / true parameters [%]"
+                                    for q in quantities)], rows)
+
+
+# --- design (design.json) -----------------------------------------------------------------------
+
+def _p(c) -> str:
+    lo, hi = c["ci95_wilson"]
+    return f"{c['count']}/{c['n']} = {c['probability']:.3g} [{lo:.3g}, {hi:.3g}]"
+
+
+def design_verification() -> str:
+    d = _load("design.json")["paper_gear_design"]
+    v, s = d["verification"], d["on_design_scenes"]
+    b, a = v["before"], v["after"]
+    rows = [
+        [f"objective ({d['objective']['measure']} {d['objective']['level']:g} of "
+         f"{_label(d['objective']['quantity'])}) on the {d['scenes']['n']} design scenes",
+         f"{s['before']['objective_measure_mps2']:.4g}",
+         f"{s['after']['objective_measure_mps2']:.4g}"],
+        ["peak body acceleration, p50 / p99 [m/s^2]",
+         f"{b['peak_body_accel_p50_mps2']:.4g} / {b['peak_body_accel_p99_mps2']:.4g}",
+         f"{a['peak_body_accel_p50_mps2']:.4g} / {a['peak_body_accel_p99_mps2']:.4g}"],
+        ["the same objective on the verification landings", f"{b['objective_measure_mps2']:.4g}",
+         f"{a['objective_measure_mps2']:.4g}"],
+        ["max stroke (any leg), p50 / p99 / max [mm]",
+         *(f"{x['max_stroke_p50_m'] * 1e3:.1f} / {x['max_stroke_p99_m'] * 1e3:.1f} / "
+           f"{x['max_stroke_max_m'] * 1e3:.1f}" for x in (b, a))],
+        ["P(bottoming out), 95 % Wilson", _p(b["bottoming"]), _p(a["bottoming"])],
+        *([[f"P({name} constraint violated), 95 % Wilson", _p(b["constraint_violations"][name]),
+            _p(a["constraint_violations"][name])] for name in b.get("constraint_violations", {})]),
+        ["P(tip-over), 95 % Wilson", _p(b["tip_over"]), _p(a["tip_over"])],
+        ["min stability margin, p01 [m]", f"{b['min_stability_margin_p01_m']:.4g}",
+         f"{a['min_stability_margin_p01_m']:.4g}"],
+        ["failed samples", str(b["n_failed"]), str(a["n_failed"])],
+    ]
+    return _table([f"quantity (verification: n = {v['n']} fresh landings, seed {v['seed']}, "
+                   f"{v['t_end_s']:g} s)", "before (paper gear)", "after (design)"], rows)
+
+
+def design_variables() -> str:
+    d = _load("design.json")["paper_gear_design"]
+    rows = [[x["name"], f"[{x['low']:.4g}, {x['high']:.4g}] ({x['scale']})", f"{x['start']:.4g}",
+             f"{x['design']:.4g}"] for x in d["variables"]]
+    return _table(["variable [unit in the name]", "bounds", "start", "design"], rows)
+
+
+TABLES = {
+    "paper-table": paper_table,
+    "integrators-accuracy": integrators_accuracy,
+    "integrators-throughput": integrators_throughput,
+    "integrators-full3d": integrators_full3d,
+    "integrators-stability": integrators_stability,
+    "gradient-quality": gradient_quality,
+    "performance-landing": performance_landing,
+    "performance-montecarlo": performance_montecarlo,
+    "calibration-fit": calibration_fit,
+    "calibration-prediction": calibration_prediction,
+    "design-verification": design_verification,
+    "design-variables": design_variables,
+}
+
+
+def render(text: str, where: str = "") -> str:
+    """``text`` with every generated block rendered afresh."""
+    def sub(m):
+        name = m.group(2)
+        if name not in TABLES:
+            raise SystemExit(f"{where}: unknown table '{name}' (known: {', '.join(TABLES)})")
+        return m.group(1) + TABLES[name]() + m.group(4)
+    return BLOCK.sub(sub, text)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--check", action="store_true",
+                   help="change nothing; exit 1 if a generated block differs from the results")
+    p.add_argument("files", nargs="*", type=Path, help="Markdown files (default: docs/*.md)")
+    args = p.parse_args(argv)
+    files = args.files or sorted(DOCS.glob("*.md"))
+    stale = []
+    for path in files:
+        old = path.read_text()
+        new = render(old, str(path))
+        if new == old:
+            continue
+        if args.check:
+            stale.append(path)
+            sys.stdout.writelines(difflib.unified_diff(
+                old.splitlines(True), new.splitlines(True), f"{path} (committed)",
+                f"{path} (from benchmarks/results)"))
+        else:
+            path.write_text(new)
+            print(f"updated {path}")
+    if stale:
+        print(f"\nstale generated tables in {', '.join(map(str, stale))}: "
+              "run python benchmarks/docs_tables.py", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
