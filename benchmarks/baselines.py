@@ -764,7 +764,7 @@ def scenes():
         ("paper", paper, jl.Scene(), "paper vehicle, Scene() default: 0.2 m drop"),
         ("harsh", harsh, jl.Scene(drop_height=0.25),
          "paper vehicle with leg D_b = 0 (no structural damping), 0.25 m drop (separations, "
-         "no bottoming out; jaxland bench --integrators uses the same scene)"),
+         "no bottoming out; benchmarks/bench_integrators.py uses the same scene)"),
     ]
 
 
