@@ -64,7 +64,8 @@ def _paper_dict() -> dict:
             k_b1_N_per_m=round(f1 / (_PAPER_X_L1_MM * 1e-3), -3), F1_N=round(f1, 1),
             x_L2_mm=57.60,
             k_b3_N_per_m=round((f2 - f1) / (_PAPER_DX_L3_MM * 1e-3), -3), F2_N=round(f2, 1),
-            x_L4_mm=183.23, k_bottom_N_per_m=1e8, bonded=False),
+            x_L4_mm=183.23, k_bottom_N_per_m=1e8, peak_ratio1=1.0, peak_length1_mm=2.0,
+            peak_ratio2=1.0, peak_length2_mm=2.0, unload_ratio=1.0, bonded=False),
         "ground": dict(k_N_per_m=2e6, gamma=0.5, chi_s_per_m=2e-4, mu=0.5, k_tan_N_per_m=7e4),
     }
 
@@ -78,6 +79,8 @@ def _build(cls, section: str, values: dict):
     for f in field_info(cls):
         key = f.metadata["toml"]
         kwargs[f.name] = float(values[key]) * f.metadata["to_si"]
+        if "off" in f.metadata and float(values[key]) == f.metadata["off"]:
+            kwargs[f.name] = None  # an optional extension, off: the paper's law, bit for bit
     if cls is Honeycomb:
         bonded = values.get("bonded", False)
         if not isinstance(bonded, bool):
@@ -161,6 +164,8 @@ def _rule_ok(rule: str, val: np.ndarray) -> np.ndarray | None:
         return val > 0
     if rule == ">= 0":
         return val >= 0
+    if rule == ">= 1":
+        return val >= 1
     if rule == "in [0, 1)":
         return (val >= 0) & (val < 1)
     if rule == "in (0, 90) deg":
@@ -210,6 +215,7 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
             raise ConfigError("honeycomb.x_L4_mm", float(np.min(x4)) * 1e3,
                               f"breakpoints must increase: x_L3 = x_L2 + (F2-F1)/k_b3 = "
                               f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4")
+        _check_peaks_and_unloading(hc, veh.ground, F1, F2, k1, k3, x2, x4)
     leg = veh.leg
     L, th, H2 = concrete(leg.L_h0), concrete(leg.theta_b), concrete(leg.H2)
     if x4 is not None and L is not None and np.any(~(x4 < L)):
@@ -221,6 +227,49 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
                           "the foot must lie clearly below the auxiliary joint A "
                           "(L_h0 sin theta_b > 1.05 H2), or the inverted triangle degenerates")
     return veh
+
+
+def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
+    """Cross-field rules of the honeycomb's optional crush peaks and unloading stiffness (each
+    checked only where the extension is on: a peak ratio above 1, an unloading ratio above 1)."""
+    def value(x, off=1.0):  # None: the extension is off
+        return np.asarray(off) if x is None else concrete(x)
+
+    r1, L1, r2, L2, rho = (value(x) for x in (hc.peak_ratio1, hc.peak_length1, hc.peak_ratio2,
+                                              hc.peak_length2, hc.unload_ratio))
+    k = concrete(ground.k)
+    if any(x is None for x in (r1, L1, r2, L2, rho, k)):
+        return
+    x1, x3 = F1 / k1, x2 + (F2 - F1) / k3
+    stages = (("1", r1, L1, F1, k1, x1, x2, "x_L2", "F2_N", F2),
+              ("2", r2, L2, F2, k3, x3, x4, "x_L4", None, None))
+    for i, r, length, F, k_el, start, end, end_name, above, F_above in stages:
+        on = r > 1
+        a = (r - 1) * F
+        done = start + a / k_el + length  # stroke where the peak has decayed to the plateau
+        if np.any(on & ~(done < end)):
+            raise ConfigError(f"honeycomb.peak_length{i}_mm", float(np.max(length)) * 1e3,
+                              f"the peak must end before {end_name}: its rise to r F and decay "
+                              f"end at {float(np.max(done)) * 1e3:.4g} mm, not < "
+                              f"{end_name} = {float(np.min(end)) * 1e3:.4g} mm")
+        if above is not None and np.any(on & ~(r * F < F_above)):
+            raise ConfigError(f"honeycomb.peak_ratio{i}", float(np.max(r)),
+                              f"the primary peak r1 F1 = {float(np.max(r * F)):.6g} N must stay "
+                              f"below {above} = {float(np.min(F_above)):.6g} N (or the "
+                              "secondary block would crush first)")
+        slope = a / length  # N/m, the negative stiffness of the falling branch
+        if np.any(on & ~(slope <= 0.5 * k)):
+            raise ConfigError(f"honeycomb.peak_length{i}_mm", float(np.min(length)) * 1e3,
+                              f"the falling slope (r - 1) F / L = {float(np.max(slope)):.4g} N/m "
+                              f"is a negative stiffness and must be <= k / 2 = "
+                              f"{float(np.min(k)) * 0.5:.4g} N/m (ground.k_N_per_m): a longer "
+                              "decay or a smaller ratio, or the foot snaps through")
+    if np.any(~(rho * k3 <= np.maximum(k1, k3))):
+        raise ConfigError("honeycomb.unload_ratio", float(np.max(rho)),
+                          f"the unloading stiffness unload_ratio k_b3 = "
+                          f"{float(np.max(rho * k3)):.6g} N/m must be <= max(k_b1, k_b3) = "
+                          f"{float(np.min(np.maximum(k1, k3))):.6g} N/m (the stack cannot unload "
+                          "stiffer than its stiffest stage; the stable step assumes it)")
 
 
 # ----------------------------------------------------------------------------------- output
@@ -254,7 +303,9 @@ def vehicle_to_toml(veh: Vehicle | None = None) -> str:
             md = f.metadata
             unit = "deg" if md["toml"].endswith("_deg") else (
                 "mm" if md["toml"].endswith("_mm") else md["unit"])
-            lines.append(f"{md['toml']} = {_fmt(float(getattr(mod, f.name)) / md['to_si'])}"
+            val = getattr(mod, f.name)
+            val = md["off"] * md["to_si"] if val is None else val  # an extension, off
+            lines.append(f"{md['toml']} = {_fmt(float(val) / md['to_si'])}"
                          f"  # {md['doc']} [{unit}]; {md['source']}; rule {md['rule']}")
         if section == "honeycomb":
             bonded_doc = Honeycomb.__dataclass_fields__["bonded"].metadata["doc"]

@@ -40,11 +40,24 @@ def concrete(x):
         return None
 
 
-def _param(unit: str, doc: str, source: str, rule: str, *, toml: str, to_si: float = 1.0):
-    """A float64 parameter field with its unit, source, validity rule and TOML key."""
+def _param(unit: str, doc: str, source: str, rule: str, *, toml: str, to_si: float = 1.0,
+           off: float | None = None, **default):
+    """A float64 parameter field with its unit, source, validity rule and TOML key.
+
+    The optional extensions of the paper's laws have ``off`` (the value that means "not used",
+    documented and written to TOML) and default None: a None field is structurally absent (the
+    law takes the paper's code path, bit for bit, under jit too) and ``_config`` maps the ``off``
+    value in a TOML file to None. ``default=`` gives a plain default."""
+    if off is not None:
+        return eqx.field(
+            converter=_opt_f64, default=None,
+            metadata=dict(unit=unit, doc=doc, source=source, rule=rule, toml=toml, to_si=to_si,
+                          off=off),
+        )
     return eqx.field(
         converter=_f64,
         metadata=dict(unit=unit, doc=doc, source=source, rule=rule, toml=toml, to_si=to_si),
+        **default,
     )
 
 
@@ -59,7 +72,11 @@ class Honeycomb(eqx.Module):
     Virgin curve: elastic ``k_b1`` up to ``x_L1 = F1 / k_b1``, ideal plateau ``F1`` (the paper's
     k_b2 = 0) to ``x_L2``, elastic ``k_b3`` to ``x_L3 = x_L2 + (F2 - F1) / k_b3``, ideal plateau
     ``F2`` (k_b4 = 0) to ``x_L4``, then bottoming out on ``k_bottom``. Unloading and reloading
-    follow the stack's elastic law from the plastic set reached (see ``jaxland._honeycomb``).
+    follow the stack's elastic law from the plastic set reached (see ``jaxland._laws._honeycomb``).
+
+    Two optional extensions, off by default (the paper's law, bit for bit): an initial crush peak
+    per stage on virgin material (``peak_ratio1/2``, ``peak_length1/2``) and the unloading
+    stiffness of the secondary stage (``unload_ratio``).
     """
 
     k_b1: jnp.ndarray = _param(
@@ -89,6 +106,39 @@ class Honeycomb(eqx.Module):
         "N/m", "stiffness of the fully crushed stack (bottoming out) beyond x_L4",
         "our assumption: a stiff stop, 1e8 N/m; reaching it is reported as bottoming out", "> 0",
         toml="k_bottom_N_per_m")
+    peak_ratio1: jnp.ndarray = _param(
+        "1", "initial crush peak of the virgin primary honeycomb over its plateau, r1 = peak / F1 "
+        "(1: no peak). The elastic rise continues to r1 F1, then the force falls linearly to F1 "
+        "over peak_length1_mm of crush; an already crushed block has no peak",
+        "literature: bare (not pre-crushed) aluminium honeycomb peaks at about 1.5-2 x its crush "
+        "plateau (Hexcel HexWeb data: bare compressive strength vs crush strength; Wu & Jiang, "
+        "Int. J. Impact Eng. 19 (1997) 439-456); pre-crushed honeycomb about 1.0-1.3 x (the "
+        "pre-crush removes most but not all of it, as the paper notes for its own drop test). "
+        "Default 1, the paper's simulation",
+        ">= 1", toml="peak_ratio1", off=1.0)
+    peak_length1: jnp.ndarray = _param(
+        "m", "crush over which the primary peak falls back to F1 (linear decay)",
+        "our assumption: 2 mm, between the half fold H = 0.821 t^(1/3) D^(2/3) ~ 1.4 mm and the "
+        "fold 2H ~ 2.9 mm of Table 1's primary cells (Wierzbicki 1983); fit it from a drop "
+        "record. Unused while peak_ratio1 = 1",
+        "> 0", toml="peak_length1_mm", to_si=1e-3, default=2e-3)
+    peak_ratio2: jnp.ndarray = _param(
+        "1", "initial crush peak of the virgin secondary honeycomb over its plateau, r2 = peak / "
+        "F2 (1: no peak); as peak_ratio1, from x_L3 on",
+        "literature range as peak_ratio1 (bare ~1.5-2, pre-crushed ~1.0-1.3). Default 1",
+        ">= 1", toml="peak_ratio2", off=1.0)
+    peak_length2: jnp.ndarray = _param(
+        "m", "crush over which the secondary peak falls back to F2 (linear decay)",
+        "our assumption: 2 mm, as peak_length1. Unused while peak_ratio2 = 1",
+        "> 0", toml="peak_length2_mm", to_si=1e-3, default=2e-3)
+    unload_ratio: jnp.ndarray = _param(
+        "1", "unloading stiffness of the secondary stage over its loading stiffness, "
+        "k_u = unload_ratio k_b3. 1: a crushed stack unloads back along k_b3 to F1, then along "
+        "k_b1 (both blocks in series). Above 1 part of the k_b3 rise is plastic set and the stack "
+        "unloads stiffer; unload_ratio = k_b1 / k_b3 unloads the whole stack along the single "
+        "stiffness k_b1. It sets the final stroke of drops reaching the secondary stage",
+        "our assumption: the paper leaves the unloading law open; default 1 (the law used so far)",
+        ">= 1", toml="unload_ratio", off=1.0)
     bonded: bool = eqx.field(
         static=True, default=False,
         metadata=dict(doc="True: the crushed honeycomb is bonded to rod and sleeve and pulls "
@@ -104,9 +154,21 @@ class Honeycomb(eqx.Module):
     def curve(self) -> HoneycombCurve:
         """The force law's numbers with the derived breakpoints evaluated once (do this outside
         a time loop: XLA does not hoist the divisions out of it)."""
+        x_L1, x_L3 = self.x_L1, self.x_L3
+        peak = self.peak_ratio1 is not None or self.peak_ratio2 is not None
+        unload = self.unload_ratio is not None
+        ext = {}
+        if peak or unload:  # the general law (every extension's term present)
+            r1, r2, rho = (1.0 if r is None else r for r in (self.peak_ratio1, self.peak_ratio2,
+                                                             self.unload_ratio))
+            a1, a2 = (r1 - 1.0) * self.F1, (r2 - 1.0) * self.F2
+            ext = dict(a1=a1, x_pk1=x_L1 + a1 / self.k_b1, L1=self.peak_length1,
+                       a2=a2, x_pk2=x_L3 + a2 / self.k_b3, L2=self.peak_length2,
+                       k_u=self.k_b3 * rho, q=1.0 - 1.0 / rho)
         return HoneycombCurve(k_b1=self.k_b1, k_b3=self.k_b3, k_bottom=self.k_bottom,
-                              F1=self.F1, F2=self.F2, x_L1=self.x_L1, x_L2=self.x_L2,
-                              x_L3=self.x_L3, x_L4=self.x_L4, bonded=self.bonded)
+                              F1=self.F1, F2=self.F2, x_L1=x_L1, x_L2=self.x_L2,
+                              x_L3=x_L3, x_L4=self.x_L4, bonded=self.bonded,
+                              extended=peak or unload, **ext)
 
     @property
     def x_L3(self):
@@ -126,7 +188,17 @@ class HoneycombCurve(eqx.Module):
     x_L2: jnp.ndarray
     x_L3: jnp.ndarray
     x_L4: jnp.ndarray
+    # the extensions (None unless a peak or the unloading ratio is on: ``extended``)
+    a1: jnp.ndarray | None = None  # N, primary peak over F1, (r1 - 1) F1
+    x_pk1: jnp.ndarray | None = None  # m, stroke of the primary peak, x_L1 + a1 / k_b1
+    L1: jnp.ndarray | None = None  # m, crush over which the primary peak decays
+    a2: jnp.ndarray | None = None  # N, secondary peak over F2, (r2 - 1) F2
+    x_pk2: jnp.ndarray | None = None  # m, stroke of the secondary peak, x_L3 + a2 / k_b3
+    L2: jnp.ndarray | None = None  # m, crush over which the secondary peak decays
+    k_u: jnp.ndarray | None = None  # N/m, secondary stage's unloading stiffness, rho k_b3
+    q: jnp.ndarray | None = None  # 1, plastic fraction of the k_b3 rise, 1 - 1 / rho
     bonded: bool = eqx.field(static=True, default=False)
+    extended: bool = eqx.field(static=True, default=False)
 
 
 class Leg(eqx.Module):
@@ -207,6 +279,11 @@ class Ground(eqx.Module):
                              "paper Table 2", ">= 0", toml="mu")
     k_tan: jnp.ndarray = _param("N/m", "stiffness of each of the two tangential springs",
                                 "paper Table 2", "> 0", toml="k_tan_N_per_m")
+
+    @property
+    def k_r(self):
+        """Restitution (unloading) stiffness of the normal spring, k / (1 - gamma) [N/m]."""
+        return self.k / (1.0 - self.gamma)
 
 
 class Vehicle(eqx.Module):

@@ -23,6 +23,36 @@ Energy (closed forms, used by the ledger):
     elastic  W(y) = integral_0^y F_e,
     crush    D(x_max) = F1 p1 + F2 p2  (plastic work of the ideal plateaus; p1, p2 the two
              clipped terms of x_p), so that integral_0^x_max F_v dx = W(y_max) + D(x_max).
+
+Two optional extensions (``Honeycomb.peak_ratio1/2``, ``peak_length1/2``, ``unload_ratio``),
+both off by default (None): the law above then runs on its own code path, bit for bit.
+
+Initial crush peak (virgin material only). A bare honeycomb block resists the start of crushing
+more than its plateau: the elastic rise of stage i continues to r_i F_i (a_i = (r_i - 1) F_i over
+the plateau, at the stroke x_pk = x_L1 + a1 / k_b1, resp. x_L3 + a2 / k_b3), then the force falls
+linearly back to the plateau over the crush length L_i:
+
+    strength  S_i(x_max) = F_i + e_i,   e_i = a_i (1 - clip(x_max - x_pk, 0, L_i) / L_i).
+
+The strength is a function of the largest stroke reached, so a block unloaded and reloaded takes
+the elastic line back up to S_i(x_max) (not to the peak again) and, past x_max, continues on the
+decaying (or already flat) virgin curve: once crushed, there is no peak. The elastic deflection of
+a stage at its strength is S_i / k, so the plastic set is x_max - (its elastic deflection):
+p1 = clip(x_max - x_L1 - e1 / k_b1, 0, x_L2 - x_L1), which grows faster than x_max while the
+force falls (that is the crush). The falling branch is a negative tangent stiffness -a_i / L_i;
+``validate_vehicle`` bounds it by half the ground stiffness so the foot cannot snap through.
+The peak's extra crush work (closed form, added to D) is
+
+    (a_i^2 - e_i^2) / (2 k) + a_i c (1 - c / (2 L_i)),   c = clip(x_max - x_pk, 0, L_i),
+
+with k = k_b1 for the primary stage and k_u (below) for the secondary.
+
+Unloading after the secondary stage (``unload_ratio`` = rho >= 1). The secondary stage's elastic
+stiffness is k_u = rho k_b3 while its virgin rise keeps the slope k_b3: for rho > 1 the fraction
+q = 1 - 1/rho of the rise is plastic set (p_rise = q clip(x_max - x_L2, 0, x_pk2 - x_L2), crush
+work q (F1 v + k_b3 v^2 / 2) over the rise v), and a crushed stack unloads along k_u down to F1,
+then along k_b1. rho = 1 is the law above; rho = k_b1 / k_b3 unloads the whole stack along the
+single stiffness k_b1.
 """
 
 from __future__ import annotations
@@ -49,6 +79,16 @@ def _clip(x, lo, hi):
 def honeycomb_virgin_force(x, hc: Honeycomb | HoneycombCurve):
     """Virgin-curve force F_v(x) [N] at stroke x [m] (paper section 2.3), bottoming included."""
     hc = hc.curve() if isinstance(hc, Honeycomb) else hc
+    if hc.extended:  # the initial peaks, written independently of the memory law (tests)
+        return (
+            hc.k_b1 * _clip(x, 0.0, hc.x_L1)
+            + jnp.minimum(hc.k_b1 * jnp.maximum(x - hc.x_L1, 0.0),
+                          _excess(x, hc.a1, hc.x_pk1, hc.L1))
+            + hc.k_b3 * _clip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
+            + jnp.minimum(hc.k_b3 * jnp.maximum(x - hc.x_L3, 0.0),
+                          _excess(x, hc.a2, hc.x_pk2, hc.L2))
+            + hc.k_bottom * jnp.maximum(x - hc.x_L4, 0.0)
+        )
     return (
         hc.k_b1 * _clip(x, 0.0, hc.x_L1)
         + hc.k_b3 * _clip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
@@ -65,6 +105,8 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
     opt-in): every kink is rounded over this much stroke (``_honeycomb_smooth``).
     """
     hc = hc.curve() if isinstance(hc, Honeycomb) else hc
+    if hc.extended:
+        return _honeycomb_extended(x, x_max_prev, hc, smooth)
     if smooth != 0.0:
         return _honeycomb_smooth(x, x_max_prev, hc, smooth)
     x_max = jnp.maximum(x_max_prev, x)
@@ -112,3 +154,77 @@ def _honeycomb_smooth(x, x_max_prev, hc: HoneycombCurve, w: float) -> HoneycombO
     r0, r1, r2 = ramp(y, w), ramp(y - hc.x_L1, w), ramp(y - y_2, w)
     y1, y2, y3 = r0 - r1, r1 - r2, r2
     return _stack(hc, y1, y2, y3, y - r0, p1, p2, x_max)  # y - r0: min(y, 0), rounded alike
+
+
+# ------------------------------------------------------------- crush peaks, unloading stiffness
+# The general law (module docstring), taken when ``hc.extended`` (static): a separate code path,
+# so that the paper's law above keeps its exact expression graph (XLA contracts multiply-adds
+# into FMAs, so even exact "+ 0.0" terms would change the last bits of a jitted landing).
+
+def _crushed(x_max, x_pk, length, w: float = 0.0):
+    """clip(x_max - x_pk, 0, L) [m]: crush past the peak's stroke, rounded over ``w`` if > 0."""
+    if w == 0.0:
+        return _clip(x_max - x_pk, 0.0, length)
+    return ramp(x_max - x_pk, w) - ramp(x_max - x_pk - length, w)
+
+
+def _excess(x_max, a, x_pk, length, w: float = 0.0):
+    """Strength over the plateau left of a peak a [N]: a (1 - clip(x_max - x_pk, 0, L) / L)."""
+    return a - a * _crushed(x_max, x_pk, length, w) / length
+
+
+def _peak_work(a, e, c, length, k):
+    """Crush work of a peak beyond the plateau's [J]: (a^2 - e^2) / (2k) + a c (1 - c / 2L)."""
+    return (a * a - e * e) / (2.0 * k) + a * c * (1.0 - c / (2.0 * length))
+
+
+def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> HoneycombOut:
+    """``honeycomb`` with the initial crush peaks and the secondary unloading stiffness; ``w``
+    [m] > 0 rounds every kink with ``ramp`` as ``_honeycomb_smooth`` does (energies: the hard
+    law's closed forms, evaluated on the rounded clips)."""
+    dy3 = hc.x_L3 - hc.x_L2
+    if w == 0.0:
+        x_max = jnp.maximum(x_max_prev, x)
+        c_1, c_2 = _crushed(x_max, hc.x_pk1, hc.L1), _crushed(x_max, hc.x_pk2, hc.L2)
+    else:
+        x_max = x_max_prev + ramp(x - x_max_prev, w)
+        c_1, c_2 = _crushed(x_max, hc.x_pk1, hc.L1, w), _crushed(x_max, hc.x_pk2, hc.L2, w)
+    e1 = hc.a1 - hc.a1 * c_1 / hc.L1  # strength left over F1 (the peak fades as it crushes)
+    e2 = hc.a2 - hc.a2 * c_2 / hc.L2
+    cap1 = hc.x_L1 + e1 / hc.k_b1  # elastic capacity of stage 1: strength / k_b1
+    cap2 = dy3 * (1.0 - hc.q) + e2 / hc.k_u  # of stage 2: (F2 - F1 + e2) / k_u
+    # plastic set: x_max less the elastic deflection at the strength reached, per stage
+    u1 = x_max - cap1  # primary crush, to x_L2 - x_L1
+    u2 = x_max - hc.x_pk2 + (hc.a2 - e2) / hc.k_u  # secondary plateau crush
+    top2 = hc.x_L4 - hc.x_pk2 + hc.a2 / hc.k_u
+    if w == 0.0:
+        p1 = _clip(u1, 0.0, hc.x_L2 - hc.x_L1)
+        rise = _clip(x_max - hc.x_L2, 0.0, hc.x_pk2 - hc.x_L2)
+        p2 = _clip(u2, 0.0, top2)
+    else:
+        p1 = ramp(u1, w) - ramp(u1 - (hc.x_L2 - hc.x_L1), w)
+        rise = ramp(x_max - hc.x_L2, w) - ramp(x_max - hc.x_pk2, w)
+        p2 = ramp(u2, w) - ramp(u2 - top2, w)
+    x_p = p1 + hc.q * rise + p2
+    y = x - x_p
+    if w == 0.0:
+        y1 = _clip(y, 0.0, cap1)
+        y2 = _clip(y - cap1, 0.0, cap2)
+        y3 = jnp.maximum(y - cap1 - cap2, 0.0)
+        yt = jnp.minimum(y, 0.0)
+    else:
+        r0, r1, r2 = ramp(y, w), ramp(y - cap1, w), ramp(y - cap1 - cap2, w)
+        y1, y2, y3, yt = r0 - r1, r1 - r2, r2, y - r0
+    force = hc.k_b1 * y1 + hc.k_u * y2 + hc.k_bottom * y3
+    elastic = (
+        0.5 * hc.k_b1 * y1**2
+        + (hc.F1 + e1) * y2 + 0.5 * hc.k_u * y2**2
+        + (hc.F2 + e1 + e2) * y3 + 0.5 * hc.k_bottom * y3**2
+    )
+    if hc.bonded:
+        force = force + hc.k_b1 * yt
+        elastic = elastic + 0.5 * hc.k_b1 * yt**2
+    crush = (hc.F1 * p1 + _peak_work(hc.a1, e1, c_1, hc.L1, hc.k_b1)
+             + hc.q * (hc.F1 * rise + 0.5 * hc.k_b3 * rise**2)
+             + hc.F2 * p2 + _peak_work(hc.a2, e2, c_2, hc.L2, hc.k_u))
+    return HoneycombOut(force, x_max, elastic, crush, x_p)
