@@ -45,11 +45,12 @@ from ._files import (
     atomic_write_text as atomic_write_text,
     staged as staged,
 )
-from ._integrate import (
-    FIXED_STEP_METHODS as FIXED_STEP_METHODS,
-    METHODS as METHODS,
-    Solver as Solver,
-    stable_step as stable_step,
+from ._models import (
+    AbstractModel as AbstractModel,
+    Evaluation as Evaluation,
+    FullModel as FullModel,
+    Oscillator as Oscillator,
+    QuarterModel as QuarterModel,
 )
 from ._montecarlo import (
     Distribution as Distribution,
@@ -78,6 +79,20 @@ from ._simulate import (
     landings as landings,
     simulate as simulate,
 )
+from ._solvers import (
+    FIXED_STEP_METHODS as FIXED_STEP_METHODS,
+    METHODS as METHODS,
+    AbstractIntegrator as AbstractIntegrator,
+    Euler as Euler,
+    EulerImplicit as EulerImplicit,
+    Impulse as Impulse,
+    Result as Result,
+    Solver as Solver,
+    Tsit5 as Tsit5,
+    Verlet as Verlet,
+    integrator as integrator,
+    stable_step as stable_step,
+)
 
 __all__ = [
     "laws", "load_vehicle", "paper_vehicle", "validate_vehicle", "vehicle_from_dict",
@@ -88,6 +103,8 @@ __all__ = [
     "optimise_design", "verify_design", "METHODS", "FIXED_STEP_METHODS", "Distribution",
     "MonteCarloResult", "MonteCarloSpec", "load_montecarlo_spec", "run_montecarlo",
     "sample_scenes", "wilson_interval", "plot_landing", "plot_landing_3d", "plot_design",
-    "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged",
+    "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged", "AbstractModel",
+    "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
+    "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator",
 ]
 __version__ = "0.1.0"

@@ -72,16 +72,18 @@ from ._config import PAPER_CELLS, paper_vehicle, validate_vehicle, vehicle_to_to
 from ._crush import foil_ratio, plateau_force
 from ._errors import ConfigError
 from ._files import atomic_write_text
-from ._integrate import Solver, stable_step
+from ._models import MODELS
 from ._montecarlo import (
     Distribution,
     MonteCarloSpec,
+    percentiles,
     run_montecarlo,
     sample_scenes,
     wilson_interval,
 )
 from ._params import Vehicle
-from ._simulate import CLOSURE_LIMIT, _py, landings
+from ._simulate import _py, landings
+from ._solvers import Result, Solver, stable_step, verdict
 from ._toml import read_toml
 
 __all__ = ["VARIABLES", "DesignVariable", "Objective", "Constraint", "DesignSpec",
@@ -645,16 +647,15 @@ class DesignProblem:
 
     # --- outcomes
     def _per_scene(self, veh):
-        _, s = landings(veh, self.scenes, self.solver, self.model)
-
-        def legmax(x):  # the full model reports per-leg (scenes, legs) values
-            return jnp.max(x, axis=1) if x.ndim == 2 else x
+        model = MODELS[self.model]
+        _, s = landings(veh, self.scenes, self.solver, model)
+        legmax = model.leg_max
 
         out = dict(peak_body_accel_mps2=s["peak_body_accel_mps2"],
                    max_stroke_m=legmax(s["max_stroke_m"]),
                    slip_distance_m=legmax(s["slip_distance_m"]),
                    peak_honeycomb_force_N=legmax(s["peak_honeycomb_force_N"]),
-                   failed=s["failed"] | ~(s["ledger_error_rel"] <= CLOSURE_LIMIT),
+                   failed=verdict(s, veh, self.solver, model) != int(Result.SUCCESSFUL),
                    tipped=s["tipped"])
         if "peak_margin_deficit_m" in s:
             out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]
@@ -948,33 +949,24 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
 
 # ------------------------------------------------------------------------------- verification
 
-def _envelope(x):
-    x = np.asarray(x, dtype=float)
-    if x.size == 0:
-        return None
-    q = np.percentile(x, [1, 5, 50, 95, 99])
-    return dict(mean=float(x.mean()), p01=q[0], p05=q[1], p50=q[2], p95=q[3], p99=q[4],
-                min=float(x.min()), max=float(x.max()))
-
-
 def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
-    ok = res.failure == 0
+    ok = res.failure == int(Result.SUCCESSFUL)
     o = res.outputs
     n = int(ok.sum())
     stroke = o["max_stroke_m"].max(axis=1)[ok]
     accel = o["peak_body_accel_mps2"][ok]
-    out = dict(n=int(res.failure.size), n_ok=n, n_failed=int((~ok).sum()),
+    out = dict(n=int(res.failure.size), n_ok=n, n_failed=res.summary["n_failed"],
                seed=res.summary["seed"], model=res.summary["model"],
-               peak_body_accel_mps2=_envelope(accel),
+               peak_body_accel_mps2=percentiles(accel),
                objective_measure_mps2=float(risk_measure(jnp.asarray(accel),
                                                          spec.objective.measure,
                                                          spec.objective.level)) if n else None,
-               max_stroke_m=_envelope(stroke),
-               slip_distance_m=_envelope(o["slip_distance_m"].max(axis=1)[ok]),
+               max_stroke_m=percentiles(stroke),
+               slip_distance_m=percentiles(o["slip_distance_m"].max(axis=1)[ok]),
                tip_over=res.summary["tip_over"], bottoming=res.summary["bottoming"],
                wall_s=res.summary["wall_s"])
     if "min_stability_margin_m" in o:
-        out["min_stability_margin_m"] = _envelope(o["min_stability_margin_m"][ok])
+        out["min_stability_margin_m"] = percentiles(o["min_stability_margin_m"][ok])
     viol = {}
     for c in spec.constraints:
         if c.name == "stroke":

@@ -16,6 +16,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from ._models._full import ground_frame, leg_geometry, quat_from_euler, quat_to_matrix
 from ._plots import (
     DISSIPATION,
     ELASTIC,
@@ -30,7 +31,6 @@ from ._plots import (
     _style,
     _time_panel,
 )
-from ._vehicle3d import ground_frame, leg_geometry, quat_from_euler, quat_to_matrix
 
 __all__ = ["plot_landing_3d", "REQUIRED_COLUMNS_3D", "PER_LEG_COLUMNS"]
 

@@ -38,7 +38,7 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    ok = result.failure == 0
+    ok = result.failure == 0  # Result.SUCCESSFUL
     rows = _outcomes(result)
     s = result.summary
     title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; "

@@ -19,26 +19,28 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from . import _quarter, _vehicle3d
 from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
 from ._files import atomic_write_text
-from ._integrate import Solver, check_method, integrate, stable_step
+from ._models import MODELS, AbstractModel
 from ._params import Vehicle
 from ._scene import Scene, batch_axes, is_symmetric
+from ._solvers import (
+    CLOSURE_LIMIT,
+    Impulse,
+    Result,
+    Solver,
+    Tsit5,
+    integrate,
+    integrator,
+    stable_step,
+    step_limit_reached,
+    verdict,
+)
 
 __all__ = ["landing", "landings", "simulate", "Landing", "impacts_from_events", "choose_model",
-           "MODELS"]
+           "get_model"]
 
-MODELS = {"quarter": _quarter, "full": _vehicle3d}
-
-STABILITY_REASON = {
-    "euler": "stiffest springs and the strut damping on the 1 kg foot",
-    "euler_implicit": "stiffest springs on the 1 kg foot; the strut damping is implicit",
-    "verlet": "stiffest springs on the 1 kg foot; the strut damping is implicit",
-    "impulse": "its explicit steps are capped at dt: stiffest springs on the 1 kg foot, and "
-               "the strut damping over one impulse step",
-}
 
 # Contact gaps shorter than this are foot chatter within one impact, not a new impact [s]. The
 # paper drop's hops after the first impact last 6-10 ms; chatter within an impact is sub-ms.
@@ -55,21 +57,30 @@ def choose_model(scene: Scene) -> str:
                           "jit/vmap/grad); pass model='quarter' or model='full'") from None
 
 
-def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(), model: str = "auto"):
-    """Pure landing: ``(trajectory, summary)`` dicts of jnp arrays. ``model`` is ``"quarter"``,
-    ``"full"`` or ``"auto"`` (``choose_model``; needs a concrete scene, so under jit name it)."""
-    if model == "auto":
+def get_model(model: str | AbstractModel, scene: Scene | None = None) -> AbstractModel:
+    """The model object for a name (``"auto"``: ``choose_model(scene)``), or the object itself."""
+    if isinstance(model, AbstractModel):
+        return model
+    if model == "auto" and scene is not None:
         model = choose_model(scene)
     if model not in MODELS:
         raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
-    return integrate(MODELS[model], vehicle, scene, solver)
+    return MODELS[model]
 
 
-def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(), model: str = "auto"):
+def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
+            model: str | AbstractModel = "auto"):
+    """Pure landing: ``(trajectory, summary)`` dicts of jnp arrays. ``model`` is ``"quarter"``,
+    ``"full"``, a model object, or ``"auto"`` (``choose_model``; needs a concrete scene, so
+    under jit name it). The summary's ``result`` is a ``Result`` code."""
+    return integrate(get_model(model, scene), vehicle, scene, solver)
+
+
+def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),
+             model: str | AbstractModel = "auto"):
     """``landing`` vmapped over a ``Scene.batch``: every output gains a leading batch axis.
     Only the batched fields are mapped; the rest stay constants of the compiled loop."""
-    if model == "auto":
-        model = choose_model(scenes)
+    model = get_model(model, scenes)
     return jax.vmap(lambda s: landing(vehicle, s, solver, model),
                     in_axes=(batch_axes(scenes),))(scenes)
 
@@ -170,7 +181,9 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         "drop_height_m": float(scene.drop_height),
         "sink_speed_mps": float(scene.sink_speed),
         "touchdown_speed_mps": float(scene.touchdown_speed(float(vehicle.g))),
-        "method": solver.method,
+        "method": solver.method.name,
+        "solver": {k: _py(v) for k, v in solver.method.options().items()},
+        "result": Result(int(s["result"])).name.lower(),
         "dt_s": solver.dt,
         "n_steps": int(s["n_steps"]),
         "t_end_s": solver.t_end,
@@ -186,7 +199,7 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         out["foot_vz_end_first_impact_mps"] = None if foot_v is None else float(foot_v)
     skip = {"event_times_s", "n_contact_changes", "failed", "failure_time_s", "t_end_s",
             "peak_margin_deficit_m", "energy_scale_J", "tipped", "tip_over_time_s",
-            "ledger_error_rel"}
+            "ledger_error_rel", "result"}
     for k, v in s.items():
         if k not in skip:
             out[k] = _py(v)
@@ -194,78 +207,93 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         out["min_stability_margin_m"] = -float(s["peak_margin_deficit_m"])
     out["tipped_over"] = bool(s["tipped"])  # a symmetric vertical drop cannot tip
     out["tip_over_time_s"] = float(s["tip_over_time_s"]) if out["tipped_over"] else None
-    out["classification"] = ("tipped" if out["tipped_over"] else
+    out["classification"] = ("no_touchdown" if int(s["result"]) == Result.NO_TOUCHDOWN else
+                             "tipped" if out["tipped_over"] else
                              "bottomed_out" if bottomed else "stable")
     out["energy_closure_rel"] = float(s["energy_closure_max_J"]) / max(dissipated, 1e-12)
     return out
 
 
-# Largest energy-ledger error, relative to the energy dissipated, accepted from a landing: at the
-# default dt the paper drop closes to 7e-5; a step near the stability limit gives ~0.3.
-CLOSURE_LIMIT = 1e-2
-
-
-def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver) -> None:
-    """Refuse to return a landing whose integration was unstable: a non-finite state, a ledger
-    that does not close, a step above the stability limit of the forces it reached, or an
-    adaptive solver that stopped early. After a tip-over the integrator stops checking (the body
-    has no ground contact of its own)."""
+def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: AbstractModel) -> None:
+    """Refuse to return a landing whose answer is not to be used (``verdict``), saying why and
+    what to change."""
+    code = Result(int(verdict(summary, vehicle, solver, model)))
+    if not code.failed:
+        return
     dt, method = solver.dt, solver.method
-    if not bool(summary["solver_ok"]):
+    name = method.name
+    if code == Result.SOLVER_STOPPED:
         raise SimulationError(
-            f"the adaptive solver ({method}) stopped at t = "
+            f"the adaptive solver ({name}) stopped at t = "
             f"{float(summary['failure_time_s']):.6g} s after "
             f"{int(summary['n_steps']) + int(summary['n_rejected_steps'])} steps "
-            f"(max_steps = {solver.max_steps} reached, or the step size collapsed at a "
-            f"discontinuity); loosen rtol = {solver.rtol:g} / atol = {solver.atol:g}, raise "
+            f"(max_steps = {method.max_steps} reached, or the step size collapsed at a "
+            f"discontinuity); loosen rtol = {method.rtol:g} / atol = {method.atol:g}, raise "
             f"max_steps, or use a fixed-step method")
     hc_peak = float(np.max(summary["peak_honeycomb_force_N"]))
     n_peak = float(np.max(summary["peak_normal_force_N"]))
     bottomed = bool(np.max(summary["max_stroke_m"]) > float(np.min(vehicle.honeycomb.x_L4)))
-    fixed = method != "tsit5"
-    reached = float(stable_step(vehicle, honeycomb_force=hc_peak, normal_force=n_peak,
-                                bottomed=bottomed, method=method, impulse=solver.impulse))
-    why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force of "
-           f"{n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt to "
-           f"{reached:.3g} s for {method}; rerun with dt <= {0.5 * reached:.2g} s"
-           if fixed else f"tighten rtol = {solver.rtol:g} / atol = {solver.atol:g}")
-    setting = f"{method} dt = {dt:.3g} s" if fixed else f"{method} rtol = {solver.rtol:g}"
-    if bool(summary["failed"]):
+    fixed = not isinstance(method, Tsit5)
+    if fixed:
+        reached = float(step_limit_reached(summary, vehicle, solver, model))
+        why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force "
+               f"of {n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt "
+               f"to {reached:.3g} s for {name}; rerun with dt <= {0.5 * reached:.2g} s")
+        setting = f"{name} dt = {dt:.3g} s"
+    else:
+        why = f"tighten rtol = {method.rtol:g} / atol = {method.atol:g}"
+        setting = f"{name} rtol = {method.rtol:g}"
+    if code in (Result.NONFINITE, Result.LEDGER):
         raise SimulationError(
-            f"integration failed at t = {float(summary['failure_time_s']):.6g} s (non-finite "
-            f"state or energy ledger off by more than 10 % of the landing's energy) with "
-            f"{setting}; {why}")
+            f"integration failed at t = {float(summary['failure_time_s']):.6g} s ("
+            f"{code.message}) with {setting}; {why}")
     closure = float(summary["ledger_error_rel"])
-    if closure > CLOSURE_LIMIT or (fixed and dt > reached):
-        raise SimulationError(
-            f"{setting} is too {'large' if fixed else 'loose'} for this landing (energy ledger "
-            f"closure {closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
+    raise SimulationError(
+        f"{setting} is too {'large' if fixed else 'loose'} for this landing (energy ledger "
+        f"closure {closure:.2g} of the energy dissipated, limit {CLOSURE_LIMIT:g}): {why}")
 
 
-DEFAULT_DT = 1e-5  # s, the accuracy default (README "Integrators": every output within 1e-4)
+DEFAULT_DT = 1e-5  # s, the accuracy default (docs/integrators.md: every output within 1e-4)
 STEP_SAFETY = 0.5  # default step as a fraction of the stability limit, when that is smaller
 
 
-def default_step(vehicle: Vehicle, method: str = "euler", impulse: float = Solver.impulse):
+def default_step(vehicle: Vehicle, method="euler", model: AbstractModel = MODELS["quarter"]):
     """The step ``simulate`` uses when none is given [s]: ``DEFAULT_DT``, or ``STEP_SAFETY``
-    times the a-priori stability limit of ``method`` for ``vehicle`` (its stiffest spring and
-    damping on the foot) if that is smaller, rounded down to a whole fraction of 1e-4 s so the
-    default output interval is a whole number of steps."""
-    safe = STEP_SAFETY * float(stable_step(vehicle, method=method, impulse=impulse))
+    times the a-priori stability limit of ``method`` (an integrator or its name) for
+    ``vehicle`` (its stiffest spring and damping on the foot) if that is smaller, rounded down
+    to a whole fraction of 1e-4 s so the default output interval is a whole number of steps."""
+    safe = STEP_SAFETY * float(stable_step(vehicle, method=method, model=model))
     if not safe > 0.0:  # the impulse step itself is beyond its limit: simulate says so
         return DEFAULT_DT
     return DEFAULT_DT if safe >= DEFAULT_DT else 1e-4 / math.ceil(1e-4 / safe)
 
 
+def check_step(solver: Solver, vehicle: Vehicle, model: AbstractModel) -> None:
+    """Refuse a step above the method's a-priori stability limit for this vehicle, naming it."""
+    method = solver.method
+    limit = float(stable_step(vehicle, method=method, model=model))
+    if isinstance(method, Impulse) and limit <= 0.0:
+        leg, chi = vehicle.leg, vehicle.ground.chi
+        raise ConfigError("solver.impulse", method.dI, "must be below the stability "
+                          f"limit 2 m2 / (D_b + chi) = "
+                          f"{float(2 * vehicle.m_foot / (leg.D_b + chi)):.3g} N s")
+    if solver.dt > limit:
+        what = "its time-step cap" if isinstance(method, Impulse) else "dt"
+        raise ConfigError("solver.dt", solver.dt, f"exceeds the stability limit {limit:.3g} s of "
+                          f"{method.name} for this vehicle ({method.stability_reason}); use "
+                          f"{what} <= that")
+
+
 def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
              dt: float | None = None, t_end: float = 1.2, save_dt: float | None = None,
-             model: str = "auto", method: str = "euler", **solver_options) -> Landing:
+             model: str = "auto", method="euler", **solver_options) -> Landing:
     """Simulate one landing of ``vehicle`` (default: the paper's) in ``scene`` (default: the
-    paper's 0.2 m drop) with ``method`` (see ``jaxland.Solver``: "euler", "euler_implicit",
-    "verlet", "impulse", "tsit5") at step ``dt`` [s] for ``t_end`` [s], sampling the trajectory
-    every ``save_dt`` [s] (default: max(1e-4 s, dt)). ``solver_options`` are the other
-    ``Solver`` fields (``impulse``, ``rtol``, ``atol``, ``max_steps``, ``adjoint``,
-    ``smoothing_m``, ``smoothing_N``).
+    paper's 0.2 m drop) with ``method`` (an integrator, ``jaxland.Euler()`` ..., or its name:
+    "euler", "euler_implicit", "verlet", "impulse", "tsit5") at step ``dt`` [s] for ``t_end``
+    [s], sampling the trajectory every ``save_dt`` [s] (default: the smallest multiple of dt
+    that is at least 1e-4 s). ``solver_options`` are the named method's options (``impulse``,
+    ``rtol``, ``atol``, ``max_steps``, ``adjoint``) and the switch smoothing (``smoothing_m``,
+    ``smoothing_N``).
 
     ``dt=None`` chooses the step (``default_step``): 1e-5 s, the accuracy default, or the
     method's stability limit for this vehicle times ``STEP_SAFETY`` if that is smaller.
@@ -282,43 +310,25 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     if jax.tree.leaves(batch_axes(scene)):  # some field is batched
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "
                           "jax.vmap over jaxland.landing (see Scene.batch)")
-    if model == "auto":
-        model = choose_model(scene)
-    elif model not in MODELS:
-        raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
-    elif model == "quarter" and not is_symmetric(scene):
+    if model == "quarter" and not is_symmetric(scene):
         raise ConfigError("model", model, "the quarter model represents only symmetric vertical "
                           "drops; this scene needs model='full'")
-    options = ("impulse", "rtol", "atol", "max_steps", "adjoint", "smoothing_m", "smoothing_N")
-    unknown = sorted(set(solver_options) - set(options))
-    if unknown:
-        raise ConfigError(f"solver.{unknown[0]}", solver_options[unknown[0]],
-                          f"is not a solver option ({', '.join(options)})")
-    Solver(method=method, **solver_options).validate_values()  # options, before they are used
+    mod = get_model(model, scene)
+    smoothing = {k: solver_options.pop(k) for k in ("smoothing_m", "smoothing_N")
+                 if k in solver_options}
+    method = integrator(method, **solver_options)  # options, before they are used
+    method.check_model(mod)
     if dt is None:
-        dt = default_step(vehicle, method, solver_options.get("impulse", Solver.impulse))
-    if save_dt is None and isinstance(dt, (int, float)):
-        save_dt = max(1e-4, dt)
-    solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **solver_options)
+        dt = default_step(vehicle, method, mod)
+    solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
-    check_method(MODELS[model], method)
-    if method != "tsit5":
-        limit = float(stable_step(vehicle, method=method, impulse=solver.impulse))
-        if method == "impulse" and limit <= 0.0:
-            leg, chi = vehicle.leg, vehicle.ground.chi
-            raise ConfigError("solver.impulse", solver.impulse, "must be below the stability "
-                              f"limit 2 m2 / (D_b + chi) = "
-                              f"{float(2 * vehicle.m_foot / (leg.D_b + chi)):.3g} N s")
-        if dt > limit:
-            what = ("its time-step cap" if method == "impulse" else "dt")
-            raise ConfigError("solver.dt", dt, f"exceeds the stability limit {limit:.3g} s of "
-                              f"{method} for this vehicle ({STABILITY_REASON[method]}); use "
-                              f"{what} <= that")
+    if not isinstance(method, Tsit5):
+        check_step(solver, vehicle, mod)
     solver.validate()
-    traj, summary = _landing_jit(vehicle, scene, solver, model)
-    traj = {k: np.asarray(traj[k]) for k in MODELS[model].COLUMNS}
-    _check_numerics(summary, vehicle, solver)
-    outcomes = _outcomes(summary, traj, vehicle, scene, solver, model)
+    traj, summary = _landing_jit(vehicle, scene, solver, mod)
+    traj = {k: np.asarray(traj[k]) for k in mod.COLUMNS}
+    _check_numerics(summary, vehicle, solver, mod)
+    outcomes = _outcomes(summary, traj, vehicle, scene, solver, mod.name)
     if outcomes["tipped_over"]:
         outcomes["note"] = ("the vehicle tipped over; after tip_over_time_s the body, which has "
                             "no ground contact of its own, is not modelled physically, and "

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from ._errors import ConfigError, SimulationError
 from ._files import staged
-from ._integrate import METHODS
+from ._solvers import METHODS
 
 
 def _cmd_config(args) -> int:
@@ -124,7 +124,7 @@ def _cmd_simulate(args) -> int:
                 plot_landing_3d(result.trajectory, result.outcomes, staging / "figures",
                                 vehicle=vehicle, scene=scene)
     print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
-          f"sink {float(scene.sink_speed):g} m/s, {result.solver.method} dt "
+          f"sink {float(scene.sink_speed):g} m/s, {result.solver.method.name} dt "
           f"{result.solver.dt:g} s, {args.t_end:g} s")
     _print_summary(result.outcomes)
     print(f"wrote {out}/trajectory.csv, summary.json, vehicle.toml"

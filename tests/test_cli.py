@@ -9,7 +9,7 @@ import tomllib
 import pytest
 
 import jaxland as jl
-from jaxland import _quarter
+from jaxland import QuarterModel
 from jaxland.cli import main
 
 
@@ -33,7 +33,7 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     assert "first-impact stroke" in printed and "energy ledger closure" in printed
     with (out / "trajectory.csv").open() as fh:
         rows = list(csv.reader(fh))
-    assert tuple(rows[0]) == _quarter.COLUMNS
+    assert tuple(rows[0]) == QuarterModel.COLUMNS
     assert len(rows) == 1 + 3500
     summary = json.loads((out / "summary.json").read_text())
     assert summary["drop_height_m"] == 0.1 and summary["max_stroke_m"] > 0.01

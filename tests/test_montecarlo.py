@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxland as jl
-from jaxland._montecarlo import (
+from jaxland import (
     Distribution,
     MonteCarloSpec,
     load_montecarlo_spec,
@@ -64,7 +64,7 @@ def test_same_seed_same_results_on_two_devices(quarter_run, tmp_path):
     out = tmp_path / "two.npz"
     code = textwrap.dedent(f"""
         import numpy as np, jax
-        from jaxland._montecarlo import Distribution, MonteCarloSpec, run_montecarlo
+        from jaxland import Distribution, MonteCarloSpec, run_montecarlo
         spec = MonteCarloSpec(
             dispersion={{"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
                          "mass_scale": Distribution("normal", 1.0, 0.03)}},

@@ -6,8 +6,10 @@ import sys
 import numpy as np
 import pytest
 
+from jaxland import QuarterModel
 from jaxland._plots import plot_landing
-from jaxland._quarter import COLUMNS
+
+COLUMNS = QuarterModel.COLUMNS
 
 N = 500
 BREAKPOINTS = {"x_L1": 0.47e-3, "x_L2": 57.6e-3, "x_L3": 58.23e-3, "x_L4": 183.23e-3}

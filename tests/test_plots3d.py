@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 
 import jaxland as jl
+from jaxland import FullModel
 from jaxland._plots3d import PER_LEG_COLUMNS, REQUIRED_COLUMNS_3D, plot_landing_3d
-from jaxland._vehicle3d import COLUMNS
+
+COLUMNS = FullModel.COLUMNS
 
 N, LEGS = 300, 4
 NAMES = ["fig3d_attitude.png", "fig3d_legs.png", "fig3d_body.png", "fig3d_energy.png",

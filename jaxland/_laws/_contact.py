@@ -55,7 +55,7 @@ def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None,
     compression, and the virgin/restitution kink over this much penetration beyond the memory
     (``_smooth.ramp``; exact elsewhere; within the bands the spring is softer by at most
     k_r smooth)."""
-    k_r = ground.k / (1.0 - ground.gamma) if k_r is None else k_r
+    k_r = ground.k_r if k_r is None else k_r
     if smooth == 0.0:
         d_max = jnp.maximum(d_max_prev, d)
         e = jnp.maximum(d - ground.gamma * d_max, 0.0)

@@ -1,0 +1,409 @@
+"""Full 3-D vehicle: a 6-DOF rigid body on n inverted-triangle legs, each foot a 3-D point mass.
+
+Body: position p and velocity v of the centre of mass (world), attitude quaternion (w, x, y, z)
+from body to world, angular velocity omega in the body frame, diagonal body inertia. Leg i lies in
+the body plane at azimuth psi_i = 2 pi i / n: main strut from P_i = R e_r - H1 e_z to the foot,
+carrying the honeycomb with structural damping along its axis; two auxiliary struts (k_a / 2
+each) from A_i +/- h e_t, A_i = R e_r - (H1 + H2) e_z, to the foot, which hold it laterally (a
+tripod). The feet meet the ground plane (through the origin, tilted by the scene's slope) through
+the same laws as the quarter model, per foot in the local ground frame (normal + two tangential
+axes). In a symmetric drop this model reduces exactly to the quarter model.
+
+The attitude advances by the exact exponential map
+of the body-frame rate, q <- q (x) exp(omega dt / 2), renormalised.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._laws import (
+    aux_strut,
+    honeycomb,
+    normal_contact,
+    safe_hypot,
+    strut_force,
+    tangential_contact,
+)
+from .._params import HoneycombCurve, Vehicle
+from .._scene import Scene
+from ._base import AbstractModel, Evaluation, Smoothing
+
+RATE_CHANNELS = ("diss_struct_damping_J", "diss_ground_damping_J")
+MARGIN_SOFTNESS_M = 0.01  # soft-min width over the support-polygon edges [m]
+
+PER_LEG = (
+    "stroke_m", "stroke_max_m", "buffer_velocity_mps", "honeycomb_force_N", "strut_force_N",
+    "aux_force_N", "normal_force_N", "tangential_force_N", "pit_depth_m", "slip_indicator",
+    "foot_x_m", "foot_y_m", "foot_z_m",
+)
+COLUMNS = (
+    "time_s", "body_x_m", "body_y_m", "body_z_m", "body_vx_mps", "body_vy_mps", "body_vz_mps",
+    "body_ax_mps2", "body_ay_mps2", "body_az_mps2", "roll_deg", "pitch_deg", "yaw_deg",
+    "tilt_deg", "omega_x_radps", "omega_y_radps", "omega_z_radps", "stability_margin_m",
+    "angular_momentum_x_Nms", "angular_momentum_y_Nms", "angular_momentum_z_Nms",
+    *PER_LEG, "kinetic_J", "potential_J", "elastic_honeycomb_J", "elastic_aux_J",
+    "elastic_ground_J", "elastic_tangential_J", "diss_crush_J", "diss_ground_plastic_J",
+    "diss_slip_J", *RATE_CHANNELS, "energy_residual_J",
+)
+
+
+class Vehicle3DState(eqx.Module):
+    t: jnp.ndarray  # s
+    q: tuple  # (p (3,) m, quaternion (4,), feet (n, 3) m), world frame
+    v: tuple  # (v (3,) m/s, omega_body (3,) rad/s, feet velocities (n, 3) m/s)
+    x_max: jnp.ndarray  # (n,) m, largest stroke per leg
+    d_max: jnp.ndarray  # (n,) m, deepest penetration per foot
+    anchor: tuple  # ((n,), (n,)) m, stick points in the ground's tangent coordinates
+    diss_rate: jnp.ndarray  # (2,) J
+    diss_slip: jnp.ndarray  # J
+    slip_distance: jnp.ndarray  # (n,) m
+
+
+# ------------------------------------------------------------------------------- rotations
+
+def quat_mul(a, b):
+    aw, ax, ay, az = a[0], a[1], a[2], a[3]
+    bw, bx, by, bz = b[0], b[1], b[2], b[3]
+    return jnp.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
+
+
+def quat_to_matrix(q):
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.stack([
+        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
+        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
+        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
+    ])
+
+
+def quat_from_euler(roll, pitch, yaw):
+    """Yaw-pitch-roll (z-y'-x'') to a body-to-world quaternion."""
+    def axis_quat(angle, i):
+        half = 0.5 * angle
+        v = [jnp.zeros_like(half)] * 3
+        v[i] = jnp.sin(half)
+        return jnp.stack([jnp.cos(half), *v])
+
+    return quat_mul(quat_mul(axis_quat(yaw, 2), axis_quat(pitch, 1)), axis_quat(roll, 0))
+
+
+def euler_from_matrix(Rm):
+    """(roll, pitch, yaw) [rad] of a body-to-world rotation matrix (z-y'-x'')."""
+    pitch = jnp.arcsin(jnp.clip(-Rm[2, 0], -1.0, 1.0))
+    roll = jnp.arctan2(Rm[2, 1], Rm[2, 2])
+    yaw = jnp.arctan2(Rm[1, 0], Rm[0, 0])
+    return roll, pitch, yaw
+
+
+def _quat_exp(half_angle_vec):
+    """exp of a pure quaternion (0, h): (cos|h|, sin|h| h/|h|), gradient-safe at h = 0."""
+    n2 = jnp.sum(half_angle_vec * half_angle_vec)
+    pos = n2 > 0.0
+    n = jnp.sqrt(jnp.where(pos, n2, 1.0))
+    sinc = jnp.where(pos, jnp.sin(n) / n, 1.0 - n2 / 6.0)
+    return jnp.concatenate([jnp.cos(jnp.where(pos, n, 0.0))[None], sinc * half_angle_vec])
+
+
+# ------------------------------------------------------------------------------- geometry
+
+def leg_geometry(vehicle: Vehicle):
+    """Body-frame points of every leg: P, A+, A-, foot at rest, each (n, 3) [m]."""
+    leg, n = vehicle.leg, vehicle.n_legs
+    psi = 2.0 * jnp.pi * jnp.arange(n, dtype=jnp.float64) / n
+    e_r = jnp.stack([jnp.cos(psi), jnp.sin(psi), jnp.zeros(n)], axis=-1)
+    e_t = jnp.stack([-jnp.sin(psi), jnp.cos(psi), jnp.zeros(n)], axis=-1)
+    e_z = jnp.array([[0.0, 0.0, 1.0]])
+    P = leg.R * e_r - leg.H1 * e_z
+    A = leg.R * e_r - (leg.H1 + leg.H2) * e_z
+    foot = P + leg.L_h0 * (jnp.cos(leg.theta_b) * e_r - jnp.sin(leg.theta_b) * e_z)
+    return P, A + leg.h * e_t, A - leg.h * e_t, foot
+
+
+def ground_frame(scene: Scene):
+    """Ground normal n and tangents t1 (downhill), t2 = n x t1, each (3,)."""
+    s, phi = scene.slope, scene.slope_direction
+    n = jnp.stack([jnp.sin(s) * jnp.cos(phi), jnp.sin(s) * jnp.sin(phi), jnp.cos(s)])
+    t1 = jnp.stack([jnp.cos(s) * jnp.cos(phi), jnp.cos(s) * jnp.sin(phi), -jnp.sin(s)])
+    t2 = jnp.stack([-jnp.sin(phi), jnp.cos(phi), jnp.zeros_like(phi)])
+    return n, t1, t2
+
+
+def _norm_rows(d):
+    return safe_hypot(safe_hypot(d[:, 0], d[:, 1]), d[:, 2])
+
+
+def _inertia(vehicle: Vehicle):
+    return jnp.stack([vehicle.I_xx, vehicle.I_yy, vehicle.I_zz])
+
+
+# ------------------------------------------------------------------------------- model API
+
+def body_points(vehicle: Vehicle, scene: Scene):
+    """Leg points (P, A+, A-, foot at rest) relative to the centre of mass, body frame (n, 3):
+    the geometry of ``leg_geometry`` moved by the scene's centre-of-mass offset."""
+    points = leg_geometry(vehicle)
+    if scene.com_offset is None:
+        return points
+    return tuple(p - scene.com_offset[None, :] for p in points)
+
+
+def stability_margin(com, feet, frame):
+    """Signed distance [m] of the centre of mass, projected along gravity onto the ground plane,
+    from the edges of the feet's polygon (legs in azimuth order), positive inside; a soft-min
+    over edges (width MARGIN_SOFTNESS_M), so it is smooth for optimisation. ``frame`` is
+    ``ground_frame(scene)``."""
+    n_g, t1, t2 = frame
+    e_z = jnp.array([0.0, 0.0, 1.0])
+    c = com - (com @ n_g) / n_g[2] * e_z  # both projected along gravity onto the ground
+    f = feet - ((feet @ n_g) / n_g[2])[:, None] * e_z[None, :]
+    cx, cy = c @ t1, c @ t2
+    fx, fy = f @ t1, f @ t2
+    ax, ay = fx, fy
+    bx, by = jnp.roll(fx, -1), jnp.roll(fy, -1)
+    ex, ey = bx - ax, by - ay
+    dist = (ex * (cy - ay) - ey * (cx - ax)) / safe_hypot(ex, ey)
+    tau = MARGIN_SOFTNESS_M
+    return -tau * jax.nn.logsumexp(-dist / tau)
+
+
+class FullDerived(eqx.Module):
+    """Parameter- and scene-derived numbers of the full model's step."""
+
+    curve: HoneycombCurve  # the honeycomb law with its breakpoints evaluated
+    k_r: jnp.ndarray  # N/m, ground restitution stiffness k / (1 - gamma)
+    L_a0_pair: jnp.ndarray  # m, rest length of each auxiliary strut
+    geometry: tuple  # body-frame leg points P, A+, A-, each (n, 3) m
+    ground: tuple  # ground normal and tangents (ground_frame), each (3,)
+    inertia: jnp.ndarray  # (3,) kg m^2, principal body inertia
+    smoothing: Smoothing = Smoothing()
+
+
+class FullModel(AbstractModel):
+    """The full 3-D model (module docstring). Stateless: parameters are the vehicle's."""
+
+    name: ClassVar[str] = "full"
+    COLUMNS: ClassVar[tuple[str, ...]] = COLUMNS
+    RATE_CHANNELS: ClassVar[tuple[str, ...]] = RATE_CHANNELS
+
+    def apply_scene(self, vehicle: Vehicle, scene: Scene) -> Vehicle:
+        """Scene-level friction override and per-leg honeycomb plateau scatter ((n,) F1, F2)."""
+        if scene.plateau_scale is not None:
+            hc = vehicle.honeycomb
+            vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
+                                  (hc.F1 * scene.plateau_scale, hc.F2 * scene.plateau_scale))
+        if scene.friction is not None:
+            vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
+        if scene.mass_scale is not None:
+            s = scene.mass_scale
+            vehicle = eqx.tree_at(lambda v: (v.m_body, v.I_xx, v.I_yy, v.I_zz), vehicle,
+                                  (vehicle.m_body * s, vehicle.I_xx * s, vehicle.I_yy * s,
+                                   vehicle.I_zz * s))
+        return vehicle
+
+    def initial_state(self, vehicle: Vehicle, scene: Scene) -> Vehicle3DState:
+        """Unloaded vehicle in the scene's attitude, lowest foot ``drop_height`` above the ground
+        (measured along the ground normal), moving rigidly with the scene's velocity and rates."""
+        n_g, t1, t2 = ground_frame(scene)
+        _, _, _, foot_b = body_points(vehicle, scene)
+        quat = quat_from_euler(scene.roll, scene.pitch, scene.yaw)
+        Rm = quat_to_matrix(quat)
+        foot_rel = foot_b @ Rm.T
+        z = (scene.drop_height - jnp.min(foot_rel @ n_g)) / n_g[2]
+        p = jnp.stack([0.0, 0.0, z])
+        feet = p[None, :] + foot_rel
+        v = jnp.stack([scene.horizontal_speed * jnp.cos(scene.heading),
+                       scene.horizontal_speed * jnp.sin(scene.heading), -scene.sink_speed])
+        w_b = jnp.stack([scene.roll_rate, scene.pitch_rate, scene.yaw_rate])
+        v_feet = v[None, :] + jnp.cross(jnp.broadcast_to(Rm @ w_b, foot_rel.shape), foot_rel)
+        n = vehicle.n_legs
+        return Vehicle3DState(
+            t=jnp.zeros(()), q=(p, quat, feet), v=(v, w_b, v_feet),
+            x_max=jnp.zeros(n), d_max=jnp.zeros(n), anchor=(feet @ t1, feet @ t2),
+            diss_rate=jnp.zeros(len(RATE_CHANNELS)), diss_slip=jnp.zeros(()),
+            slip_distance=jnp.zeros(n),
+        )
+
+    def prepare(self, vehicle: Vehicle, scene: Scene,
+                smoothing: Smoothing = Smoothing()) -> FullDerived:
+        """Parameter- and scene-derived numbers the step reads, computed once outside the loop."""
+        P_b, Ap_b, Am_b, _ = body_points(vehicle, scene)
+        return FullDerived(curve=vehicle.honeycomb.curve(), k_r=vehicle.ground.k_r,
+                           L_a0_pair=vehicle.leg.L_a0_pair, geometry=(P_b, Ap_b, Am_b),
+                           ground=ground_frame(scene), inertia=_inertia(vehicle),
+                           smoothing=smoothing)
+
+    def energy_scale(self, vehicle: Vehicle, scene: Scene):
+        m = vehicle.m_body + vehicle.n_legs * vehicle.m_foot
+        w = jnp.stack([scene.roll_rate, scene.pitch_rate, scene.yaw_rate])
+        height = scene.drop_height + 3.0 * vehicle.honeycomb.x_L4 + 1.0
+        return (m * (0.5 * (scene.sink_speed**2 + scene.horizontal_speed**2) + vehicle.g * height)
+                + 0.5 * jnp.sum(_inertia(vehicle) * w * w))
+
+    def drift(self, q, v, dt):
+        p, quat, feet = q
+        vb, w_b, vf = v
+        quat = quat_mul(quat, _quat_exp(0.5 * dt * w_b))
+        quat = quat / jnp.sqrt(jnp.sum(quat * quat))
+        return (p + dt * vb, quat, feet + dt * vf)
+
+    def evaluate(self, vehicle: Vehicle, s: Vehicle3DState, scene: Scene | None = None,
+                 derived: FullDerived | None = None, kick=None) -> Evaluation:
+        """Accelerations at state ``s`` (``AbstractModel.evaluate``)."""
+        scene = Scene() if scene is None else scene
+        derived = self.prepare(vehicle, scene) if derived is None else derived
+        leg, hc, gr = vehicle.leg, derived.curve, vehicle.ground
+        sm, sn = derived.smoothing.length_m, derived.smoothing.force_N
+        m, m2, g = vehicle.m_body, vehicle.m_foot, vehicle.g
+        inertia = derived.inertia
+        p, quat, feet = s.q
+        vb, w_b, vf = s.v
+        Rm = quat_to_matrix(quat)
+        w_w = Rm @ w_b
+        P_b, Ap_b, Am_b = derived.geometry
+
+        def attach(r_b):
+            r = r_b @ Rm.T
+            return p[None, :] + r, vb[None, :] + jnp.cross(jnp.broadcast_to(w_w, r.shape), r), r
+
+        P, vP, rP = attach(P_b)
+        d = feet - P
+        length = _norm_rows(d)
+        u = d / length[:, None]
+        x_b = leg.L_h0 - length
+        v_b = -jnp.sum(u * (vf - vP), axis=-1)
+        hco = honeycomb(x_b, s.x_max, hc, sm)
+
+        aux_force_vecs, aux_torques, aux_energy, aux_axial = 0.0, 0.0, 0.0, 0.0
+        for A_b in (Ap_b, Am_b):
+            A, _, rA = attach(A_b)
+            da = feet - A
+            la = _norm_rows(da)
+            a = da / la[:, None]
+            ax = aux_strut(la, derived.L_a0_pair, 0.5 * leg.k_a)
+            fa = ax.force[:, None] * a
+            aux_force_vecs = aux_force_vecs + fa
+            aux_torques = aux_torques + jnp.sum(jnp.cross(rA, -fa), axis=0)
+            aux_energy = aux_energy + jnp.sum(ax.elastic_energy)
+            aux_axial = aux_axial + ax.force
+
+        n_g, t1, t2 = derived.ground
+        nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr, derived.k_r, sm)
+        tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr, sm)
+        f_ground = (nc.force[:, None] * n_g[None, :] + tc.force[0][:, None] * t1[None, :]
+                    + tc.force[1][:, None] * t2[None, :])
+
+        gz = jnp.array([0.0, 0.0, 1.0])
+        if kick is None:
+            st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn, smooth_m=sm)
+        else:  # implicit damping: the stroke rate after the kick from the other foot forces
+            other_u = jnp.sum(u * (aux_force_vecs + f_ground), axis=-1) - m2 * g * u[:, 2]
+            a = kick / m2
+            st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u,
+                             sn, sm)
+        f_strut = st.force[:, None] * u
+        f_feet = f_strut + aux_force_vecs + f_ground - m2 * g * gz[None, :]
+        f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
+        torque_w = jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques
+        torque_b = Rm.T @ torque_w
+        w_dot = (torque_b - jnp.cross(w_b, inertia * w_b)) / inertia
+        accel = (f_body / m, w_dot, f_feet / m2)
+
+        new = eqx.tree_at(
+            lambda x: (x.x_max, x.d_max, x.anchor, x.diss_slip, x.slip_distance), s,
+            (hco.x_max, nc.d_max, tc.anchor, s.diss_slip + jnp.sum(tc.slip_energy),
+             s.slip_distance + tc.slip),
+        )
+        kinetic = 0.5 * (m * jnp.sum(vb * vb) + jnp.sum(inertia * w_b * w_b)
+                         + m2 * jnp.sum(vf * vf))
+        potential = g * (m * p[2] + m2 * jnp.sum(feet[:, 2]))
+        stores = dict(
+            kinetic_J=kinetic,
+            potential_J=potential,
+            elastic_honeycomb_J=jnp.sum(hco.elastic_energy + st.topout_energy),
+            elastic_aux_J=aux_energy,
+            elastic_ground_J=jnp.sum(nc.elastic_energy),
+            elastic_tangential_J=jnp.sum(tc.elastic_energy),
+        )
+        dissipated = dict(
+            diss_crush_J=jnp.sum(hco.crush_energy),
+            diss_ground_plastic_J=jnp.sum(nc.plastic_energy),
+            diss_slip_J=new.diss_slip,
+        )
+        roll, pitch, yaw = euler_from_matrix(Rm)
+        contact = nc.force > 0.0
+        # Angular momentum of body + feet about the system's centre of mass (world frame).
+        com = (m * p + m2 * jnp.sum(feet, axis=0)) / (m + m2 * vehicle.n_legs)
+        ang_mom = (Rm @ (inertia * w_b) + m * jnp.cross(p - com, vb)
+                   + m2 * jnp.sum(jnp.cross(feet - com[None, :], vf), axis=0))
+        deg = 180.0 / jnp.pi
+        record = dict(
+            body_x_m=p[0], body_y_m=p[1], body_z_m=p[2],
+            body_vx_mps=vb[0], body_vy_mps=vb[1], body_vz_mps=vb[2],
+            roll_deg=roll * deg, pitch_deg=pitch * deg, yaw_deg=yaw * deg,
+            tilt_deg=jnp.arctan2(safe_hypot(Rm[2, 0], Rm[2, 1]), Rm[2, 2]) * deg,  # grad-safe at 0
+            omega_x_radps=w_b[0], omega_y_radps=w_b[1], omega_z_radps=w_b[2],
+            stability_margin_m=stability_margin(p, feet, derived.ground),
+            angular_momentum_x_Nms=ang_mom[0], angular_momentum_y_Nms=ang_mom[1],
+            angular_momentum_z_Nms=ang_mom[2],
+            stroke_m=x_b, stroke_max_m=hco.x_max, buffer_velocity_mps=v_b,
+            honeycomb_force_N=hco.force, strut_force_N=st.force, aux_force_N=aux_axial,
+            normal_force_N=nc.force, tangential_force_N=safe_hypot(tc.force[0], tc.force[1]),
+            pit_depth_m=nc.pit_depth,
+            slip_indicator=jnp.where(contact, jnp.where(tc.slipping, 1.0, 0.0), 0.5),
+            foot_x_m=feet[:, 0], foot_y_m=feet[:, 1], foot_z_m=feet[:, 2],
+            **stores,
+            **dissipated,
+        )
+        rate_power = jnp.stack([jnp.sum(st.damping_power), jnp.sum(nc.damping_power)])
+        return Evaluation(accel, new, record, rate_power, stores, dissipated)
+
+    def accel_record(self, acc):
+        a = acc[0]
+        return dict(body_ax_mps2=a[0], body_ay_mps2=a[1], body_az_mps2=a[2])
+
+    def peak_values(self, record, acc):
+        a = acc[0]
+        return dict(
+            peak_normal_force_N=record["normal_force_N"],
+            peak_tangential_force_N=record["tangential_force_N"],
+            peak_strut_force_N=record["strut_force_N"],
+            peak_honeycomb_force_N=record["honeycomb_force_N"],
+            peak_aux_force_N=jnp.abs(record["aux_force_N"]),
+            peak_buffer_velocity_mps=record["buffer_velocity_mps"],
+            peak_body_accel_mps2=safe_hypot(safe_hypot(a[0], a[1]), a[2]),
+            peak_foot_accel_mps2=_norm_rows(acc[2]),
+            peak_tilt_deg=record["tilt_deg"],
+            peak_margin_deficit_m=-record["stability_margin_m"],
+        )
+
+    def leg_max(self, x):
+        return jnp.max(x, axis=-1)
+
+    def contact_flag(self, record):
+        return jnp.any(record["normal_force_N"] > 0.0)
+
+    def tipping(self, record):
+        """The centre of mass is outside the polygon of the feet (the integrator counts it only
+        after the first touchdown, so a tilted vehicle still in the air is not tipping)."""
+        return record["stability_margin_m"] < 0.0
+
+    def final_summary(self, s: Vehicle3DState, record) -> dict:
+        return dict(
+            max_stroke_m=s.x_max,
+            final_stroke_m=record["stroke_m"],
+            final_pit_depth_m=record["pit_depth_m"],
+            slip_distance_m=s.slip_distance,
+            final_tilt_deg=record["tilt_deg"],
+            final_stability_margin_m=record["stability_margin_m"],
+            final_position_m=s.q[0],
+        )

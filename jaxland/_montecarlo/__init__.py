@@ -1,0 +1,29 @@
+"""Monte Carlo over touchdown dispersions: sampled scenes, the smallest adequate model, chunked
+``vmap`` sharded over every local device, failed samples recorded (never a crash of the batch),
+tip-over and bottoming probabilities with Wilson intervals, envelopes and sensitivities.
+
+Reproducibility: sample i's inputs depend only on (seed, i, input name), via
+``fold_in(fold_in(key(seed), i), crc32(name))``, so the same seed gives the same samples for any
+chunk size and any number of devices (and adding an input does not change the others' draws).
+
+Scale-out: the batch axis of each chunk is sharded with ``jax.sharding.NamedSharding`` over a
+1-D mesh of ``jax.devices()``. On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=K``
+(set before importing jax) makes K devices of the host's cores; on a GPU or TPU host the same
+code uses its accelerators; on a multi-host cluster call ``jax.distributed.initialize()`` first
+and every process runs the same program (each then holds its addressable shard).
+"""
+
+from ._run import MonteCarloResult as MonteCarloResult, run_montecarlo as run_montecarlo
+from ._sample import sample_scenes as sample_scenes
+from ._spec import (
+    DISPERSIBLE as DISPERSIBLE,
+    Distribution as Distribution,
+    MonteCarloSpec as MonteCarloSpec,
+    envelope as envelope,
+    load_montecarlo_spec as load_montecarlo_spec,
+)
+from ._stats import (
+    percentiles as percentiles,
+    sensitivity as sensitivity,
+    wilson_interval as wilson_interval,
+)

@@ -1,0 +1,213 @@
+"""The run: chunks of sampled scenes through the compiled batch, sharded over devices."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from .._config import paper_vehicle, validate_vehicle
+from .._errors import ConfigError
+from .._models import MODELS
+from .._params import Vehicle
+from .._simulate import landings
+from .._solvers import Result, Solver, stable_step, verdict
+from ._sample import sample_scenes
+from ._spec import MonteCarloSpec, envelope
+from ._stats import percentiles, sensitivity, wilson_interval
+
+
+def _per_sample(vehicle, solver, model, scenes):
+    mod = MODELS[model]
+    traj, s = landings(vehicle, scenes, solver, mod)
+    del traj
+    n = vehicle.n_legs
+
+    def legs(x):
+        return jnp.broadcast_to(x[..., None], x.shape + (n,)) if x.ndim == 1 else x
+
+    out = dict(
+        max_stroke_m=legs(s["max_stroke_m"]),
+        peak_strut_force_N=legs(s["peak_strut_force_N"]),
+        peak_normal_force_N=legs(s["peak_normal_force_N"]),
+        peak_honeycomb_force_N=legs(s["peak_honeycomb_force_N"]),
+        slip_distance_m=legs(s["slip_distance_m"]),
+        peak_body_accel_mps2=s["peak_body_accel_mps2"],
+        energy_closure_rel=s["ledger_error_rel"],
+        result=verdict(s, vehicle, solver, mod),
+        tipped_over=s["tipped"],
+    )
+    if model == "full":
+        out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]
+        out["peak_tilt_deg"] = s["peak_tilt_deg"]
+    return out
+
+
+@dataclass
+class MonteCarloResult:
+    """Per-sample inputs and outcomes (numpy), failure reasons, and the summary."""
+
+    inputs: dict
+    outputs: dict
+    failure: np.ndarray  # (n,) jaxland.Result codes, 0 = successful (see ``reasons``)
+    summary: dict
+    reasons: dict = field(default_factory=lambda: {int(r): r.message for r in Result})
+
+    def columns(self) -> dict:
+        """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names."""
+        cols = {"sample": np.arange(self.failure.size)}
+        for group in (self.inputs, self.outputs):
+            for name, arr in group.items():
+                arr = np.asarray(arr)
+                if arr.ndim == 1:
+                    cols[name] = arr
+                else:
+                    for i in range(arr.shape[1]):
+                        cols[f"leg{i}_{name}"] = arr[:, i]
+        cols["failure_code"] = self.failure
+        return cols
+
+    def save(self, out_dir) -> list[Path]:
+        """Write samples.csv and samples.npz (every sample with its inputs), summary.json and
+        the figures into ``out_dir``, all through a staging folder."""
+        from .._files import staged
+
+        out = Path(out_dir)
+        with staged(out) as staging:
+            cols = self.columns()
+            names = list(cols)
+            data = np.column_stack([np.asarray(cols[c], dtype=float) for c in names])
+            np.savetxt(staging / "samples.csv", data, delimiter=",", header=",".join(names),
+                       comments="", fmt="%.9g")
+            np.savez_compressed(staging / "samples.npz", **cols)
+            (staging / "summary.json").write_text(
+                json.dumps(self.summary, indent=2, default=float) + "\n")
+            from .._plots_mc import plot_montecarlo
+
+            plot_montecarlo(self, staging / "figures")
+            written = sorted(out / p.relative_to(staging) for p in staging.rglob("*")
+                             if p.is_file())
+        return written
+
+
+def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
+                   chunk: int | None = None, devices=None, progress: bool = True
+                   ) -> MonteCarloResult:
+    """Run ``spec.n`` dispersed landings; see the module docstring for reproducibility and
+    sharding. ``chunk`` bounds memory (rounded up to a multiple of the device count)."""
+    vehicle = paper_vehicle() if vehicle is None else vehicle
+    validate_vehicle(vehicle)
+    model = spec.resolved_model()
+    solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
+                    method=spec.method).validate()
+    devices = list(jax.devices() if devices is None else devices)
+    n_dev = len(devices)
+    chunk = min(spec.n, 512 if model == "quarter" else 64) if chunk is None else int(chunk)
+    if chunk < 1:
+        raise ConfigError("chunk", chunk, "must be >= 1")
+    chunk = int(math.ceil(chunk / n_dev) * n_dev)
+    mesh = Mesh(np.array(devices), ("batch",))
+    batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
+    limit = float(stable_step(vehicle, method=spec.method, model=MODELS[model]))
+    if spec.dt > limit:
+        raise ConfigError("montecarlo.dt_s", spec.dt,
+                          f"exceeds the a-priori stability limit {limit:.3g} s of "
+                          f"{spec.method}")
+
+    run = jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))
+    outputs: dict = {}
+    inputs: dict = {}
+    t0 = time.perf_counter()
+    for start in range(0, spec.n, chunk):
+        count = min(chunk, spec.n - start)
+        scenes, ins = sample_scenes(spec, start, chunk, vehicle.n_legs)  # padded chunk
+        scenes = jax.tree.map(
+            lambda x: jax.device_put(x, batch_sharding) if np.ndim(x) >= 1 else x, scenes)
+        res = jax.device_get(run(scenes))
+        for k, v in res.items():
+            outputs.setdefault(k, []).append(np.asarray(v)[:count])
+        for k, v in ins.items():
+            inputs.setdefault(k, []).append(v[:count])
+        if progress:
+            done = start + count
+            rate = done / (time.perf_counter() - t0)
+            print(f"\rmontecarlo: {done}/{spec.n} landings ({model} model, {n_dev} device"
+                  f"{'s' if n_dev > 1 else ''}, {rate:.0f}/s)", end="", file=sys.stderr,
+                  flush=True)
+    if progress:
+        print(file=sys.stderr)
+    wall = time.perf_counter() - t0
+    outputs = {k: np.concatenate(v) for k, v in outputs.items()}
+    inputs = {k: np.concatenate(v) for k, v in inputs.items()}
+
+    bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
+    failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
+    failure[~_insideenvelope(inputs, spec)] = int(Result.OUTSIDE_ENVELOPE)
+    outputs["bottomed_out"] = bottomed
+    outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
+    summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
+    return MonteCarloResult(inputs, outputs, failure, summary)
+
+
+def _insideenvelope(inputs: dict, spec: MonteCarloSpec) -> np.ndarray:
+    """Per sample: every dispersed input within the scene envelope (unbounded distributions can
+    draw outside it; such samples are recorded as failures, Result.OUTSIDE_ENVELOPE, not as
+    landings)."""
+    ok = np.ones(spec.n, bool)
+    for key, arr in inputs.items():
+        lo, hi = envelope(key)
+        arr = np.asarray(arr, dtype=float)
+        inside = np.isfinite(arr) & (arr >= lo) & (arr <= hi)
+        ok &= inside if inside.ndim == 1 else inside.all(axis=1)
+    return ok
+
+
+def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dict:
+    ok = failure == int(Result.SUCCESSFUL)
+    failed = np.isin(failure, [int(r) for r in Result if r.failed])
+    n_ok = int(ok.sum())
+    k_tip = int(outputs["tipped_over"][ok].sum())
+    k_bot = int(outputs["bottomed_out"][ok].sum())
+    target = (outputs["min_stability_margin_m"] if "min_stability_margin_m" in outputs
+              else outputs["max_stroke_m"].max(axis=1))
+    reasons = {r.message: int((failure == r).sum()) for r in Result
+               if r.failed and (failure == r).any()}
+    return dict(
+        n=spec.n, seed=spec.seed, model=model, method=spec.method, dt_s=spec.dt,
+        t_end_s=spec.t_end,
+        devices=n_dev, chunk=chunk, wall_s=wall, landings_per_s=spec.n / wall,
+        n_failed=int(failed.sum()), failures=reasons,
+        failed_samples=np.flatnonzero(failed).tolist()[:100],
+        n_no_touchdown=int((failure == int(Result.NO_TOUCHDOWN)).sum()),
+        tip_over=dict(count=k_tip, n=n_ok, probability=k_tip / max(n_ok, 1),
+                      ci95_wilson=wilson_interval(k_tip, n_ok)),
+        bottoming=dict(count=k_bot, n=n_ok, probability=k_bot / max(n_ok, 1),
+                       ci95_wilson=wilson_interval(k_bot, n_ok)),
+        envelopes={
+            "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
+            "peak_body_accel_mps2": percentiles(outputs["peak_body_accel_mps2"][ok]),
+            "peak_strut_force_N (any leg)":
+                percentiles(outputs["peak_strut_force_N"][ok].max(axis=1)),
+            "slip_distance_m (any leg)":
+                percentiles(outputs["slip_distance_m"][ok].max(axis=1)),
+            **({"min_stability_margin_m": percentiles(outputs["min_stability_margin_m"][ok])}
+               if "min_stability_margin_m" in outputs else {}),
+        },
+        sensitivity=dict(
+            target="min_stability_margin_m" if model == "full" else "max_stroke_m",
+            method="least squares on standardised inputs: change per standard deviation",
+            ranking=sensitivity(inputs, target, ok)),
+        dispersion={k: vars(v) for k, v in spec.dispersion.items()},
+        fixed=spec.fixed,
+        environment=dict(jax=jax.__version__, backend=jax.default_backend(),
+                         xla_flags=os.environ.get("XLA_FLAGS", "")),
+    )

@@ -1,0 +1,55 @@
+"""Statistics of a Monte Carlo: Wilson intervals, percentiles, linear sensitivities."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
+
+
+def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion k/n (95 % by default)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    lo = 0.0 if k == 0 else max(0.0, centre - half)  # the bounds at k = 0 and k = n are
+    hi = 1.0 if k == n else min(1.0, centre + half)  # exactly 0 and 1 (round-off aside)
+    return (lo, hi)
+
+
+def percentiles(x) -> dict | None:
+    """Tails and centre of a sample: p01, p05, p50, p95, p99, min, max, mean (None if empty)."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0:
+        return None
+    q = np.percentile(x, [1, 5, 50, 95, 99])
+    return dict(p01=q[0], p05=q[1], p50=q[2], p95=q[3], p99=q[4], min=float(np.min(x)),
+                max=float(np.max(x)), mean=float(np.mean(x)))
+
+
+def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> list[dict]:
+    """Linear regression of ``target`` on the standardised dispersed inputs (per-leg inputs
+    enter per leg): the change of the target per standard deviation of each input, ranked."""
+    cols, names = [], []
+    for name, arr in inputs.items():
+        arr = np.asarray(arr, dtype=float)
+        arr = arr[:, None] if arr.ndim == 1 else arr
+        for i in range(arr.shape[1]):
+            x = arr[ok, i]
+            if x.size > 1 and np.std(x) > 0:
+                cols.append((x - x.mean()) / x.std())
+                names.append(name if arr.shape[1] == 1 else f"{name}[leg{i}]")
+    y = np.asarray(target, dtype=float)[ok]
+    if not cols or y.size <= len(cols) + 1:
+        return []
+    X = np.column_stack([np.ones(y.size), *cols])
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    resid = y - X @ coef
+    r2 = 1.0 - resid.var() / y.var() if y.var() > 0 else 0.0
+    ranked = sorted(zip(names, coef[1:]), key=lambda t: -abs(t[1]))
+    return [dict(input=n, effect_per_std=float(c), r2_of_fit=float(r2)) for n, c in ranked]

@@ -1,0 +1,185 @@
+"""The integrator contract, the run settings and the result codes.
+
+An integrator is an ``eqx.Module`` subclass of ``AbstractIntegrator`` (as diffrax's solvers
+subclass ``AbstractSolver``) holding its own options, static because they choose code and loop
+lengths. It states its stability limit from the model's ``Oscillator`` and runs a landing of
+any model whose capabilities it needs (``check_model``). ``Solver`` holds what every method
+shares: the step, the duration, the output interval, the switch smoothing, and the integrator.
+"""
+
+from __future__ import annotations
+
+import abc
+import enum
+import math
+import numbers
+from typing import ClassVar
+
+import equinox as eqx
+from jaxtyping import Array
+
+from .._errors import ConfigError
+from .._models import AbstractModel, Oscillator
+
+SAVE_DT_MIN = 1e-4  # s: the default output interval is the smallest multiple of dt above this
+
+
+class Result(enum.IntEnum):
+    """How a landing ended. Carried per landing (per batch element) as an int32 code in the
+    summary's ``result``; an ``IntEnum`` rather than an ``eqx.Enumeration`` because the codes
+    leave the compiled program as numpy arrays (a Monte Carlo has 10^5 of them) and are named
+    on the host."""
+
+    SUCCESSFUL = 0
+    NONFINITE = 1
+    CLOSURE = 2
+    STEP_ABOVE_LIMIT = 3
+    OUTSIDE_ENVELOPE = 4
+    LEDGER = 5
+    SOLVER_STOPPED = 6
+    NO_TOUCHDOWN = 7
+
+    @property
+    def message(self) -> str:
+        return _MESSAGES[self]
+
+    @property
+    def failed(self) -> bool:
+        """The landing's numbers are not to be used (a landing without touchdown is no failure,
+        but no landing either: statistics count it apart)."""
+        return self not in (Result.SUCCESSFUL, Result.NO_TOUCHDOWN)
+
+
+_MESSAGES = {
+    Result.SUCCESSFUL: "the landing ran to its end",
+    Result.NONFINITE: "non-finite state during the run",
+    Result.LEDGER: "energy ledger off by more than 10 % of the landing's energy during the run",
+    Result.SOLVER_STOPPED: "the adaptive solver stopped early (max_steps reached, or the step "
+                           "size collapsed at a discontinuity)",
+    Result.NO_TOUCHDOWN: "no foot touched the ground before t_end",
+    Result.CLOSURE: "energy ledger did not close to 1 % of the energy dissipated (step too large "
+                    "for this landing)",
+    Result.STEP_ABOVE_LIMIT: "step above the stability limit of the forces the landing reached",
+    Result.OUTSIDE_ENVELOPE: "scene outside the documented envelope (not simulated as valid)",
+}
+
+
+def positive(owner: str, name: str, val, unit: str, *, zero_ok: bool = False) -> None:
+    """Refuse a setting that is not a finite number > 0 (>= 0 with ``zero_ok``)."""
+    ok = (not isinstance(val, bool) and isinstance(val, numbers.Real) and math.isfinite(val)
+          and (val >= 0 if zero_ok else val > 0))
+    if not ok:
+        raise ConfigError(f"{owner}.{name}", val,
+                          f"must be a finite number {'>=' if zero_ok else '>'} 0{unit}")
+
+
+class AbstractIntegrator(eqx.Module):
+    """A time-stepping method (see the module docstring)."""
+
+    name: ClassVar[str]
+    stability_reason: ClassVar[str]  # what sets its stability limit, for messages
+
+    def validate(self) -> AbstractIntegrator:
+        """Its options, each on its own; raises ``ConfigError`` naming the field."""
+        return self
+
+    def check_model(self, model: AbstractModel) -> None:
+        """Refuse a model that lacks what this method needs."""
+
+    @abc.abstractmethod
+    def stable_step(self, osc: Oscillator) -> Array:
+        """The largest stable step [s] for the model's stiffest, lightest oscillator."""
+
+    @abc.abstractmethod
+    def integrate(self, model: AbstractModel, vehicle, scene, solver: Solver):
+        """One landing: ``(trajectory, summary)`` dicts of arrays (``jaxland._solvers._loop``).
+        Pure and jittable."""
+
+    @property
+    def differentiable(self) -> bool:
+        """Whether AD through it gives the derivative of the computed landing."""
+        return True
+
+    def options(self) -> dict:
+        """Its options by name, for reports."""
+        return {f: getattr(self, f) for f in self.__dataclass_fields__}
+
+
+def _as_integrator(method):
+    from ._names import integrator
+
+    return integrator(method) if isinstance(method, str) else method
+
+
+class Solver(eqx.Module):
+    """Run settings shared by every integrator (static: they set loop lengths and choose code).
+
+    ``method`` is an integrator (``Euler()``, ``EulerImplicit()``, ``Verlet()``,
+    ``Impulse(dI=...)``, ``Tsit5(rtol=..., atol=...)``) or its name for the defaults.
+    ``save_dt=None`` is the smallest whole multiple of ``dt`` that is at least 1e-4 s.
+    """
+
+    dt: float = eqx.field(static=True, default=1e-5)  # s, step (impulse: cap; tsit5: first)
+    t_end: float = eqx.field(static=True, default=1.2)  # s, simulated duration
+    save_dt: float | None = eqx.field(static=True, default=None)  # s, output interval
+    method: AbstractIntegrator = eqx.field(static=True, default="euler",
+                                           converter=_as_integrator)
+    # opt-in smoothing of the force-law switches, for gradient quality in fits (jaxland._laws.
+    # _smooth; benchmarks/gradient_quality.py): width of the rounded kinks in length [m] (ground
+    # contact, honeycomb unloading, stick/slip, top-out) and in force [N] (the strut's no-pull
+    # floor). 0 (default) = the hard switches.
+    smoothing_m: float = eqx.field(static=True, default=0.0)
+    smoothing_N: float = eqx.field(static=True, default=0.0)
+
+    def __post_init__(self):
+        if self.save_dt is None and _finite_positive(self.dt):
+            self.save_dt = self.dt * max(1, math.ceil(SAVE_DT_MIN / self.dt - 1e-9))
+
+    @property
+    def save_every(self) -> int:
+        return max(1, int(round(self.save_dt / self.dt)))
+
+    @property
+    def n_saves(self) -> int:
+        return int(math.ceil(self.t_end / (self.dt * self.save_every)))
+
+    @property
+    def n_steps(self) -> int:
+        return self.n_saves * self.save_every
+
+    @property
+    def smoothing(self):
+        from .._models import Smoothing
+
+        return Smoothing(float(self.smoothing_m), float(self.smoothing_N))
+
+    def validate_values(self) -> Solver:
+        """Each setting on its own."""
+        for name in ("smoothing_m", "smoothing_N"):
+            positive("solver", name, getattr(self, name), f" {name[-1]}", zero_ok=True)
+        for name in ("dt", "t_end", "save_dt"):
+            positive("solver", name, getattr(self, name), " s")
+        if not isinstance(self.method, AbstractIntegrator):
+            raise ConfigError("solver.method", self.method, "must be an integrator or its name")
+        self.method.validate()
+        return self
+
+    def validate(self) -> Solver:
+        """All settings, and how they relate."""
+        self.validate_values()
+        if self.save_dt < self.dt:
+            raise ConfigError("solver.save_dt", self.save_dt, f"must be >= dt = {self.dt} s")
+        if self.save_dt > self.t_end:
+            raise ConfigError("solver.save_dt", self.save_dt, f"must be <= t_end = {self.t_end} s")
+        ratio = self.save_dt / self.dt
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+            raise ConfigError("solver.save_dt", self.save_dt,
+                              f"must be a whole multiple of dt = {self.dt} s")
+        if self.n_steps > 5e8:
+            raise ConfigError("solver.dt", self.dt, "t_end/dt must be <= 5e8 steps")
+        return self
+
+
+def _finite_positive(x) -> bool:
+    return (not isinstance(x, bool) and isinstance(x, numbers.Real) and math.isfinite(x)
+            and x > 0)

@@ -1,0 +1,112 @@
+"""The fixed-step methods: symplectic Euler, with implicit strut damping, and velocity Verlet.
+
+Each evaluates the model's forces at (q_n, v_n), which also advances the constitutive memories
+(largest crush, deepest pit, stick point) by their return maps, then kicks and drifts. For
+x'' = -omega^2 x - c x' on the model's ``Oscillator`` (foot mass m, springs k, dampers
+c = (D_b F_bh + chi F_n) / m), symplectic Euler is stable while dt^2 omega^2 + 2 dt c <= 4, i.e.
+dt <= (sqrt(c^2 + 4 omega^2) - c) / omega^2 (2/omega without damping, 2/c without stiffness).
+Taking the strut damping implicitly leaves only the (small) ground damping in c.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._models import Oscillator
+from ._base import AbstractIntegrator
+from ._loop import advance, kick, run_fixed
+
+
+def _limit(osc: Oscillator, strut: bool):
+    w2 = osc.stiffness / osc.mass
+    c = ((osc.strut_damping * osc.strut_force if strut else 0.0)
+         + osc.ground_damping * osc.ground_force) / osc.mass
+    return jnp.min((jnp.sqrt(c**2 + 4.0 * w2) - c) / w2)
+
+
+class AbstractFixedStep(AbstractIntegrator):
+    """A one-step method at fixed dt, run by ``jaxland._solvers._loop.run_fixed``."""
+
+    @abc.abstractmethod
+    def step(self, model, vehicle, s, scene, derived, dt):
+        """``(next state, Evaluation at s)``."""
+
+    def record_kick(self, dt):
+        """The implicit-damping kick [s] the step applies to the forces at a state (``None``:
+        explicit), so saved forces are the ones applied."""
+        return None
+
+    def integrate(self, model, vehicle, scene, solver):
+        return run_fixed(self, model, vehicle, scene, solver)
+
+
+class Euler(AbstractFixedStep):
+    """Symplectic (semi-implicit) Euler: v_{n+1} = v_n + dt a(q_n, v_n), q_{n+1} = q_n +
+    dt v_{n+1}. First order, one evaluation per step. On the paper gear the strut damping sets
+    its limit (1.3e-4 s, against 4.5e-4 s for the springs)."""
+
+    name: ClassVar[str] = "euler"
+    stability_reason: ClassVar[str] = "stiffest springs and the strut damping on the 1 kg foot"
+
+    def stable_step(self, osc):
+        return _limit(osc, strut=True)
+
+    def step(self, model, vehicle, s, scene, derived, dt):
+        ev = model.evaluate(vehicle, s, scene, derived)
+        v1 = kick(s.v, ev.accel, dt)
+        return advance(ev.state, s, model.drift(s.q, v1, dt), v1, dt, dt * ev.power), ev
+
+
+class EulerImplicit(Euler):
+    """Symplectic Euler with the strut damping implicit (at the foot's new velocity, the body
+    held): one evaluation per step, first order, stable to 2/omega of the springs."""
+
+    name: ClassVar[str] = "euler_implicit"
+    stability_reason: ClassVar[str] = ("stiffest springs on the 1 kg foot; the strut damping is "
+                                       "implicit")
+
+    def stable_step(self, osc):
+        return _limit(osc, strut=False)
+
+    def record_kick(self, dt):
+        return dt
+
+    def step(self, model, vehicle, s, scene, derived, dt):
+        ev = model.evaluate(vehicle, s, scene, derived, dt)
+        v1 = kick(s.v, ev.accel, dt)
+        return advance(ev.state, s, model.drift(s.q, v1, dt), v1, dt, dt * ev.power), ev
+
+
+class Verlet(AbstractFixedStep):
+    """Velocity Verlet (kick-drift-kick), second order where the forces are smooth, with the
+    strut damping on a Crank-Nicolson split: the first half kick takes it implicitly (backward
+    Euler over dt/2), the second explicitly from the half-step velocity, so a pure dashpot is
+    damped by (1 - a)/(1 + a), a = c dt / 2 m: A-stable, and the stable step is 2/omega of the
+    springs. Two evaluations per step."""
+
+    name: ClassVar[str] = "verlet"
+    stability_reason: ClassVar[str] = EulerImplicit.stability_reason
+
+    def stable_step(self, osc):
+        return _limit(osc, strut=False)
+
+    def record_kick(self, dt):
+        return 0.5 * dt
+
+    def step(self, model, vehicle, s, scene, derived, dt):
+        h = 0.5 * dt
+        ev = model.evaluate(vehicle, s, scene, derived, h)
+        v_half = kick(s.v, ev.accel, h)
+        q1 = model.drift(s.q, v_half, dt)
+        s_half = _at_half(ev.state, q1, v_half)
+        ev2 = model.evaluate(vehicle, s_half, scene, derived)
+        v1 = kick(v_half, ev2.accel, h)
+        return advance(ev2.state, s, q1, v1, dt, h * (ev.power + ev2.power)), ev
+
+
+def _at_half(s_m, q1, v_half):
+    return eqx.tree_at(lambda x: (x.q, x.v), s_m, (q1, v_half))

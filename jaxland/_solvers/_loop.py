@@ -1,0 +1,174 @@
+"""What every integrator shares: the set-up, the bookkeeping carried beside the state, the saved
+record, the end-of-landing summary, and the nested-scan driver of the fixed-step methods.
+
+The bookkeeping runs at full step resolution: running peaks, the contact on/off log, the energy
+ledger's worst residual, the first failure and the tip-over time.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._models import AbstractModel, Evaluation
+from ._base import Result
+
+N_EVENTS = 256  # capacity of the contact on/off log (later transitions are counted, not stored)
+UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
+ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
+
+
+class Setup(eqx.Module):
+    """A landing ready to step: the scene-adjusted vehicle and what the loop reads."""
+
+    vehicle: eqx.Module
+    derived: eqx.Module
+    state0: eqx.Module
+    energy0: Array  # J, the ledger at t = 0
+    energy_scale: Array  # J
+    peaks0: dict
+
+
+def setup(model: AbstractModel, vehicle, scene, solver) -> Setup:
+    vehicle = model.apply_scene(vehicle, scene)  # scene-level friction and honeycomb scatter
+    derived = model.prepare(vehicle, scene, solver.smoothing)  # once, outside the loop
+    s0 = model.initial_state(vehicle, scene)
+    ev0 = model.evaluate(vehicle, s0, scene, derived)
+    e0 = ev0.ledger() + jnp.sum(s0.diss_rate)
+    return Setup(vehicle, derived, s0, e0, model.energy_scale(vehicle, scene),
+                 model.peak_values(ev0.record, ev0.accel))
+
+
+class Track(eqx.Module):
+    """Bookkeeping carried alongside the state."""
+
+    peaks: dict  # running maxima of the model's peak_values
+    event_times: Array  # (N_EVENTS,) s, contact on/off times (NaN past n_events)
+    n_events: Array  # int32, contact changes so far
+    contact: Array  # bool, in contact at the last step
+    residual_max: Array  # J, worst |ledger residual|
+    failure_time: Array  # s, first failure (-1: none)
+    failure: Array  # int32 Result code of the first failure
+    tip_time: Array  # s, tip-over (-1: none)
+    n_steps: Array  # int32
+
+    @classmethod
+    def start(cls, peaks0: dict) -> Track:
+        return cls(jax.tree.map(lambda x: jnp.full_like(x, -jnp.inf), peaks0),
+                   jnp.full((N_EVENTS,), jnp.nan), jnp.zeros((), jnp.int32), jnp.zeros((), bool),
+                   jnp.zeros(()), -jnp.ones(()), jnp.zeros((), jnp.int32), -jnp.ones(()),
+                   jnp.zeros((), jnp.int32))
+
+    def update(self, model: AbstractModel, s, ev: Evaluation, e0, e_scale) -> Track:
+        """With one evaluated state ``s``."""
+        residual = ev.ledger() + jnp.sum(s.diss_rate) - e0
+        # After a tip-over the body (which has no ground contact of its own) is not a landing
+        # any more: peaks, the ledger and failure checks stop there; the tip itself counts.
+        upright = self.tip_time < 0.0
+        peaks = jax.tree.map(lambda p, x: jnp.where(upright, jnp.maximum(p, x), p), self.peaks,
+                             model.peak_values(ev.record, ev.accel))
+        contact = model.contact_flag(ev.record)
+        touched = (self.n_events > 0) | contact  # a foot has been on the ground
+        tip_t = jnp.where(upright & touched & model.tipping(ev.record), s.t, self.tip_time)
+        changed = contact != self.contact
+        idx = jnp.minimum(self.n_events, N_EVENTS - 1)
+        ev_t = self.event_times.at[idx].set(
+            jnp.where(changed & (self.n_events < N_EVENTS), s.t, self.event_times[idx]))
+        res_max = jnp.where(upright, jnp.maximum(self.residual_max, jnp.abs(residual)),
+                            self.residual_max)
+        state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x))
+                                      for x in jax.tree.leaves((s.q, s.v))]))
+        bad = ~state_ok | ~(jnp.abs(residual) <= ENERGY_TOLERANCE * e_scale)
+        first = bad & upright & (self.failure_time < 0.0)
+        return Track(
+            peaks=peaks, event_times=ev_t, n_events=self.n_events + changed.astype(jnp.int32),
+            contact=contact, residual_max=res_max,
+            failure_time=jnp.where(first, s.t, self.failure_time),
+            failure=jnp.where(first, jnp.where(state_ok, int(Result.LEDGER),
+                                               int(Result.NONFINITE)), self.failure),
+            tip_time=tip_t, n_steps=self.n_steps + 1)
+
+
+def advance(s_m, s, q1, v1, dt, dissipated):
+    """The next state: memories from the evaluation ``s_m``, time, positions, velocities and the
+    rate channels advanced."""
+    return eqx.tree_at(lambda x: (x.t, x.q, x.v, x.diss_rate), s_m,
+                       (s.t + dt, q1, v1, s.diss_rate + dissipated))
+
+
+def kick(v, acc, h):
+    return jax.tree.map(lambda x, a: x + h * a, v, acc)
+
+
+def record(model: AbstractModel, s, ev: Evaluation, e0) -> dict:
+    """The saved outputs at state ``s`` from its evaluation."""
+    out = dict(time_s=s.t, **ev.record, **model.accel_record(ev.accel))
+    for i, name in enumerate(model.RATE_CHANNELS):
+        out[name] = s.diss_rate[i]
+    out["energy_residual_J"] = ev.ledger() + jnp.sum(s.diss_rate) - e0
+    return out
+
+
+def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict:
+    """The landing's scalars: peaks, memories, the event log, ledger closure and the result."""
+    ev_end = model.evaluate(st.vehicle, s_end, scene, st.derived)
+    dissipated = sum(ev_end.dissipated.values()) + jnp.sum(s_end.diss_rate)
+    failed = track.failure_time >= 0.0
+    result = jnp.where(failed, track.failure,
+                       jnp.where(track.n_events > 0, int(Result.SUCCESSFUL),
+                                 int(Result.NO_TOUCHDOWN)))
+    return dict(
+        **track.peaks,
+        **model.final_summary(s_end, ev_end.record),
+        event_times_s=track.event_times,
+        n_contact_changes=track.n_events,
+        energy_initial_J=st.energy0,
+        energy_scale_J=st.energy_scale,
+        energy_dissipated_J=dissipated,
+        energy_closure_max_J=track.residual_max,
+        # the ledger error judged by simulate and Monte Carlo: relative to the energy
+        # dissipated, or to a tenth of the energy scale when little is dissipated (free fall)
+        ledger_error_rel=track.residual_max / jnp.maximum(dissipated, 0.1 * st.energy_scale),
+        failed=failed,
+        failure_time_s=track.failure_time,
+        tipped=track.tip_time >= 0.0,
+        tip_over_time_s=track.tip_time,
+        t_end_s=s_end.t,
+        n_steps=track.n_steps,
+        solver_ok=jnp.ones((), bool),
+        n_rejected_steps=jnp.zeros((), jnp.int32),
+        result=result.astype(jnp.int32),
+    )
+
+
+def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
+    """The fixed-step driver: ``integrator.step`` in a scan over the steps of one save
+    interval, inside a scan over the save points.
+
+    The outputs at a saved state carry the forces as the next step applies them (with the
+    method's implicit-damping ``record_kick``). Evaluating the saved state once more is cheaper
+    than taking the block's first step (whose evaluation it repeats) out of the inner scan:
+    that restructuring measured 1.3-1.7x slower on XLA:CPU.
+    """
+    st = setup(model, vehicle, scene, solver)
+    veh, derived, dt = st.vehicle, st.derived, solver.dt
+
+    def body(carry, _):
+        s, track = carry
+        s1, ev = integrator.step(model, veh, s, scene, derived, dt)
+        return (s1, track.update(model, s, ev, st.energy0, st.energy_scale)), None
+
+    kick_save = integrator.record_kick(dt)
+
+    def save_block(carry, _):
+        ev = model.evaluate(veh, carry[0], scene, derived, kick_save)
+        out = record(model, carry[0], ev, st.energy0)
+        carry, _ = jax.lax.scan(body, carry, None, length=solver.save_every, unroll=UNROLL)
+        return carry, out
+
+    carry0 = (st.state0, Track.start(st.peaks0))
+    (s_end, track), traj = jax.lax.scan(save_block, carry0,
+                                        jnp.arange(solver.n_saves, dtype=jnp.float64))
+    return traj, summary(model, s_end, track, st, scene)
