@@ -10,7 +10,7 @@ endif
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench bench-integrators paper lint clean
+.PHONY: demo test bench bench-integrators paper docs notebooks lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,6 +34,14 @@ bench-integrators: $(STAMP)
 
 paper: $(STAMP)
 	$(VENV)/bin/python benchmarks/paper_reproduction.py
+
+# the measured tables in docs/ from benchmarks/results/*.json (the tests run it with --check)
+docs: $(STAMP)
+	$(VENV)/bin/python benchmarks/docs_tables.py
+
+# execute the notebooks at small size and store their outputs and figures
+notebooks: $(STAMP)
+	$(VENV)/bin/python notebooks/execute.py --write
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
