@@ -43,7 +43,14 @@ import jaxland as jl
 
 from ._data import CHANNELS, DropTest
 from ._optim import lbfgs, levenberg_marquardt
-from ._parameters import DEFAULT_PARAMS, PARAMS, check_names, get_values, set_values
+from ._parameters import (
+    DEFAULT_PARAMS,
+    PARAMS,
+    check_names,
+    get_values,
+    set_values,
+    switch_on,
+)
 from ._problem import INTEGRATORS, MS, PLAIN, CalibrationProblem, check_integrator
 
 __all__ = ["fit", "FitResult", "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S",
@@ -380,7 +387,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         raise jl.ConfigError("windows", list(windows), "must be increasing positive numbers [s]")
     base = drops[0].vehicle if vehicle is None else vehicle
     jl.validate_vehicle(base)
-    start_vehicle = _start_vehicle(base, names, start)
+    start_vehicle = switch_on(_start_vehicle(base, names, start), names)
     limit = float(jl.stable_step(start_vehicle, method=integrator))
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
