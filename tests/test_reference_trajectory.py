@@ -9,11 +9,14 @@ smoothing-0 runs with numbers written once to tests/data/reference_unsmoothed.js
 (on jaxland at commit b261030, before the package refactor). The scenes are short and switch a lot:
 the README's chatter scene (stiff, plastic ground, barely damped strut, 30 ms from touchdown at
 0.1 m drop: the foot bounces) with four integrators on the quarter model, and a tilted, sliding
-landing on a slope on the full 3-D model (80 ms: all four feet down). Tolerance: 1e-12 of
-each channel's largest magnitude, which admits another XLA:CPU build's reassociation
-(round-off, ~1e-16) and nothing a change of behaviour would make; the 1 um / 10 N smoothing
-moves these channels by 1e-6 and more (checked below, so the tolerance can see it). A
-deliberate change of the physics must rewrite the file, and say why in its commit.
+landing on a slope on the full 3-D model (80 ms: all four feet down). Tolerance: 1e-8 of
+each channel's largest magnitude. That admits round-off, which the chatter amplifies (45
+contact changes in 30 ms): after the package refactor (7a53b13) reordered operations the
+quarter cases moved by up to 1.2e-10 (impulse, slip distance; 1.5e-11 for Verlet, 3e-12 for
+Euler), the 3-D case by 0. It admits nothing a change of behaviour makes: the 1 um / 10 N
+smoothing moves these channels by 1e-6 and more (checked below), a ramp of 1e-9 width left on
+at width 0 by ~1e-7. A deliberate change of the physics must rewrite the file, and say why in
+its commit.
 """
 
 import json
@@ -28,6 +31,7 @@ import pytest
 import jaxland as jl
 
 REF = Path(__file__).parent / "data" / "reference_unsmoothed.json"
+TOL = 1e-8  # of each channel's largest magnitude (module docstring)
 T_END, SAVE_DT, DT = {"quarter": 0.03, "full": 0.08}, 1e-3, 1e-5
 CHANNELS_QUARTER = ("stroke_m", "plastic_set_m", "strut_force_N", "honeycomb_force_N",
                     "aux_force_N", "normal_force_N", "tangential_force_N", "pit_depth_m",
@@ -89,7 +93,7 @@ def _close(got, ref, what):
     got, ref = np.asarray(got, dtype=float), np.asarray(ref, dtype=float)
     assert got.shape == ref.shape, what
     scale = max(float(np.max(np.abs(ref))), 1e-300)
-    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * scale, err_msg=what)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=TOL * scale, err_msg=what)
 
 
 @pytest.mark.parametrize("name", list(CASES))
@@ -103,12 +107,12 @@ def test_unsmoothed_code_reproduces_the_stored_reference(name, runs, reference):
 
 
 def test_the_reference_can_see_the_smoothing(runs, reference):
-    """With 1 um / 10 N the chatter run (Verlet) leaves the 1e-12 band by far: so a smoothing
+    """With 1 um / 10 N the chatter run (Verlet) leaves the TOL band by far: so a smoothing
     that leaked into the width-0 path would be caught."""
     tr, _ = _run("chatter_verlet", smoothing_m=1e-6, smoothing_N=10.0)
     ref = reference["cases"]["chatter_verlet"]["trajectory"]["normal_force_N"]
     dev = np.max(np.abs(np.asarray(tr["normal_force_N"]) - np.asarray(ref)))
-    assert dev > 1e-6 * np.max(np.abs(ref)), dev
+    assert dev > 100 * TOL * np.max(np.abs(ref)), dev
 
 
 def test_reference_scenes_switch(reference):
