@@ -1,0 +1,258 @@
+"""Mutation check: plant small deliberate bugs in a scratch copy and see which tests catch them.
+
+    .venv/bin/python benchmarks/mutation_check.py                  # all mutations -> JSON on stdout
+    .venv/bin/python benchmarks/mutation_check.py --only wilson_centre_p design_stability_sign
+    .venv/bin/python benchmarks/mutation_check.py --list
+    .venv/bin/python benchmarks/mutation_check.py --out /tmp/mutations.json --source HEAD
+
+Run on demand, not part of the timed suite (a full pass takes several minutes: each mutation
+reruns its test files). Never touches the repository: the working tree (``--source worktree``,
+the default, uncommitted files included) or a commit (``--source HEAD``, through ``git
+archive``) is copied into a scratch folder under /tmp, each mutation is an exact string
+replacement there, and the tests run from the scratch copy (``PYTHONPATH`` puts its packages
+first, ahead of the editable install).
+
+A mutation finds its target by searching for the code string across its search folders
+(``jaxland/`` unless stated), not by a fixed path, so it survives files moving. Outcomes:
+- ``killed``: some test of its files failed (the bug was caught);
+- ``survived``: every test passed with the bug in place;
+- ``target not found``: the code string is nowhere (the code changed: update the mutation);
+- ``ambiguous target``: it occurs more than once (make the string longer);
+- ``baseline failed``: its test files fail without any mutation, so the run says nothing;
+- ``timeout``.
+The exit code is 1 if any mutation survived, 0 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    what: str  # the bug, in words
+    find: str  # exact code string
+    replace: str
+    tests: tuple  # pytest targets (files or node ids), relative to the repository
+    search: tuple = ("jaxland",)
+
+
+M = Mutation
+MUTATIONS = [
+    # --- issue 15's list: statistics, calibration errors, design, stability margin
+    M("wilson_no_z2_4n2", "Wilson half-width without its z^2/4n^2 term",
+      "p * (1 - p) / n + z * z / (4 * n * n)", "p * (1 - p) / n",
+      ("tests/test_statistics.py",)),
+    M("wilson_centre_p", "Wilson interval centred on k/n (Wald-like)",
+      "centre = (p + z * z / (2 * n)) / den", "centre = p",
+      ("tests/test_statistics.py",)),
+    M("calibration_se_x_sqrt2", "calibration standard errors x sqrt(2)",
+      "se = np.sqrt(np.diag(cov_p))", "se = np.sqrt(2.0 * np.diag(cov_p))",
+      ("tests/test_calibration_coverage.py",), ("calibration",)),
+    M("calibration_se_x2", "calibration standard errors x 2",
+      "se = np.sqrt(np.diag(cov_p))", "se = 2.0 * np.sqrt(np.diag(cov_p))",
+      ("tests/test_calibration_coverage.py",), ("calibration",)),
+    M("calibration_se_div_sqrt2", "calibration standard errors / sqrt(2)",
+      "se = np.sqrt(np.diag(cov_p))", "se = np.sqrt(0.5 * np.diag(cov_p))",
+      ("tests/test_calibration_coverage.py",), ("calibration",)),
+    M("design_stroke_sign", "design stroke constraint with its sign flipped",
+      'return per["max_stroke_m"] - (veh.honeycomb.x_L4 - c.threshold)',
+      'return (veh.honeycomb.x_L4 - c.threshold) - per["max_stroke_m"]',
+      ("tests/test_design_constraints.py",)),
+    M("design_stability_sign", "design stability constraint with its sign flipped",
+      'return c.threshold - per["min_stability_margin_m"]',
+      'return per["min_stability_margin_m"] - c.threshold',
+      ("tests/test_design_constraints.py",)),
+    M("design_slip_sign", "design slip constraint with its sign flipped",
+      'return per["slip_distance_m"] - c.threshold',
+      'return c.threshold - per["slip_distance_m"]',
+      ("tests/test_design_constraints.py",)),
+    M("margin_softmin_x10", "stability margin soft-min width x 10",
+      "MARGIN_SOFTNESS_M = 0.01", "MARGIN_SOFTNESS_M = 0.1", ("tests/test_tipover.py",)),
+    M("margin_projected_along_normal", "CoM projected along the ground normal, not gravity",
+      "c = com - (com @ n_g) / n_g[2] * e_z", "c = com - (com @ n_g) * n_g",
+      ("tests/test_tipover.py",)),
+    M("inertia_x4", "body inertia x 4 in the 3-D dynamics",
+      "jnp.stack([vehicle.I_xx, vehicle.I_yy, vehicle.I_zz])",
+      "4.0 * jnp.stack([vehicle.I_xx, vehicle.I_yy, vehicle.I_zz])",
+      ("tests/test_tipover.py",)),
+    M("smoothing_leaks_at_width_0", "a 1e-9 ramp left on when the smoothing width is 0",
+      "    if w == 0.0:\n        return jnp.maximum(x, 0.0)\n",
+      "    if w == 0.0:\n        w = 1e-9\n", ("tests/test_reference_trajectory.py",)),
+    # --- the physics ones the issue lists as caught; pinned here so they stay caught
+    M("damping_sign", "structural damping with its sign flipped",
+      "f_raw = F_bh + D_b * v_b * jnp.abs(F_bh)", "f_raw = F_bh - D_b * v_b * jnp.abs(F_bh)",
+      ("tests/test_laws.py", "tests/test_reference_trajectory.py")),
+    M("restitution_stiffness", "restitution stiffness k (1 - gamma) instead of k / (1 - gamma)",
+      "return self.k / (1.0 - self.gamma)", "return self.k * (1.0 - self.gamma)",
+      ("tests/test_laws.py", "tests/test_reference_trajectory.py")),
+    M("friction_cone_x2", "friction limit 2 mu F_n",
+      "limit = ground.mu * normal_force", "limit = 2.0 * ground.mu * normal_force",
+      ("tests/test_laws.py", "tests/test_reference_trajectory.py")),
+    M("plateau_onset", "primary plateau starts at 2 x_L1",
+      "hc.k_b1 * jnp.maximum(x - hc.x_L1, 0.0)", "hc.k_b1 * jnp.maximum(x - 2.0 * hc.x_L1, 0.0)",
+      ("tests/test_laws.py", "tests/test_quarter.py::test_paper_table_predictions_are_pinned")),
+    M("quaternion_order", "body-rate update applied in the space frame",
+      "quat = quat_mul(quat, _quat_exp(0.5 * dt * w_b))",
+      "quat = quat_mul(_quat_exp(0.5 * dt * w_b), quat)",
+      ("tests/test_vehicle3d.py", "tests/test_reference_trajectory.py")),
+    M("gyroscopic_sign", "gyroscopic term with its sign flipped",
+      "torque_b - jnp.cross(w_b, inertia * w_b)", "torque_b + jnp.cross(w_b, inertia * w_b)",
+      ("tests/test_vehicle3d.py", "tests/test_reference_trajectory.py")),
+    # --- the honeycomb law's new crush peak (its own tests are the law's owner's)
+    M("crush_peak_position", "crush-peak position x_L1 + 2 a1 / k_b1",
+      "x_pk1=x_L1 + a1 / self.k_b1", "x_pk1=x_L1 + 2.0 * a1 / self.k_b1",
+      ("tests/test_laws.py",)),
+]
+
+
+def _copy_source(source: str, dest: Path) -> None:
+    if source == "worktree":
+        ignore = shutil.ignore_patterns(".git", ".venv", "out", "__pycache__", ".pytest_cache",
+                                        ".ruff_cache", "*.egg-info")
+        shutil.copytree(ROOT, dest, ignore=ignore, symlinks=True)
+    else:
+        dest.mkdir(parents=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", source],
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+
+
+def _locate(scratch: Path, m: Mutation) -> list[tuple[Path, int]]:
+    hits = []
+    for folder in m.search:
+        for path in sorted((scratch / folder).rglob("*.py")):
+            n = path.read_text().count(m.find)
+            if n:
+                hits.append((path, n))
+    return hits
+
+
+def _pytest(scratch: Path, targets, timeout: float) -> tuple[int, float, list[str], str]:
+    env = dict(os.environ, PYTHONPATH=str(scratch), PYTHONDONTWRITEBYTECODE="1")
+    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *targets]
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(cmd, cwd=scratch, env=env, capture_output=True, text=True,
+                           timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return -1, time.perf_counter() - t0, [], "timeout"
+    out = p.stdout + p.stderr
+    failed = re.findall(r"^(?:FAILED|ERROR) (\S+)", out, flags=re.M)
+    return p.returncode, time.perf_counter() - t0, failed, out[-2000:]
+
+
+def _check_import(scratch: Path) -> str:
+    env = dict(os.environ, PYTHONPATH=str(scratch))
+    p = subprocess.run([sys.executable, "-c", "import jaxland; print(jaxland.__file__)"],
+                       cwd=scratch, env=env, capture_output=True, text=True)
+    where = p.stdout.strip()
+    if p.returncode or not where.startswith(str(scratch)):
+        raise SystemExit(f"the scratch copy's jaxland is not the one imported ({where!r}; "
+                         f"{p.stderr[-500:]})")
+    return where
+
+
+def run(mutations, *, source: str, timeout: float, keep: bool, log=print) -> dict:
+    scratch = Path(tempfile.mkdtemp(prefix="jaxland-mutants-", dir="/tmp"))
+    tree = scratch / "repo"
+    try:
+        _copy_source(source, tree)
+        _check_import(tree)
+        baseline: dict = {}
+        results = []
+        for m in mutations:
+            rec = dict(asdict(m), status=None, files=[], seconds=None, failed_tests=[])
+            hits = _locate(tree, m)
+            rec["files"] = [str(p.relative_to(tree)) for p, _ in hits]
+            if not hits:
+                rec["status"] = "target not found"
+            elif len(hits) > 1 or hits[0][1] > 1:
+                rec["status"] = "ambiguous target"
+            else:
+                key = tuple(m.tests)
+                if key not in baseline:
+                    rc, sec, failed, tail = _pytest(tree, m.tests, timeout)
+                    baseline[key] = dict(ok=rc == 0, seconds=sec, failed=failed, tail=tail)
+                    log(f"baseline {' '.join(m.tests)}: {'ok' if rc == 0 else 'FAILS'} "
+                        f"({sec:.0f} s)")
+                if not baseline[key]["ok"]:
+                    rec["status"] = "baseline failed"
+                    rec["failed_tests"] = baseline[key]["failed"]
+                else:
+                    path = hits[0][0]
+                    original = path.read_text()
+                    path.write_text(original.replace(m.find, m.replace))
+                    try:
+                        rc, sec, failed, tail = _pytest(tree, m.tests, timeout)
+                    finally:
+                        path.write_text(original)
+                    rec["seconds"] = round(sec, 1)
+                    rec["failed_tests"] = failed
+                    rec["status"] = ("timeout" if rc == -1 else "killed" if rc != 0
+                                     else "survived")
+                    if rc not in (-1, 0, 1):  # collection/usage error: show it
+                        rec["output_tail"] = tail
+            log(f"{m.name:<32} {rec['status']}")
+            results.append(rec)
+        counts: dict = {}
+        for r in results:
+            counts[r["status"]] = counts.get(r["status"], 0) + 1
+        return dict(source=source, root=str(ROOT), scratch=str(tree) if keep else None,
+                    counts=counts, survivors=[r["name"] for r in results
+                                              if r["status"] == "survived"],
+                    baseline={" ".join(k): dict(ok=v["ok"], seconds=round(v["seconds"], 1),
+                                                failed=v["failed"])
+                              for k, v in baseline.items()},
+                    mutations=results)
+    finally:
+        if not keep:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="+", metavar="NAME", help="run only these mutations")
+    ap.add_argument("--list", action="store_true", help="list the mutations and exit")
+    ap.add_argument("--source", default="worktree",
+                    help="'worktree' (default: the files as they are now) or a git revision")
+    ap.add_argument("--out", help="write the JSON report here (default: stdout)")
+    ap.add_argument("--timeout", type=float, default=900.0, help="per pytest run [s]")
+    ap.add_argument("--keep", action="store_true", help="keep the scratch copy")
+    args = ap.parse_args(argv)
+    if args.list:
+        for m in MUTATIONS:
+            print(f"{m.name:<32} {m.what}  [{', '.join(m.tests)}]")
+        return 0
+    chosen = MUTATIONS
+    if args.only:
+        unknown = set(args.only) - {m.name for m in MUTATIONS}
+        if unknown:
+            ap.error(f"unknown mutation(s): {', '.join(sorted(unknown))}")
+        chosen = [m for m in MUTATIONS if m.name in args.only]
+    report = run(chosen, source=args.source, timeout=args.timeout, keep=args.keep,
+                 log=lambda s: print(s, file=sys.stderr, flush=True))
+    text = json.dumps(report, indent=2) + "\n"
+    if args.out:
+        Path(args.out).write_text(text)
+        print(f"wrote {args.out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return 1 if report["survivors"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
