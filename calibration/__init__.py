@@ -27,6 +27,7 @@ from ._fit import (
     WINDOWS_S as WINDOWS_S,
     FitResult as FitResult,
     IdentifiabilityWarning as IdentifiabilityWarning,
+    MisfitWarning as MisfitWarning,
     fit as fit,
 )
 from ._parameters import (
@@ -39,7 +40,8 @@ from ._problem import CalibrationProblem as CalibrationProblem
 
 __all__ = [
     "CHANNELS", "DropTest", "load_drop_test", "load_drop_tests", "fit", "FitResult",
-    "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S", "INTEGRATOR", "INTEGRATORS",
+    "IdentifiabilityWarning", "MisfitWarning", "WINDOWS_S", "REFINE_WINDOW_S", "INTEGRATOR",
+    "INTEGRATORS",
     "SMOOTHING", "DEFAULT_PARAMS",
     "OPTIONAL_PARAMS", "PARAMS", "predict", "Prediction", "CalibrationProblem",
 ]

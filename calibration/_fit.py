@@ -25,7 +25,12 @@ benchmarks/results/bench_fit.json):
    Jacobian of the noise-weighted residuals, s^2 the residual variance factor (1 when the noise
    estimates are right and the model fits; larger with model error, which widens the errors),
    mapped to the physical values by the delta method. Measured over 40 noise seeds: 66 % of
-   the values within 1 SE, 90 % within 2 SE.
+   the values within 1 SE, 90 % within 2 SE. That holds for white residuals only; beside it
+   every fit reports a HAC sandwich standard error that holds under misfit (autocorrelated
+   residuals: ``_uncertainty``), the misfit diagnostics (variance factor, lag-1 residual
+   autocorrelation, the worst 10 ms window and channel), and warns (``MisfitWarning``) when the
+   data contradict the model: then trust ``std_error_hac``. Coverage of both over many noise
+   seeds: benchmarks/bench_fit.py --coverage.
 """
 
 from __future__ import annotations
@@ -52,8 +57,10 @@ from ._parameters import (
     switch_on,
 )
 from ._problem import INTEGRATORS, MS, PLAIN, CalibrationProblem, check_integrator
+from ._uncertainty import hac_covariance, misfit
 
-__all__ = ["fit", "FitResult", "IdentifiabilityWarning", "WINDOWS_S", "REFINE_WINDOW_S",
+__all__ = ["fit", "FitResult", "IdentifiabilityWarning", "MisfitWarning", "WINDOWS_S",
+           "REFINE_WINDOW_S",
            "INTEGRATOR", "INTEGRATORS", "SMOOTHING", "check_integrator"]
 
 WINDOWS_S = (0.01, 0.03, 0.1)
@@ -86,6 +93,11 @@ class IdentifiabilityWarning(UserWarning):
     """A fitted parameter is not determined by the data."""
 
 
+class MisfitWarning(UserWarning):
+    """The residuals contradict the model (too large or autocorrelated): the classical standard
+    errors are too small; use the HAC ones (``FitResult.std_errors_hac``)."""
+
+
 @dataclass
 class FitResult:
     """The calibrated parameters with their uncertainty, the fitted vehicle and the record of
@@ -103,6 +115,9 @@ class FitResult:
     touchdown_std_errors_s: np.ndarray = None
     residual_rms: dict = None
     sigma2: float = 1.0
+    std_errors_hac: np.ndarray = None
+    covariance_hac: np.ndarray = None
+    diagnostics: dict = field(default_factory=dict)
     n_obs: int = 0
     dof: int = 0
     loss: float = 0.0
@@ -134,6 +149,8 @@ class FitResult:
             params[n] = dict(
                 value=num(self.values[i]), std_error=num(self.std_errors[i]), unit=unit,
                 rel_std_error=num(self.std_errors[i] / abs(self.values[i])),
+                std_error_hac=num(self.std_errors_hac[i]) if self.std_errors_hac is not None
+                else None,
                 start=num(self.start_values[i]), identified=bool(self.identified[i]),
                 config_key=PARAMS[n][2], description=PARAMS[n][4])
         return dict(
@@ -146,6 +163,7 @@ class FitResult:
             residual_rms=self.residual_rms,
             noise_std={d.name: d.noise_std for d in self.drops},
             residual_variance_factor=num(self.sigma2),
+            misfit=self.diagnostics,
             n_observations=self.n_obs, degrees_of_freedom=self.dof, final_loss=num(self.loss),
             identifiability_warnings=self.warnings,
             method=self.method, stages=self.stages, wall_s=self.wall_s,
@@ -156,7 +174,9 @@ class FitResult:
                      for h in self.history],
             units=dict(time="s", force="N", stroke="m", acceleration="m/s^2",
                        std_error="same unit as the value; Gauss-Newton, residual-variance "
-                                 "scaled"),
+                                 "scaled (holds for white residuals)",
+                       std_error_hac="same unit as the value; HAC sandwich, Bartlett window "
+                                     "(holds under misfit: autocorrelated residuals)"),
         )
 
     def to_json(self, path) -> Path:
@@ -250,12 +270,12 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     psi(r) = clip(r, -c, c)), which reduces to the former when no residual exceeds c. Mapped to
     the physical values by the delta method. Parameters whose Jacobian column vanishes are left
     out (their standard error is NaN)."""
-    r, jac, _ = problem.robust(None).residuals_and_jacobian(theta)
+    r_all, jac_all, _ = problem.robust(None).residuals_and_jacobian(theta)
     n, p = problem.n_obs, problem.n_theta
     dof = max(n - p, 1)
     active = problem.mask.ravel() > 0
-    r = r[active]
-    jac = jac[active]
+    r = r_all[active]
+    jac = jac_all[active]
     if huber_c is None:
         sigma2 = float(r @ r) / dof
     else:
@@ -284,9 +304,47 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
         corr = cov_p / np.outer(se, se)
     t_se = (np.sqrt(np.diag(cov_theta)[n_z:]) * MS if problem.fit_touchdown
             else np.zeros(len(problem.drops)))
+    # the sandwich (HAC) covariance, which holds under misfit (``_uncertainty`` module)
+    shape = problem.data.shape
+    jac_s = jac_all.reshape(*shape, p)[..., keep] / col[keep]
+    hac = hac_covariance(r_all.reshape(shape), jac_s, problem.mask, huber_c)
+    cov_theta_h = np.full((p, p), np.nan)
+    cov_theta_h[np.ix_(idx, idx)] = hac["cov"] / np.outer(col[keep], col[keep])
+    czh = cov_theta_h[:n_z, :n_z]
+    cov_h = g @ np.where(np.isfinite(czh), czh, 0.0) @ g.T
+    cov_h[bad_p, :] = np.nan
+    cov_h[:, bad_p] = np.nan
+    rho1 = float(hac["rho"][1]) if hac["rho"].size > 1 else 0.0
     return dict(sigma2=sigma2, dof=dof, cov=cov_p, se=se, corr=corr,
                 col_rel=col[:n_z] / max(float(col.max()), 1e-300), zero=zero[:n_z] | bad_p,
-                t_se=t_se)
+                t_se=t_se, cov_hac=cov_h, se_hac=np.sqrt(np.diag(cov_h)), hac_lag=hac["L"],
+                rho1=rho1, misfit=misfit(sigma2, rho1),
+                where=misfit_location(problem, r_all.reshape(shape)))
+
+
+def misfit_location(problem: CalibrationProblem, res: np.ndarray, width_s: float = 0.01):
+    """Where the misfit sits: per drop, the channel and the ``width_s`` time window (after
+    touchdown) with the largest RMS weighted residual (noise-std units; 1 = noise)."""
+    out = []
+    for i, d in enumerate(problem.drops):
+        best = None
+        for j, c in enumerate(problem.channels):
+            m = problem.mask[i, j] > 0
+            if not m.any():
+                continue
+            t = problem.rel_t[i][m]
+            rr = res[i, j][m]
+            for a in np.arange(t.min(), t.max(), width_s):
+                sel = (t >= a) & (t < a + width_s)
+                if sel.sum() < 3:
+                    continue
+                rms = float(np.sqrt(np.mean(rr[sel] ** 2)))
+                if best is None or rms > best["rms_noise_units"]:
+                    best = dict(drop=d.name, channel=c, window_s=[float(a), float(a + width_s)],
+                                rms_noise_units=rms)
+        if best is not None:
+            out.append(best)
+    return out
 
 
 def robust_threshold(problem: CalibrationProblem, theta, k: float) -> float:
@@ -461,6 +519,14 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     identified, msgs = _identifiability(names, values, unc)
     for m in msgs:
         warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
+    if unc["misfit"]:
+        worst = "; ".join(
+            f"{w['drop']}: {w['channel']} at {w['window_s'][0] * 1e3:.0f}-"
+            f"{w['window_s'][1] * 1e3:.0f} ms after touchdown ({w['rms_noise_units']:.3g} x "
+            "noise)" for w in unc["where"])
+        warnings.warn("the data contradict the model: " + "; ".join(unc["misfit"])
+                      + f". The classical standard errors are too small: trust the HAC ones "
+                      f"(std_error_hac). Largest misfit: {worst}", MisfitWarning, stacklevel=2)
     fitted = final.vehicle_at(theta)
     return FitResult(
         names=names, values=values, std_errors=unc["se"], correlation=unc["corr"],
@@ -468,6 +534,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         vehicle=fitted, touchdown_times_s=final.touchdown_times(theta),
         touchdown_std_errors_s=unc["t_se"], residual_rms=final.channel_rms(theta),
         sigma2=unc["sigma2"], n_obs=final.n_obs, dof=unc["dof"],
+        std_errors_hac=unc["se_hac"], covariance_hac=unc["cov_hac"],
+        diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
+            "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
+            worst_window=unc["where"], trust="std_error_hac" if unc["misfit"] else "std_error"),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,
         theta=theta,

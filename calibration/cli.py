@@ -90,6 +90,7 @@ def _cmd_fit(args) -> int:
           file=sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", _fit.IdentifiabilityWarning)
+        warnings.simplefilter("always", _fit.MisfitWarning)
         result = _fit.fit(drops, names, vehicle=vehicle, start=_start(args.start),
                           windows=windows, refine_window_s=refine, robust=robust,
                           method=args.method, max_iter=args.max_iter, dt=args.dt,
@@ -103,14 +104,18 @@ def _cmd_fit(args) -> int:
         if not args.no_plots:
             result.plot(staging / "figures")
     width = max(len(n) for n in result.names)
+    diag = result.diagnostics
     print(f"fitted in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
-          f"iterations); residual variance factor {result.sigma2:.3g}")
+          f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
+          f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
+          + ("  MISFIT: trust the HAC standard errors" if diag["misfit"] else ""))
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 
         flag = "" if result.identified[i] else "   NOT IDENTIFIED"
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
-              f"{PARAMS[n][1]}  (start {result.start_values[i]:.6g}){flag}")
+              f"(HAC +/- {result.std_errors_hac[i]:.2g}) {PARAMS[n][1]}  "
+              f"(start {result.start_values[i]:.6g}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
