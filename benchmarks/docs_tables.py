@@ -41,6 +41,8 @@ def _g(x, nd=4) -> str:
         return "yes" if x else "no"
     if isinstance(x, int):
         return str(x)
+    if 10 ** nd <= abs(x) < 1e9:
+        return f"{x:.0f}"  # 13721, not 1.372e+04
     return f"{x:.{nd}g}"
 
 
@@ -69,11 +71,17 @@ PAPER_ROWS = {
     "peak_body_accel_mps2": "peak body acceleration [m/s^2]",
     "secondary_engaged_first_impact": "secondary honeycomb engaged in first impact",
     "energy_closure_rel": "energy ledger closure (of dissipated) [-]",
+    "peak_body_accel_measured_mps2": "peak body acceleration, measured [m/s^2]",
+    "peak_buffer_force_N": "peak buffer (strut) force [N]",
+    "peak_honeycomb_force_N": "peak honeycomb force [N]",
+    "peak_ratio_both_stages": "crush peak over plateau, both stages [-]",
+    "peak_length_mm": "crush peak length [mm]",
 }
 PAPER_ALIASES = {"second_impact_s": "later_impacts_s"}
 PAPER_SKIP = {"n_impacts"}
 PAPER_COLUMNS = {"paper": "paper", "jaxland_default": "jaxland (default, rod slides free)",
-                 "jaxland_bonded": "jaxland (bonded honeycomb)"}
+                 "jaxland_bonded": "jaxland (bonded honeycomb)",
+                 "jaxland_crush_peak": "jaxland (with crush peak)"}
 UNITS = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_mm", "mm"), ("_kN", "kN"), ("_N", "N"),
          ("_m", "m"), ("_s", "s"), ("_J", "J"), ("_kg", "kg"), ("_rel", "-"))
 

@@ -16,8 +16,15 @@ import _common  # noqa: E402
 
 
 def _results_status() -> str:
-    return subprocess.run(["git", "status", "--porcelain", "--", "benchmarks/results"], cwd=ROOT,
-                          capture_output=True, text=True, check=True).stdout
+    """git status of what these scripts write in benchmarks/results (only those paths: other
+    people may be editing other results files in a shared working tree meanwhile), plus the
+    modification times of the ignored raw dumps."""
+    paths = ["benchmarks/results/bench_landing.json", "benchmarks/results/bench_landing.png",
+             "benchmarks/results/integrators.json", "benchmarks/results/integrators_*.png"]
+    status = subprocess.run(["git", "status", "--porcelain", "--", *paths], cwd=ROOT,
+                            capture_output=True, text=True, check=True).stdout
+    raw = sorted((p.name, p.stat().st_mtime_ns) for p in _common.RAW.glob("*"))
+    return f"{status}{raw}"
 
 
 def test_quick_defaults_outside_the_tracked_results():
