@@ -3,7 +3,7 @@
     python benchmarks/baselines.py            # full benchmark -> benchmarks/results/baselines.json
                                               #   (+ raw/baselines_raw.json with the traces)
     python benchmarks/baselines.py --check    # quick verification only; exit 1 on mismatch
-    python benchmarks/baselines.py --quick    # fewer runs (smoke test of the benchmark itself)
+    python benchmarks/baselines.py --quick    # fewer runs (smoke test) -> out/bench-quick/
 
 Needs the optional ``bench`` extra (``pip install -e ".[bench]"``: numba and scipy). Without it
 this module still imports (``NUMBA_AVAILABLE`` is False and the kernels are plain Python); the
@@ -1007,7 +1007,9 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true",
                     help="verify numba vs jaxland and scipy vs fine Euler; exit 1 on mismatch")
     ap.add_argument("--quick", action="store_true", help="fewer settings (smoke test)")
-    ap.add_argument("--out", default=str(OUT), help="JSON output path")
+    ap.add_argument("--out", default=None,
+                    help=f"JSON output path (default {OUT.relative_to(OUT.parents[2])}, or "
+                         "out/bench-quick/baselines.json with --quick)")
     args = ap.parse_args(argv)
     if not (NUMBA_AVAILABLE and SCIPY_AVAILABLE):
         print(MISSING_MESSAGE, file=sys.stderr)
@@ -1017,7 +1019,11 @@ def main(argv=None) -> int:
         res = check()
         print("OK" if res["ok"] else "MISMATCH")
         return 0 if res["ok"] else 1
-    run_benchmark(args.out, quick=args.quick)
+    from _common import out_dir
+
+    out = Path(args.out) if args.out else None
+    folder = out_dir(str(out.parent) if out else None, args.quick)  # refuses --quick in results
+    run_benchmark(folder / (out.name if out else OUT.name), quick=args.quick)
     return 0
 
 

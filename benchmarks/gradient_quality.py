@@ -1,6 +1,6 @@
 """Gradient quality per integrator (issue #3 point 4): AD against central finite differences.
 
-    .venv/bin/python benchmarks/gradient_quality.py [--quick] [--out benchmarks/results]
+    .venv/bin/python benchmarks/gradient_quality.py [--quick] [--out DIR]
 
 For the quarter model, two scenes, each started at touchdown:
 
@@ -44,7 +44,13 @@ import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from _common import save_png, summarise_gradient_quality, write_json  # noqa: E402
+from _common import (  # noqa: E402
+    add_out_args,
+    out_dir,
+    save_png,
+    summarise_gradient_quality,
+    write_json,
+)
 
 import jaxland as jl  # noqa: E402
 
@@ -312,10 +318,9 @@ def plot(res, path):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="no scans")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    add_out_args(ap)  # --quick: no scans, written to out/bench-quick/
     args = ap.parse_args(argv)
-    run(args.quick, args.out)
+    run(args.quick, out_dir(args.out, args.quick))
 
 
 if __name__ == "__main__":
