@@ -142,13 +142,15 @@ def test_full_model_takes_fixed_step_methods_and_refuses_the_others():
 
 
 @pytest.mark.parametrize("method,adjoint,rtol", [
-    ("euler", "forward", 0.02), ("euler_implicit", "forward", 0.02), ("verlet", "forward", 0.02),
-    ("impulse", "forward", 0.02), ("impulse", "reverse", 0.02),
+    ("euler", "forward", 1e-3), ("euler_implicit", "forward", 1e-3), ("verlet", "forward", 1e-3),
+    ("impulse", "forward", 1e-3), ("impulse", "reverse", 1e-3),
 ])
 def test_each_method_differentiates(method, adjoint, rtol):
-    """jacfwd (forward) or grad (reverse) of max stroke in D_b and F1 is finite and matches a
-    central difference at the first impact (h = 1e-4 relative; loose: gradient quality is
-    measured in benchmarks/gradient_quality.py and tests/test_gradient_quality.py)."""
+    """jacfwd (forward) or grad (reverse) of max stroke in D_b and F1 is finite and matches
+    central differences at the first impact at two neighbouring steps, h = 1e-5 and 1e-6
+    relative (both must agree: one lucky secant does not count). Measured: <= 6.7e-5 over all
+    methods and both steps; asserted 1e-3. Fuller gradient quality is measured in
+    benchmarks/gradient_quality.py and tests/test_gradient_quality.py."""
     options = {} if method in FIXED else {"adjoint": adjoint}
     solver = jl.Solver(dt=1e-5, t_end=0.3, save_dt=1e-3, method=jl.integrator(method, **options))
 
@@ -161,10 +163,10 @@ def test_each_method_differentiates(method, adjoint, rtol):
     diff = jax.jacfwd if adjoint == "forward" else jax.grad
     g = np.asarray(jax.jit(diff(stroke))(p0))
     f = jax.jit(stroke)
-    h = 1e-4
-    fd = np.array([(f(p0 + h * e) - f(p0 - h * e)) / (2 * h) for e in np.eye(2)])
     assert np.all(np.isfinite(g))
-    np.testing.assert_allclose(g, fd, rtol=rtol)
+    for h in (1e-5, 1e-6):
+        fd = np.array([(f(p0 + h * e) - f(p0 - h * e)) / (2 * h) for e in np.eye(2)])
+        np.testing.assert_allclose(g, fd, rtol=rtol, err_msg=f"h = {h}")
 
 
 @pytest.mark.parametrize("adjoint,diff", [("forward", jax.jacfwd), ("reverse", jax.grad)])
