@@ -5,6 +5,17 @@ central finite differences of the calibration loss.
 
     .venv/bin/python benchmarks/bench_fit.py [--with-lbfgs] [--variants euler,verlet_smooth]
                                              [--out benchmarks/results]
+    .venv/bin/python benchmarks/bench_fit.py --coverage 20 [--quick]
+
+``--coverage N`` measures, over N noise seeds, how often the reported 95 % intervals (value
++/- 1.96 standard errors, the classical and the HAC one) contain the truth, on rig data the
+model can represent and on rig data with artefacts it lacks (the rig's crush-peak shape; that
+peak with a 500 Hz two-pole low-pass on every sensor), and how often they contain the
+pseudo-truth (the same fit on the artefact record without noise: what the wrong model
+converges to; intervals that are honest about the scatter cover it even where the model's
+bias keeps them off the truth). It stores its result under "coverage" in bench_fit.json
+(the rest of the file kept); ``--quick`` (3 seeds) writes out/bench_fit_quick.json instead and
+never touches the committed results.
 
 Variants (``VARIANTS``): ``euler`` (symplectic Euler, hard switches) and ``verlet_smooth``
 (velocity Verlet with 1e-6 m / 10 N switch smoothing, the gradient-quality study's fitting
@@ -126,6 +137,84 @@ def ad_vs_fd(drop, opts, vehicle):
                 meets_target=bool(max(worst.values()) <= TARGETS["ad_fd_rel"]))
 
 
+COVERAGE_CASES = {
+    "representable": dict(crush_peak=0.0),
+    "artefact: crush peak": dict(),
+    "artefact: crush peak + 500 Hz low-pass": dict(lowpass_Hz=500.0),
+}
+Z95 = 1.959964
+
+
+def coverage(n_seeds: int, height: float = 0.2) -> dict:
+    """Coverage of the 95 % intervals over ``n_seeds`` noise seeds per ``COVERAGE_CASES``."""
+    truth = vr.truth_vehicle()
+    names = cal.DEFAULT_PARAMS
+    p_true = get_values(truth, names)
+    out = dict(n_seeds=n_seeds, drop_height_m=height, level=0.95, z=Z95,
+               params=list(names), cases={})
+    for label, kw in COVERAGE_CASES.items():
+        pseudo, _ = _fit([vr.drop_test(height, noise=None, **kw)])
+        p_pseudo = pseudo.values
+        rows = []
+        for seed in range(n_seeds):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", cal.MisfitWarning)
+                r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)])
+            rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values.tolist(),
+                             se=r.std_errors.tolist(), se_hac=r.std_errors_hac.tolist(),
+                             sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
+                             misfit_warned=bool(r.diagnostics["misfit"])))
+            print(f"[coverage] {label}, seed {seed}: {w:.1f} s, rho1 "
+                  f"{rows[-1]['rho1']:.2f}", flush=True)
+        v = np.array([r_["values"] for r_ in rows])
+        se, seh = np.array([r_["se"] for r_ in rows]), np.array([r_["se_hac"] for r_ in rows])
+
+        def cov(ref, s):
+            inside = np.abs(v - ref[None]) <= Z95 * s
+            return dict(zip(names, inside.mean(axis=0).tolist())), float(inside.mean())
+
+        c_t, c_t_all = cov(p_true, se)
+        ch_t, ch_t_all = cov(p_true, seh)
+        c_p, c_p_all = cov(p_pseudo, se)
+        ch_p, ch_p_all = cov(p_pseudo, seh)
+        out["cases"][label] = dict(
+            rig=kw, truth=dict(zip(names, p_true.tolist())),
+            pseudo_truth=dict(zip(names, p_pseudo.tolist())),
+            bias_of_pseudo_truth_rel=dict(zip(names, (p_pseudo / p_true - 1).tolist())),
+            spread_rel=dict(zip(names, (v.std(axis=0, ddof=1) / p_true).tolist())),
+            mean_se_rel=dict(zip(names, (se.mean(axis=0) / p_true).tolist())),
+            mean_se_hac_rel=dict(zip(names, (seh.mean(axis=0) / p_true).tolist())),
+            coverage_of_truth=dict(classical=c_t, hac=ch_t, classical_all=c_t_all,
+                                   hac_all=ch_t_all),
+            coverage_of_pseudo_truth=dict(classical=c_p, hac=ch_p, classical_all=c_p_all,
+                                          hac_all=ch_p_all),
+            misfit_warned_fraction=float(np.mean([r_["misfit_warned"] for r_ in rows])),
+            mean_sigma2=float(np.mean([r_["sigma2"] for r_ in rows])),
+            mean_rho1=float(np.mean([r_["rho1"] for r_ in rows])),
+            runs=rows)
+        print(f"[coverage] {label}: truth classical {c_t_all:.2f} hac {ch_t_all:.2f}; "
+              f"pseudo-truth classical {c_p_all:.2f} hac {ch_p_all:.2f}", flush=True)
+    return out
+
+
+def main_coverage(args) -> int:
+    n = 3 if args.quick else args.coverage
+    result = coverage(n)
+    if args.quick:  # never overwrite the committed results
+        path = ROOT / "out" / "bench_fit_quick.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = dict(coverage=result)
+    else:
+        path = Path(args.out) / "bench_fit.json"
+        data = json.loads(path.read_text()) if path.exists() else {}
+        data["coverage"] = result
+    from calibration._report import atomic_write_text
+
+    atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+    print(f"wrote {path}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
@@ -134,7 +223,14 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", default=",".join(VARIANTS),
                     help=f"comma-separated, of {', '.join(VARIANTS)}")
     ap.add_argument("--replot", action="store_true", help="only redraw the plot from the JSON")
+    ap.add_argument("--coverage", type=int, default=0, metavar="N",
+                    help="only the interval-coverage study over N noise seeds (into "
+                         "bench_fit.json's 'coverage')")
+    ap.add_argument("--quick", action="store_true",
+                    help="with --coverage: 3 seeds, written to out/bench_fit_quick.json")
     args = ap.parse_args(argv)
+    if args.coverage or args.quick:
+        return main_coverage(args)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"
         _plot(json.loads(path.read_text()), path.with_suffix(".png"))

@@ -5,14 +5,16 @@ keeps it physical while the optimiser works on an unconstrained number.
 * ``gamma`` in (0, 1) as ``logit(gamma)``.
 * ``F2`` as ``log(F2 - F1)``: the secondary plateau always exceeds the primary (the vehicle's
   validity rule), whatever the optimiser tries.
-* The honeycomb's crush-peak ratios and unloading ratio (``peak1``, ``peak2``, ``unload``) as
-  ``log(r - 1)``: they stay above 1. Off in the starting vehicle (ratio 1, the paper's law) they
-  start from ``START_IF_OFF`` (1.2: the middle of the pre-crushed honeycomb's 1.0-1.3 x range;
-  1.1 for the unloading ratio).
-* The peak lengths as ``log(L - L_min)`` with L_min = 2 (r - 1) F / k, the shortest decay the
-  vehicle's rule allows (falling slope (r - 1) F / L <= k / 2, ``jaxland.validate_vehicle``):
-  a sharper measured peak than the rule allows ends the fit at the rule's bound (the peak's
-  work, not its shape), never at an invalid vehicle.
+* The honeycomb's crush-peak ratios, their decay lengths and the unloading ratio (``peak1``,
+  ``L_peak1``, ``peak2``, ``L_peak2``, ``unload``) within the bounds of the vehicle's rules
+  (``jaxland.validate_vehicle``), as logit((x - lo) / (hi - lo)), or log(x - lo) without an
+  upper bound: unload in (1, max(k_b1, k_b3) / k_b3); L between 2 (r - 1) F / k (the
+  falling slope (r - 1) F / L <= k / 2) and the room left before x_L2 (x_L4); r in (1, the
+  largest peak those leave room for), and r1 F1 < F2. A sharper measured peak than the rule
+  allows ends the fit at the bound (the peak's work, not its shape), never at an invalid
+  vehicle. Off in the starting vehicle (ratio 1, the paper's law) the ratios start from
+  ``START_IF_OFF`` (1.2: the middle of the pre-crushed honeycomb's 1.0-1.3 x range; 1.1 for
+  the unloading ratio).
 
 Standard errors and correlations are reported for the physical values, through the Jacobian of
 this transform (delta method).
@@ -21,6 +23,7 @@ this transform (delta method).
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -54,15 +57,15 @@ PARAMS = {
     "k_tan": (lambda v: v.ground.k_tan, "N/m", "ground.k_tan_N_per_m", "log",
               "tangential contact stiffness"),
     "peak1": (lambda v: v.honeycomb.peak_ratio1, "1", "honeycomb.peak_ratio1", "over1",
-              "primary honeycomb initial crush peak / F1 (fitted as log(r - 1))"),
+              "primary honeycomb initial crush peak / F1"),
     "L_peak1": (lambda v: v.honeycomb.peak_length1, "m", "honeycomb.peak_length1_mm", "length",
-                "crush over which the primary peak decays to F1 (fitted as log(L - L_min))"),
+                "crush over which the primary peak decays to F1"),
     "peak2": (lambda v: v.honeycomb.peak_ratio2, "1", "honeycomb.peak_ratio2", "over1",
-              "secondary honeycomb initial crush peak / F2 (fitted as log(r - 1))"),
+              "secondary honeycomb initial crush peak / F2"),
     "L_peak2": (lambda v: v.honeycomb.peak_length2, "m", "honeycomb.peak_length2_mm", "length",
-                "crush over which the secondary peak decays to F2 (fitted as log(L - L_min))"),
+                "crush over which the secondary peak decays to F2"),
     "unload": (lambda v: v.honeycomb.unload_ratio, "1", "honeycomb.unload_ratio", "over1",
-               "secondary stage's unloading stiffness / k_b3 (fitted as log(rho - 1))"),
+               "secondary stage's unloading stiffness / k_b3"),
 }
 # where an optional law extension is off (None: ratio 1) a fit of it starts here
 START_IF_OFF = {"peak1": 1.2, "peak2": 1.2, "unload": 1.1}
@@ -115,87 +118,99 @@ def _f1_of(names, values, vehicle):
     return values[names.index("F1")] if "F1" in names else PARAMS["F1"][0](vehicle)
 
 
-_LENGTH_OF = {"L_peak1": ("peak1", "F1"), "L_peak2": ("peak2", "F2")}
+def _value(m, names, values, vehicle):
+    """A fitted value (``values``, by ``names``) or the vehicle's; 1 for an extension off."""
+    if m in names:
+        return values[names.index(m)]
+    v = PARAMS[m][0](vehicle)
+    return 1.0 if v is None else v
 
 
-def _min_length(n, names, values, vehicle):
-    """L_min = 2 (r - 1) F / k of a peak length [m] from the fitted or the vehicle's values."""
-    ratio, force = _LENGTH_OF[n]
+def _bounds(n, names, values, vehicle):
+    """(lo, hi) of a crush-peak or unloading parameter from the vehicle's rules (hi None: no
+    upper bound), given the other values (fitted or the vehicle's)."""
+    def v(m):
+        return _value(m, names, values, vehicle)
 
-    def val(m):
-        if m in names:
-            return values[names.index(m)]
-        v = PARAMS[m][0](vehicle)
-        return 1.0 if v is None else v
+    hc = vehicle.honeycomb
+    if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
+        return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3")
+    first = n in ("peak1", "L_peak1")
+    ratio, length, force, k_el = (("peak1", "L_peak1", "F1", "k_b1") if first
+                                  else ("peak2", "L_peak2", "F2", "k_b3"))
+    # the plateau's room: from its start (x_L1, x_L3) to its end (x_L2, x_L4)
+    room = (hc.x_L2 - v("F1") / v("k_b1") if first
+            else hc.x_L4 - hc.x_L2 - (v("F2") - v("F1")) / v("k_b3"))
+    if n in ("peak1", "peak2"):  # bound the peak a = (r - 1) F
+        if length in names:  # the length's interval below must stay open
+            a_hi = 0.999 * room / (2.0 / v("k") + 1.0 / v(k_el))
+        else:  # the fixed length: falling slope a / L <= k / 2, the peak ends in the room
+            L = hc.peak_length1 if first else hc.peak_length2
+            a_hi = jnp.minimum(0.5 * v("k") * L, v(k_el) * (room - L))
+        if first:  # r1 F1 < F2: the primary's peak stays below the secondary plateau
+            a_hi = jnp.minimum(a_hi, v("F2") - v("F1"))
+        return 1.0, 1.0 + a_hi / v(force)
+    a = (v(ratio) - 1.0) * v(force)
+    # falling slope a / L <= k / 2; the peak's rise a / k_el and decay L end in the room
+    return 2.0 * a / v("k"), room - a / v(k_el)
 
-    return 2.0 * (val(ratio) - 1.0) * val(force) / val("k")
+
+_STAGE = {"log": 0, "logit": 0, "gap": 1, "over1": 2, "length": 3}  # evaluation order
 
 
 def to_unconstrained(vehicle: jl.Vehicle, names) -> np.ndarray:
     """Unconstrained coordinates z of the selected parameters of ``vehicle``."""
     p = get_values(vehicle, names)
+    for i, n in enumerate(names):  # an extension that is off starts from its documented value
+        if PARAMS[n][3] == "over1" and p[i] == 1.0:
+            p[i] = START_IF_OFF[n]
     f1 = float(_f1_of(names, p, vehicle))
-    z = []
-    for n, x in zip(names, p):
+    z = np.zeros(len(names))
+    for i, (n, x) in enumerate(zip(names, p)):
         kind = PARAMS[n][3]
         if kind == "log":
             if not x > 0:
                 raise jl.ConfigError(PARAMS[n][2], x, "must be > 0 to be fitted (log scale)")
-            z.append(np.log(x))
+            z[i] = np.log(x)
         elif kind == "logit":
             if not 0 < x < 1:
                 raise jl.ConfigError(PARAMS[n][2], x, "must be in (0, 1) to be fitted")
-            z.append(np.log(x / (1 - x)))
-        elif kind == "over1":
-            if x == 1.0:  # off: start from the documented value
-                x = START_IF_OFF[n]
-            if not x > 1:
-                raise jl.ConfigError(PARAMS[n][2], x, "must be >= 1 (1: off) to be fitted")
-            z.append(np.log(x - 1.0))
-        elif kind == "length":
-            continue  # below, once the ratios are known
-        else:  # gap over F1
+            z[i] = np.log(x / (1 - x))
+        elif kind == "gap":
             if not x > f1:
                 raise jl.ConfigError(PARAMS[n][2], x, f"must exceed F1 = {f1:g} N")
-            z.append(np.log(x - f1))
-    z = _fill(z, names)
-    phys = from_unconstrained(np.array([0.0 if zi is None else zi for zi in z]), names,
-                              vehicle, lengths=False)
-    for i, n in enumerate(names):
-        if PARAMS[n][3] == "length":
-            x = p[i]
-            lo = float(_min_length(n, names, np.asarray(phys), vehicle))
-            if not x > lo:
-                raise jl.ConfigError(PARAMS[n][2], x * 1e3, f"must exceed 2 (r - 1) F / k = "
-                                     f"{lo * 1e3:.4g} mm to be fitted (the falling-slope rule)")
-            z[i] = np.log(x - lo)
-    return np.array(z, dtype=float)
+            z[i] = np.log(x - f1)
+        else:  # bounded by the vehicle's rules
+            lo, hi = (None if b is None else float(b) for b in _bounds(n, names, p, vehicle))
+            if not (x > lo and (hi is None or x < hi)):
+                shown, unit = (x * 1e3, " mm") if kind == "length" else (x, "")
+                raise jl.ConfigError(
+                    PARAMS[n][2], shown, f"must lie in ({lo * (1e3 if unit else 1):.4g}, "
+                    f"{'inf' if hi is None else format(hi * (1e3 if unit else 1), '.4g')})"
+                    f"{unit} to be fitted (the vehicle's rules for the crush peak and the "
+                    "unloading stiffness)")
+            u = (x - lo) if hi is None else (x - lo) / (hi - lo)
+            z[i] = np.log(u) if hi is None else np.log(u / (1.0 - u))
+    return z
 
 
-def _fill(z, names):
-    """z with a placeholder where a length's coordinate comes later (same length as names)."""
-    it = iter(z)
-    return [None if PARAMS[n][3] == "length" else next(it) for n in names]
-
-
-def from_unconstrained(z, names, vehicle: jl.Vehicle, lengths: bool = True):
-    """Physical values (jnp) from unconstrained coordinates; traceable. (``lengths=False``:
-    the peak lengths are left at 0, for ``to_unconstrained``.)"""
+def from_unconstrained(z, names, vehicle: jl.Vehicle):
+    """Physical values (jnp) from unconstrained coordinates; traceable. Every value obeys the
+    vehicle's rules: positive, gamma in (0, 1), F2 > F1, the crush peaks and unloading ratio
+    inside their bounds (``_bounds``)."""
     out = [None] * len(names)
-    for i, n in enumerate(names):
-        kind = PARAMS[n][3]
-        if kind == "log":
-            out[i] = jnp.exp(z[i])
-        elif kind == "logit":
-            out[i] = 1.0 / (1.0 + jnp.exp(-z[i]))
-        elif kind == "over1":
-            out[i] = 1.0 + jnp.exp(z[i])
-    if "F2" in names:
-        i = names.index("F2")
-        f1 = out[names.index("F1")] if "F1" in names else PARAMS["F1"][0](vehicle)
-        out[i] = f1 + jnp.exp(z[i])
-    for i, n in enumerate(names):
-        if PARAMS[n][3] == "length":
-            out[i] = jnp.zeros(()) if not lengths else (
-                _min_length(n, names, out, vehicle) + jnp.exp(z[i]))
+    for stage in range(4):
+        for i, n in enumerate(names):
+            kind = PARAMS[n][3]
+            if _STAGE[kind] != stage:
+                continue
+            if kind == "log":
+                out[i] = jnp.exp(z[i])
+            elif kind == "logit":
+                out[i] = 1.0 / (1.0 + jnp.exp(-z[i]))
+            elif kind == "gap":
+                out[i] = _f1_of(names, out, vehicle) + jnp.exp(z[i])
+            else:
+                lo, hi = _bounds(n, names, out, vehicle)
+                out[i] = lo + (jnp.exp(z[i]) if hi is None else (hi - lo) * jax.nn.sigmoid(z[i]))
     return jnp.stack([jnp.asarray(o, dtype=jnp.float64) for o in out])

@@ -25,10 +25,12 @@ Which estimator, and why:
 * **Profile likelihood** intervals assume the residuals are independent too; they fix the
   interval's shape, not the count of independent samples.
 
-Bandwidth L: the Bartlett window must cover the residuals' correlation, which under misfit is
-long (tens to hundreds of samples at 5 kHz). L = clip(2 l*, L_NW, T / 4), where l* is the first
-lag at which the pooled autocorrelation of the residuals falls below 0.1 and L_NW = 4 (T / 100)
-^(2/9) Newey and West's rule for mild correlation (T samples per drop).
+Under misfit the residuals stay correlated over tens to hundreds of samples at 5 kHz, and a
+Bartlett window that wide is biased low (the fit makes the scores sum to zero). So the scores
+are first prewhitened by a VAR(1) (Andrews & Monahan 1992), and the window is applied to what
+is left: L = clip(2 l*, L_NW, T / 4), where l* is the first lag at which the pooled
+autocorrelation of the whitened scores falls below 0.1 and L_NW = 4 (T / 100)^(2/9) Newey and
+West's rule for mild correlation (T samples per drop).
 
 What no standard error can do: with missing physics the fit converges to the best-fitting
 parameters of the wrong model, not to the truth; the HAC error covers the scatter around the
@@ -75,12 +77,34 @@ def bandwidth(res, mask) -> tuple[int, np.ndarray]:
     return int(np.clip(2 * first, nw, cap)), rho
 
 
+def _bartlett(g: np.ndarray, lag_max: int) -> np.ndarray:
+    """sum_l w_l sum_t g_t g_{t+l}^T over lags |l| <= lag_max, Bartlett weights; g (drops,
+    samples, p), lags within each drop."""
+    b = np.einsum("dti,dtj->ij", g, g)
+    n = g.shape[1]
+    for lag in range(1, min(lag_max, n - 1) + 1):
+        w = 1.0 - lag / (lag_max + 1.0)
+        c = np.einsum("dti,dtj->ij", g[:, : n - lag], g[:, lag:])
+        b += w * (c + c.T)
+    return b
+
+
 def hac_covariance(res, jac, mask, huber_c=None) -> dict:
     """Sandwich covariance of theta (unconstrained coordinates) from the weighted residuals
     ``res`` (drops, channels, samples), their Jacobian ``jac`` (drops, channels, samples, p) and
     the mask of real samples; Huber threshold ``huber_c`` (None: least squares).
 
-    Returns ``cov`` (p, p), the bandwidth ``L`` [samples] and the residual autocorrelation."""
+    The scores are prewhitened by a VAR(1) fitted to them (Andrews & Monahan 1992: g_t =
+    A g_{t-1} + u_t, the long-run covariance of u by Bartlett, recoloured by (I - A)^-1, with
+    A's singular values capped at 0.97): a plain Bartlett window under strongly correlated
+    residuals is biased low, and more so the wider it is, because the fit itself makes the
+    scores sum to zero. Measured on a straight-line fit with AR(1) noise, 400 samples, 300
+    replicates (coverage of the 95 % intervals, classical / this): coefficient 0 94 / 94 %,
+    0.5 71 / 93 %, 0.9 34 / 90 %, 0.97 18 / 82 % (plain Bartlett at 0.9: 83 % at its best
+    bandwidth, falling as the window widens). tests/test_calibration_honesty re-measures it.
+
+    Returns ``cov`` (p, p), the bandwidth ``L`` [samples] of the whitened scores and the
+    residuals' autocorrelation."""
     m = (mask > 0).astype(float)
     if huber_c is None:
         psi, dpsi = res, np.ones_like(res)
@@ -91,13 +115,19 @@ def hac_covariance(res, jac, mask, huber_c=None) -> dict:
     jm = jac * m[..., None]
     a = np.einsum("dcti,dct,dctj->ij", jm, dpsi, jm)
     g = np.einsum("dcti,dct->dti", jm, psi)  # scores per drop and instant
-    lag_max, rho = bandwidth(res, mask)
-    b = np.einsum("dti,dtj->ij", g, g)
-    n = g.shape[1]
-    for lag in range(1, min(lag_max, n - 1) + 1):
-        w = 1.0 - lag / (lag_max + 1.0)
-        c = np.einsum("dti,dtj->ij", g[:, : n - lag], g[:, lag:])
-        b += w * (c + c.T)
+    _, rho = bandwidth(res, mask)
+    p = g.shape[-1]
+    # VAR(1) prewhitening, pooled over drops (lags within each drop)
+    g0, g1 = g[:, :-1].reshape(-1, p), g[:, 1:].reshape(-1, p)
+    a_var = np.linalg.lstsq(g0, g1, rcond=None)[0].T if g0.shape[0] > p else np.zeros((p, p))
+    u_, sv, vt = np.linalg.svd(a_var)
+    a_var = (u_ * np.minimum(sv, 0.97)) @ vt
+    u = g[:, 1:] - np.einsum("ij,dtj->dti", a_var, g[:, :-1])
+    lag_max, _ = bandwidth(np.einsum("dti->dt", u)[:, None, :], np.ones((u.shape[0], 1,
+                                                                           u.shape[1])))
+    b_u = _bartlett(u, lag_max)
+    recolour = np.linalg.inv(np.eye(p) - a_var)
+    b = recolour @ b_u @ recolour.T
     a_inv = np.linalg.pinv(a, rcond=1e-13, hermitian=True)
     return dict(cov=a_inv @ b @ a_inv, L=lag_max, rho=rho)
 

@@ -15,6 +15,9 @@ what a real rig records, with what a real rig adds:
   ``1 + CRUSH_PEAK * s(p / p0)`` with ``s(u) = u exp(1 - u)`` (peak 1 at u = 1), p the primary
   honeycomb's crushed length and p0 = ``CRUSH_PEAK_LENGTH_M`` (0.4 mm): a +20 % overshoot over
   the first millimetre or so of crushing, about 1-2 ms.
+* optionally, **sensor low-pass filtering** (``lowpass_Hz``): every channel through a causal
+  two-pole Butterworth filter at that corner frequency (an anti-aliasing / conditioning filter
+  the model does not have; default off).
 
 ``python -m calibration.virtual_rig [--out data/synthetic]`` writes the bundled set: one CSV +
 metadata TOML per drop height (``HEIGHTS_M``), ``truth_vehicle.toml`` (the truth, loadable by
@@ -66,12 +69,38 @@ def _crush_shape(p):
     return u * np.exp(1.0 - u)
 
 
+def butterworth2(y: np.ndarray, corner_Hz: float, rate_Hz: float) -> np.ndarray:
+    """Causal two-pole Butterworth low-pass (bilinear transform, pre-warped corner), started at
+    rest on the first sample."""
+    k = math.tan(math.pi * corner_Hz / rate_Hz)
+    q = math.sqrt(2.0)
+    norm = 1.0 / (1.0 + q * k + k * k)
+    b0 = k * k * norm
+    b1, b2 = 2.0 * b0, b0
+    a1 = 2.0 * (k * k - 1.0) * norm
+    a2 = (1.0 - q * k + k * k) * norm
+    out = np.empty_like(y)
+    x1 = x2 = y[0]
+    y1 = y2 = y[0]
+    for i, x in enumerate(y):
+        v = b0 * x + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2
+        x2, x1, y2, y1 = x1, x, y1, v
+        out[i] = v
+    return out
+
+
 def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2,
            pre_trigger_s: float = 0.05, sample_rate_Hz: float = SAMPLE_RATE_HZ,
            noise: dict | None = NOISE, stroke_offset_m: float = STROKE_OFFSET_M,
-           crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0):
+           crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0,
+           lowpass_Hz: float | None = None):
     """Run the rig: ``(time_s, {channel: samples}, info)``. ``noise=None``, ``stroke_offset_m=0``
-    and ``crush_peak=0`` give the clean record (the model itself, sampled)."""
+    and ``crush_peak=0`` give the clean record (the model itself, sampled). ``lowpass_Hz``:
+    filter every channel (before the noise, as a sensor's conditioning would) at this corner
+    frequency [Hz] (None: no filter)."""
+    if lowpass_Hz is not None and not (0 < lowpass_Hz < 0.5 * sample_rate_Hz):
+        raise jl.ConfigError("lowpass_Hz", lowpass_Hz,
+                             f"must be in (0, {0.5 * sample_rate_Hz:g}) Hz (below Nyquist)")
     step = int(round(1.0 / (sample_rate_Hz * _SIM_DT)))
     if abs(step * sample_rate_Hz * _SIM_DT - 1.0) > 1e-9:
         raise jl.ConfigError("sample_rate_Hz", sample_rate_Hz,
@@ -101,6 +130,8 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
             y = y * peak
         if c == "stroke_m":
             y = y + stroke_offset_m
+        if lowpass_Hz is not None:
+            y = butterworth2(y, lowpass_Hz, sample_rate_Hz)
         if noise:
             y = y + rng.normal(0.0, noise[c], size=n)
         out[c] = y
