@@ -330,6 +330,21 @@ def calibration_prediction() -> str:
                                     for q in quantities)], rows)
 
 
+def calibration_coverage() -> str:
+    c = _load("bench_fit.json")["coverage"]
+    params = c["params"]
+    rows = []
+    for name, case in c["cases"].items():
+        cov = case["coverage_of_truth"]
+        rows.append([name, f"{case['misfit_warned_fraction']:.2f}",
+                     f"{cov['classical_all']:.2f}", f"{cov['hac_all']:.2f}",
+                     f"{cov['trusted_all']:.2f}",
+                     " ".join(f"{cov['trusted'][p]:.2f}" for p in params)])
+    return _table(["rig data", "fits warned of misfit [-]", "classical [-]", "HAC [-]",
+                   "the interval the report trusts [-]",
+                   f"trusted, per parameter ({', '.join(params)}) [-]"], rows)
+
+
 # --- design (design.json) -----------------------------------------------------------------------
 
 def _p(c) -> str:
@@ -384,6 +399,7 @@ TABLES = {
     "performance-montecarlo": performance_montecarlo,
     "calibration-fit": calibration_fit,
     "calibration-prediction": calibration_prediction,
+    "calibration-coverage": calibration_coverage,
     "design-verification": design_verification,
     "design-variables": design_variables,
 }
