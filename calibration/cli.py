@@ -88,21 +88,57 @@ def _cmd_fit(args) -> int:
           f"parameters {', '.join(names)}, method {args.method}, integrator {integrator} "
           f"(dt {args.dt:g} s, smoothing {smoothing_m:g} m / {smoothing_n:g} N)",
           file=sys.stderr)
+    fit_kw = dict(vehicle=vehicle, start=_start(args.start), windows=windows,
+                  refine_window_s=refine, robust=robust, method=args.method,
+                  max_iter=args.max_iter, dt=args.dt, integrator=integrator,
+                  smoothing_m=smoothing_m, smoothing_N=smoothing_n,
+                  progress=_Progress(args.quiet))
+    cmp = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", _fit.IdentifiabilityWarning)
         warnings.simplefilter("always", _fit.MisfitWarning)
-        result = _fit.fit(drops, names, vehicle=vehicle, start=_start(args.start),
-                          windows=windows, refine_window_s=refine, robust=robust,
-                          method=args.method, max_iter=args.max_iter, dt=args.dt,
-                          integrator=integrator, smoothing_m=smoothing_m,
-                          smoothing_N=smoothing_n, progress=_Progress(args.quiet))
+        if args.compare_models:
+            from ._compare import compare_models
+
+            cmp = compare_models(drops, names, **fit_kw)
+            chosen = "peak" if cmp["comparison"]["peak_supported"] else "no_peak"
+            result = cmp["_results"][chosen]
+            for m in result.warnings:
+                warnings.warn(m, _fit.IdentifiabilityWarning, stacklevel=1)
+            if result.diagnostics["misfit"]:
+                warnings.warn("the data contradict the chosen model: "
+                              + "; ".join(result.diagnostics["misfit"]), _fit.MisfitWarning,
+                              stacklevel=1)
+        else:
+            result = _fit.fit(drops, names, **fit_kw)
     for w in caught:
         print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
     with staged(out) as staging:  # written into place only if all succeed
         (staging / "fitted_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "fit_report.json")
+        if cmp is not None:
+            import json
+
+            from ._compare import comparison_json, plot_comparison
+
+            (staging / "model_comparison.json").write_text(
+                json.dumps(comparison_json(cmp), indent=2) + "\n")
+            if not args.no_plots:
+                plot_comparison(cmp, staging / "figures" / "model_comparison.png")
         if not args.no_plots:
             result.plot(staging / "figures")
+    if cmp is not None:
+        c = cmp["comparison"]
+        print(f"model comparison: {c['verdict']} (likelihood ratio {c['likelihood_ratio']:.4g}"
+              f", misfit-adjusted {c['likelihood_ratio_adjusted']:.3g}, p = "
+              f"{c['p_value_adjusted']:.2g}; delta BIC {c['delta_bic']:.4g}); reporting the "
+              f"{'peak' if c['peak_supported'] else 'no-peak'} model")
+        for label in ("no_peak", "peak"):
+            w = cmp[label]["worst_window"]
+            where = "; ".join(f"{x['channel']} at {x['window_s'][0] * 1e3:.0f}-"
+                              f"{x['window_s'][1] * 1e3:.0f} ms ({x['rms_noise_units']:.3g} x "
+                              "noise)" for x in w)
+            print(f"  {label}: chi2 {cmp[label]['chi2']:.6g}, largest misfit {where}")
     width = max(len(n) for n in result.names)
     diag = result.diagnostics
     print(f"fitted in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
@@ -117,6 +153,7 @@ def _cmd_fit(args) -> int:
               f"(HAC +/- {result.std_errors_hac[i]:.2g}) {PARAMS[n][1]}  "
               f"(start {result.start_values[i]:.6g}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
+          + (", model_comparison.json" if cmp is not None else "")
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
 
@@ -184,6 +221,11 @@ def add_subcommands(subparsers) -> None:
                    help="width of the rounded force switch (the strut's no-pull floor) [N] "
                         "(default: " + ", ".join(f"{k} {v[1]:g}" for k, v in SMOOTHING.items())
                         + ")")
+    f.add_argument("--compare-models", action="store_true",
+                   help="fit with and without the honeycomb's initial crush peak (peak1, "
+                        "L_peak1), report which the data support (likelihood ratio adjusted "
+                        "for misfit, AIC, BIC) and where each misfits (model_comparison.json, "
+                        "figures/model_comparison.png); the supported model is the fit written")
     f.add_argument("--out", default="out/fit", help="output folder (default out/fit)")
     f.add_argument("--no-plots", action="store_true", help="skip the figures")
     f.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")

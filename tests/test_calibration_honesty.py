@@ -146,3 +146,40 @@ def test_off_extensions_read_as_one_and_are_switched_on_by_set_values():
     assert get_values(veh, ("peak1", "unload")).tolist() == [1.0, 1.0]
     on = set_values(veh, ("unload",), [1.3])
     assert float(on.honeycomb.unload_ratio) == 1.3 and on.honeycomb.curve().extended
+
+
+# ------------------------------------------------------------------------- model selection
+
+@pytest.fixture(scope="module")
+def comparisons():
+    """--compare-models on rig data with the rig's crush peak (its own shape, not the law's)
+    and on rig data without one."""
+    from calibration._compare import compare_models
+
+    kw = dict(windows=(0.01, 0.03), refine_window_s=0.06)
+    return {label: compare_models([vr.drop_test(0.2, seed=11, **rig)], **kw)
+            for label, rig in (("peak", {}), ("none", dict(crush_peak=0.0)))}
+
+
+def test_model_selection_finds_the_peak_where_there_is_one(comparisons):
+    c = comparisons["peak"]
+    assert c["comparison"]["peak_supported"]
+    assert c["comparison"]["p_value_adjusted"] < 1e-3 and c["comparison"]["delta_bic"] < 0
+    # the peak model fits the crush onset better, and what it found is a peak
+    assert c["peak"]["chi2"] < c["no_peak"]["chi2"]
+    assert c["peak"]["values"]["peak1"] > 1.05
+
+
+def test_model_selection_refuses_the_peak_where_there_is_none(comparisons):
+    c = comparisons["none"]
+    assert not c["comparison"]["peak_supported"]
+    assert c["comparison"]["p_value_adjusted"] > 0.01 or c["comparison"]["delta_bic"] > 0
+
+
+def test_chi2_survival_function_matches_tabulated_quantiles():
+    from calibration._compare import chi2_sf
+
+    # 95 % and 99 % quantiles of chi^2 with 1-4 degrees of freedom (standard tables)
+    for x, df, p in ((3.841, 1, 0.05), (5.991, 2, 0.05), (7.815, 3, 0.05), (9.488, 4, 0.05),
+                     (6.635, 1, 0.01), (9.210, 2, 0.01), (13.277, 4, 0.01)):
+        assert chi2_sf(x, df) == pytest.approx(p, rel=2e-3)
