@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/mutation_check.py                  # all mutations -> JSON on stdout
     .venv/bin/python benchmarks/mutation_check.py --only wilson_centre_p design_stability_sign
     .venv/bin/python benchmarks/mutation_check.py --list
+    .venv/bin/python benchmarks/mutation_check.py --only damping_sign --tests tests/test_quarter.py
     .venv/bin/python benchmarks/mutation_check.py --out /tmp/mutations.json --source HEAD
 
 Run on demand, not part of the timed suite (a full pass takes several minutes: each mutation
@@ -115,10 +116,10 @@ MUTATIONS = [
     M("gyroscopic_sign", "gyroscopic term with its sign flipped",
       "torque_b - jnp.cross(w_b, inertia * w_b)", "torque_b + jnp.cross(w_b, inertia * w_b)",
       ("tests/test_vehicle3d.py", "tests/test_reference_trajectory.py")),
-    # --- the honeycomb law's new crush peak (its own tests are the law's owner's)
+    # --- the honeycomb law's new crush peak (its tests are the law's owner's: test_crush_peak.py)
     M("crush_peak_position", "crush-peak position x_L1 + 2 a1 / k_b1",
       "x_pk1=x_L1 + a1 / self.k_b1", "x_pk1=x_L1 + 2.0 * a1 / self.k_b1",
-      ("tests/test_laws.py",)),
+      ("tests/test_laws.py", "tests/test_crush_peak.py")),
 ]
 
 
@@ -235,6 +236,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="write the JSON report here (default: stdout)")
     ap.add_argument("--timeout", type=float, default=900.0, help="per pytest run [s]")
     ap.add_argument("--keep", action="store_true", help="keep the scratch copy")
+    ap.add_argument("--tests", nargs="+", metavar="TARGET",
+                    help="run these pytest targets for every chosen mutation instead of its own "
+                         "(to see what one test file catches on its own)")
     args = ap.parse_args(argv)
     if args.list:
         for m in MUTATIONS:
@@ -246,6 +250,9 @@ def main(argv=None) -> int:
         if unknown:
             ap.error(f"unknown mutation(s): {', '.join(sorted(unknown))}")
         chosen = [m for m in MUTATIONS if m.name in args.only]
+    if args.tests:
+        chosen = [Mutation(m.name, m.what, m.find, m.replace, tuple(args.tests), m.search)
+                  for m in chosen]
     report = run(chosen, source=args.source, timeout=args.timeout, keep=args.keep,
                  log=lambda s: print(s, file=sys.stderr, flush=True))
     text = json.dumps(report, indent=2) + "\n"
