@@ -15,9 +15,18 @@ what a real rig records, with what a real rig adds:
   ``1 + CRUSH_PEAK * s(p / p0)`` with ``s(u) = u exp(1 - u)`` (peak 1 at u = 1), p the primary
   honeycomb's crushed length and p0 = ``CRUSH_PEAK_LENGTH_M`` (0.4 mm): a +20 % overshoot over
   the first millimetre or so of crushing, about 1-2 ms.
+  ``peak_shape`` chooses among shapes that all differ from the law's own (jaxland's optional
+  crush peak rises elastically and falls linearly, ``Honeycomb.peak_ratio1``): ``"bump"``
+  (the default above), ``"exp"`` (a jump at the crush onset decaying as exp(-p / p0)) and
+  ``"folds"`` (a fold-by-fold ripple, |cos(pi p / (2 p0))| exp(-p / (4 p0)): every wall fold
+  re-peaks, decaying);
 * optionally, **sensor low-pass filtering** (``lowpass_Hz``): every channel through a causal
   two-pole Butterworth filter at that corner frequency (an anti-aliasing / conditioning filter
-  the model does not have; default off).
+  the model does not have; default off);
+* optionally, **timing jitter** (``jitter_s``): each sample is taken at its nominal time plus
+  a Gaussian error of this std (a jittery sampling clock; the record keeps the nominal axis);
+* optionally, **another unloading law** in the truth itself: ``truth_vehicle(unload_ratio=)``
+  (the secondary stage unloads along unload_ratio k_b3, ``Honeycomb.unload_ratio``).
 
 ``python -m calibration.virtual_rig [--out data/synthetic]`` writes the bundled set: one CSV +
 metadata TOML per drop height (``HEIGHTS_M``), ``truth_vehicle.toml`` (the truth, loadable by
@@ -56,17 +65,31 @@ SAMPLE_RATE_HZ = 5000.0
 _SIM_DT = 1e-5
 
 
-def truth_vehicle(base: jl.Vehicle | None = None) -> jl.Vehicle:
-    """The rig's truth: ``base`` (the paper vehicle) with ``TRUTH_SCALE`` applied."""
+def truth_vehicle(base: jl.Vehicle | None = None, *,
+                  unload_ratio: float | None = None) -> jl.Vehicle:
+    """The rig's truth: ``base`` (the paper vehicle) with ``TRUTH_SCALE`` applied (and, when
+    given, the secondary stage's ``unload_ratio``: another unloading law)."""
     base = jl.paper_vehicle() if base is None else base
     names = tuple(TRUTH_SCALE)
     vals = get_values(base, names) * np.array([TRUTH_SCALE[n] for n in names])
+    if unload_ratio is not None:
+        names, vals = names + ("unload",), np.append(vals, float(unload_ratio))
     return jl.validate_vehicle(set_values(base, names, vals))
 
 
-def _crush_shape(p):
+PEAK_SHAPES = ("bump", "exp", "folds")
+
+
+def _crush_shape(p, shape: str = "bump"):
+    """Relative force overshoot (peak 1) against the primary's crushed length p [m]."""
     u = np.maximum(p, 0.0) / CRUSH_PEAK_LENGTH_M
-    return u * np.exp(1.0 - u)
+    if shape == "bump":
+        return u * np.exp(1.0 - u)
+    if shape == "exp":
+        return np.where(p > 0.0, np.exp(-u), 0.0)
+    if shape == "folds":
+        return np.where(p > 0.0, np.abs(np.cos(0.5 * np.pi * u)) * np.exp(-0.25 * u), 0.0)
+    raise jl.ConfigError("peak_shape", shape, "must be one of " + ", ".join(PEAK_SHAPES))
 
 
 def butterworth2(y: np.ndarray, corner_Hz: float, rate_Hz: float) -> np.ndarray:
@@ -93,11 +116,16 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
            pre_trigger_s: float = 0.05, sample_rate_Hz: float = SAMPLE_RATE_HZ,
            noise: dict | None = NOISE, stroke_offset_m: float = STROKE_OFFSET_M,
            crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0,
-           lowpass_Hz: float | None = None):
+           lowpass_Hz: float | None = None, peak_shape: str = "bump", jitter_s: float = 0.0):
     """Run the rig: ``(time_s, {channel: samples}, info)``. ``noise=None``, ``stroke_offset_m=0``
     and ``crush_peak=0`` give the clean record (the model itself, sampled). ``lowpass_Hz``:
     filter every channel (before the noise, as a sensor's conditioning would) at this corner
-    frequency [Hz] (None: no filter)."""
+    frequency [Hz] (None: no filter). ``peak_shape``: one of ``PEAK_SHAPES``. ``jitter_s``:
+    std of the sampling-time error [s] (0: none)."""
+    if not (np.isfinite(jitter_s) and 0.0 <= jitter_s < 0.25 / sample_rate_Hz):
+        raise jl.ConfigError("jitter_s", jitter_s, f"must be in [0, {0.25 / sample_rate_Hz:g})"
+                             " s (a quarter of the sampling interval)")
+    _crush_shape(np.zeros(1), peak_shape)  # refuses an unknown shape by name
     if lowpass_Hz is not None and not (0 < lowpass_Hz < 0.5 * sample_rate_Hz):
         raise jl.ConfigError("lowpass_Hz", lowpass_Hz,
                              f"must be in (0, {0.5 * sample_rate_Hz:g}) Hz (below Nyquist)")
@@ -119,13 +147,22 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
         raise jl.ConfigError("pre_trigger_s", pre_trigger_s, "the record must lie within the "
                              "simulated drop (pre-trigger shorter than the fall)")
     time_s = np.arange(n) / sample_rate_Hz
-    hc = vehicle.honeycomb
-    p1 = np.minimum(tr["plastic_set_m"][idx], float(hc.x_L2 - hc.x_L1))
-    peak = 1.0 + crush_peak * _crush_shape(p1)
     rng = np.random.default_rng(seed)
+    if jitter_s > 0.0:  # sampled at jittered instants of the fine trajectory (linear interp.)
+        t_fine = tr["time_s"]
+        t_take = t_fine[idx] + rng.normal(0.0, jitter_s, size=n)
+
+        def sample(col):
+            return np.interp(t_take, t_fine, col)
+    else:
+        def sample(col):
+            return col[idx]
+    hc = vehicle.honeycomb
+    p1 = np.minimum(sample(tr["plastic_set_m"]), float(hc.x_L2 - hc.x_L1))
+    peak = 1.0 + crush_peak * _crush_shape(p1, peak_shape)
     out = {}
     for c in channels:
-        y = np.array(tr[CHANNELS[c][1]][idx], dtype=float)
+        y = np.array(sample(tr[CHANNELS[c][1]]), dtype=float)
         if c in ("normal_force_N", "buffer_force_N"):
             y = y * peak
         if c == "stroke_m":
