@@ -6,17 +6,17 @@ smoothing-0 runs with numbers written once to tests/data/reference_unsmoothed.js
 
     .venv/bin/python tests/test_reference_trajectory.py --write
 
-(on jaxland at commit b261030, before the package refactor). The scenes are short and switch a lot:
-the README's chatter scene (stiff, plastic ground, barely damped strut, 30 ms from touchdown at
-0.1 m drop: the foot bounces) with four integrators on the quarter model, and a tilted, sliding
-landing on a slope on the full 3-D model (80 ms: all four feet down). Tolerance: 1e-8 of
-each channel's largest magnitude. That admits round-off, which the chatter amplifies (45
-contact changes in 30 ms): after the package refactor (7a53b13) reordered operations the
-quarter cases moved by up to 1.2e-10 (impulse, slip distance; 1.5e-11 for Verlet, 3e-12 for
-Euler), the 3-D case by 0. It admits nothing a change of behaviour makes: the 1 um / 10 N
-smoothing moves these channels by 1e-6 and more (checked below), a ramp of 1e-9 width left on
-at width 0 by ~1e-7. A deliberate change of the physics must rewrite the file, and say why in
-its commit.
+(on jaxland at commit b261030, before the package refactor). The scenes are short and switch a
+lot: the README's chatter scene (stiff, plastic ground, barely damped strut, 30 ms from
+touchdown at 0.1 m drop: the foot bounces) with four integrators on the quarter model, and a
+tilted, sliding landing on a slope on the full 3-D model (80 ms: all four feet down).
+Tolerance: 1e-8 of each channel's largest magnitude. That admits round-off, which the chatter
+amplifies (45 contact changes in 30 ms): after the package refactor (7a53b13) reordered
+operations the quarter cases moved by up to 1.2e-10 (impulse, slip distance; 1.5e-11 for
+Verlet, 3e-12 for Euler), the 3-D case by 0. It admits nothing a change of behaviour makes: the
+1 um / 10 N smoothing moves these channels by 1e-6 and more (checked below); the contact law
+smoothed over 1 um at width 0 moves the chatter runs by 0.5 of a channel's scale. A deliberate
+change of the physics must rewrite the file, and say why in its commit.
 """
 
 import json
