@@ -3,6 +3,8 @@ honeycomb landing gear. float64 is switched on at import; all quantities are SI.
 
 import os as _os
 
+__version__ = "0.1.0"
+
 # XLA:CPU compiles a while loop into one native kernel only when it is "small" by the bytes its
 # buffers touch; above the default threshold every one of a step's ~20 fused kernels is
 # dispatched separately on every iteration. A landing's step is exactly that kind of loop, and
@@ -62,15 +64,19 @@ from ._montecarlo import (
     wilson_interval as wilson_interval,
 )
 from ._params import Ground as Ground, Honeycomb as Honeycomb, Leg as Leg, Vehicle as Vehicle
-from ._plots import plot_landing as plot_landing
-from ._plots3d import plot_landing_3d as plot_landing_3d
-from ._plots_design import plot_design as plot_design
-from ._plots_mc import plot_montecarlo as plot_montecarlo
+from ._plots import (
+    plot_design as plot_design,
+    plot_landing as plot_landing,
+    plot_landing_3d as plot_landing_3d,
+    plot_montecarlo as plot_montecarlo,
+)
+from ._progress import ProgressLine as ProgressLine
 from ._scene import (
     Scene as Scene,
     batch_axes as batch_axes,
     load_scene as load_scene,
     scene_from_dict as scene_from_dict,
+    scene_to_toml as scene_to_toml,
 )
 from ._simulate import (
     Landing as Landing,
@@ -96,8 +102,8 @@ from ._solvers import (
 
 __all__ = [
     "laws", "load_vehicle", "paper_vehicle", "validate_vehicle", "vehicle_from_dict",
-    "vehicle_to_toml", "plateau_force", "ConfigError", "JaxlandError", "SimulationError",
-    "Solver", "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "load_scene",
+    "vehicle_to_toml", "plateau_force", "ConfigError", "JaxlandError", "SimulationError", "Solver",
+    "stable_step", "Ground", "Honeycomb", "Leg", "Vehicle", "Scene", "load_scene",
     "scene_from_dict", "Landing", "choose_model", "landing", "landings", "simulate", "batch_axes",
     "DesignProblem", "DesignResult", "DesignSpec", "design_spec_from_dict", "load_design_spec",
     "optimise_design", "verify_design", "METHODS", "FIXED_STEP_METHODS", "Distribution",
@@ -105,6 +111,6 @@ __all__ = [
     "sample_scenes", "wilson_interval", "plot_landing", "plot_landing_3d", "plot_design",
     "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged", "AbstractModel",
     "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
-    "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator",
+    "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator", "ProgressLine",
+    "scene_to_toml",
 ]
-__version__ = "0.1.0"

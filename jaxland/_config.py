@@ -159,18 +159,34 @@ def paper_vehicle() -> Vehicle:
 
 # ----------------------------------------------------------------------------------- checks
 
+# A field's rule is one of these value rules (checked here, field by field) or a cross-field
+# rule (checked in ``validate_vehicle`` below). ``_check_rules`` refuses any other text at
+# import, so a mistyped rule cannot silently turn its check off.
+VALUE_RULES = {
+    "> 0": lambda v: v > 0,
+    ">= 0": lambda v: v >= 0,
+    ">= 1": lambda v: v >= 1,
+    "in [0, 1)": lambda v: (v >= 0) & (v < 1),
+    "in (0, 90) deg": lambda v: (v > 0) & (v < math.pi / 2),
+}
+CROSS_FIELD_RULES = {"> F1", "> x_L1", "> x_L3"}
+
+
+def _check_rules() -> None:
+    for cls in (Vehicle, *_SECTIONS.values()):
+        for f in field_info(cls):
+            rule = f.metadata["rule"]
+            if rule not in VALUE_RULES and rule not in CROSS_FIELD_RULES:
+                raise RuntimeError(f"{cls.__name__}.{f.name}: unknown validity rule {rule!r}; "
+                                   "add it to VALUE_RULES or CROSS_FIELD_RULES")
+
+
+_check_rules()
+
+
 def _rule_ok(rule: str, val: np.ndarray) -> np.ndarray | None:
-    if rule == "> 0":
-        return val > 0
-    if rule == ">= 0":
-        return val >= 0
-    if rule == ">= 1":
-        return val >= 1
-    if rule == "in [0, 1)":
-        return (val >= 0) & (val < 1)
-    if rule == "in (0, 90) deg":
-        return (val > 0) & (val < math.pi / 2)
-    return None  # a cross-field rule, checked below
+    check = VALUE_RULES.get(rule)
+    return None if check is None else check(val)  # None: a cross-field rule, checked below
 
 
 def _fail(section, f, val, rule):

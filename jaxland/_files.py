@@ -1,18 +1,22 @@
 """Writing outputs so that nothing is ever half-written.
 
 One file: ``atomic_write`` writes a temporary file beside the target and ``os.replace``-s it.
-A folder of outputs: ``staged(out)`` gives a staging folder inside ``out``; everything written
-there is moved into place only when the block finishes without an error (``publish``).
+A folder of outputs: ``staged(out)`` gives a staging folder beside ``out``; when the block
+finishes without an error the staging folder replaces ``out`` as a whole.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import secrets
 import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+import numpy as np
 
 
 def _replace(tmp: str, path: Path) -> None:
@@ -45,32 +49,108 @@ def atomic_write_text(path, text: str) -> Path:
     return atomic_write(path, write)
 
 
+def flat_columns(*groups: dict) -> dict:
+    """One column per quantity, in order: a per-leg (n_samples, n_legs) array becomes
+    ``leg0_<name>``, ``leg1_<name>``, ..."""
+    cols = {}
+    for group in groups:
+        for name, arr in group.items():
+            arr = np.asarray(arr)
+            if arr.ndim == 1:
+                cols[name] = arr
+            else:
+                for i in range(arr.shape[1]):
+                    cols[f"leg{i}_{name}"] = arr[:, i]
+    return cols
+
+
+def csv_text(columns: dict, *, digits: int = 9, comments=()) -> str:
+    """CSV text: ``# comment`` lines, a header of the column names (units in the names), then
+    one row per sample with ``digits`` significant digits."""
+    data = np.column_stack([np.asarray(v, dtype=float) for v in columns.values()])
+    lines = [f"# {c}" for c in comments] + [",".join(columns)]
+    lines += [",".join(f"{x:.{digits}g}" for x in row) for row in data]
+    return "\n".join(lines) + "\n"
+
+
+def atomic_write_csv(path, columns: dict, **kw) -> Path:
+    """``csv_text`` of ``columns`` written atomically (the one CSV writer)."""
+    return atomic_write_text(path, csv_text(columns, **kw))
+
+
 def atomic_savefig(fig, path, dpi: int = 110) -> Path:
-    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi), suffix=".tmp.png")
+    """Render a matplotlib figure to the PNG ``path`` atomically (the one figure writer)."""
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=dpi)
+    return atomic_write(path, write, suffix=".tmp.png")
 
 
-def publish(staging: Path, out: Path) -> list[Path]:
-    """Move every file under ``staging`` to the same relative path under ``out``."""
-    written = []
-    for path in sorted(Path(staging).rglob("*")):
-        if path.is_file():
-            dest = Path(out) / path.relative_to(staging)
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            path.replace(dest)
-            written.append(dest)
-    return written
+MARKER = ".jaxland-output.json"  # in every output folder jaxland publishes
+
+
+def check_out(out) -> Path:
+    """Refuse an output folder that jaxland may not replace: a file, a path below a file, or a
+    non-empty folder without jaxland's marker (someone else's files). Call it before any long
+    computation."""
+    from ._errors import ConfigError
+
+    out = Path(out)
+    for p in (out, *out.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise ConfigError("--out", str(out), "exists and is not a folder" if p == out
+                                  else f"lies below {p}, which is a file")
+            break
+    if out.is_dir() and not (out / MARKER).exists() and any(
+            not c.name.startswith(".") for c in out.iterdir()):
+        raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
+                          f"{MARKER}): give a new or empty folder, its files would be replaced")
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _clean_debris(out: Path) -> None:
+    """Remove staging and old folders beside ``out`` left by runs that were killed."""
+    for p in out.parent.glob(f".{out.name}.*-*"):
+        parts = p.name[len(out.name) + 2:].split("-")
+        if (p.is_dir() and len(parts) == 3 and parts[0] in ("staging", "old")
+                and parts[1].isdigit() and not _alive(int(parts[1]))):
+            shutil.rmtree(p, ignore_errors=True)
 
 
 @contextmanager
-def staged(out) -> Iterator[Path]:
-    """``with staged(out) as staging:`` write into ``staging``; on success the files move into
-    ``out`` (created if needed), on an error nothing reaches it. The staging folder is always
-    removed."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+def staged(out, command: str | None = None) -> Iterator[Path]:
+    """``with staged(out) as staging:`` write the outputs into ``staging``; on success the
+    folder ``out`` is replaced by it as a whole (one consistent set: no file of an earlier run
+    survives), marked as jaxland's (``MARKER``: the command and the jaxland version); on an
+    error ``out`` is untouched. Staging and old folders are siblings of ``out``; those of
+    killed runs are removed on the next run."""
+    from . import __version__
+
+    out = check_out(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _clean_debris(out)
+    tag = f"{os.getpid()}-{secrets.token_hex(3)}"
+    staging = out.parent / f".{out.name}.staging-{tag}"
+    staging.mkdir()
     try:
         yield staging
-        publish(staging, out)
+        (staging / MARKER).write_text(json.dumps(
+            dict(command=command, jaxland_version=__version__), indent=2) + "\n")
+        old = out.parent / f".{out.name}.old-{tag}"
+        if out.exists():
+            out.replace(old)
+        staging.replace(out)
+        shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

@@ -9,6 +9,7 @@ from the world frame; at zero yaw leg i points along azimuth i * 360 / n_legs de
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -23,29 +24,42 @@ __all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric", "batch_axes
 
 _DEG = math.pi / 180.0
 
-# name: (unit, doc, lower, upper, TOML key, TOML->SI factor). Limits are our documented envelope:
-# attitude within 30 deg (a steeper vehicle is not "landing"), rates within 5 rad/s, slopes
-# within 30 deg, friction within [0, 2], honeycomb scatter within a factor 5 either way.
+class SceneField(NamedTuple):
+    unit: str  # SI unit of the field
+    doc: str
+    lo: float  # envelope, SI
+    hi: float
+    toml: str  # TOML key (unit in the name)
+    to_si: float  # TOML -> SI factor
+
+
+# Limits are our documented envelope: attitude within 30 deg (a steeper vehicle is not
+# "landing"), rates within 5 rad/s, slopes within 30 deg.
 SCENE_FIELDS = {
-    "drop_height": ("m", "clearance of the lowest foot above the ground at t = 0", 0.0, 50.0,
-                    "drop_height_m", 1.0),
-    "sink_speed": ("m/s", "downward speed at t = 0", 0.0, 30.0, "sink_speed_mps", 1.0),
-    "horizontal_speed": ("m/s", "horizontal speed at t = 0", 0.0, 30.0,
-                         "horizontal_speed_mps", 1.0),
-    "heading": ("rad", "direction of the horizontal velocity (azimuth from world x)",
-                -4 * math.pi, 4 * math.pi, "heading_deg", _DEG),
-    "roll": ("rad", "body roll about x''", -30 * _DEG, 30 * _DEG, "roll_deg", _DEG),
-    "pitch": ("rad", "body pitch about y'", -30 * _DEG, 30 * _DEG, "pitch_deg", _DEG),
-    "yaw": ("rad", "body yaw about z", -4 * math.pi, 4 * math.pi, "yaw_deg", _DEG),
-    "roll_rate": ("rad/s", "body-frame angular rate about x", -5.0, 5.0, "roll_rate_degps",
-                  _DEG),
-    "pitch_rate": ("rad/s", "body-frame angular rate about y", -5.0, 5.0, "pitch_rate_degps",
-                   _DEG),
-    "yaw_rate": ("rad/s", "body-frame angular rate about z", -5.0, 5.0, "yaw_rate_degps", _DEG),
-    "slope": ("rad", "ground slope", 0.0, 30 * _DEG, "slope_deg", _DEG),
-    "slope_direction": ("rad", "downhill direction of the slope (azimuth from world x)",
-                        -4 * math.pi, 4 * math.pi, "slope_direction_deg", _DEG),
+    "drop_height": SceneField("m", "clearance of the lowest foot above the ground at t = 0",
+                              0.0, 50.0, "drop_height_m", 1.0),
+    "sink_speed": SceneField("m/s", "downward speed at t = 0", 0.0, 30.0, "sink_speed_mps", 1.0),
+    "horizontal_speed": SceneField("m/s", "horizontal speed at t = 0", 0.0, 30.0,
+                                   "horizontal_speed_mps", 1.0),
+    "heading": SceneField("rad", "direction of the horizontal velocity (azimuth from world x)",
+                          -4 * math.pi, 4 * math.pi, "heading_deg", _DEG),
+    "roll": SceneField("rad", "body roll about x''", -30 * _DEG, 30 * _DEG, "roll_deg", _DEG),
+    "pitch": SceneField("rad", "body pitch about y'", -30 * _DEG, 30 * _DEG, "pitch_deg", _DEG),
+    "yaw": SceneField("rad", "body yaw about z", -4 * math.pi, 4 * math.pi, "yaw_deg", _DEG),
+    "roll_rate": SceneField("rad/s", "body-frame angular rate about x", -5.0, 5.0,
+                            "roll_rate_degps", _DEG),
+    "pitch_rate": SceneField("rad/s", "body-frame angular rate about y", -5.0, 5.0,
+                             "pitch_rate_degps", _DEG),
+    "yaw_rate": SceneField("rad/s", "body-frame angular rate about z", -5.0, 5.0,
+                           "yaw_rate_degps", _DEG),
+    "slope": SceneField("rad", "ground slope", 0.0, 30 * _DEG, "slope_deg", _DEG),
+    "slope_direction": SceneField("rad", "downhill direction of the slope (azimuth from world x)",
+                                  -4 * math.pi, 4 * math.pi, "slope_direction_deg", _DEG),
 }
+# Envelope of the optional scene fields, SI: friction within [0, 2], body mass within a factor 2
+# either way, honeycomb scatter within a factor 5, centre-of-mass offset within +/-0.3 m.
+OPTIONAL_LIMITS = {"friction": (0.0, 2.0), "mass_scale": (0.5, 2.0), "plateau_scale": (0.2, 5.0),
+                   "com_offset": (-0.3, 0.3)}
 
 
 class Scene(eqx.Module):
@@ -124,25 +138,30 @@ class Scene(eqx.Module):
                                   f"[{lo / to_si:.4g}, {hi / to_si:.4g}] "
                                   f"{key.rsplit('_', 1)[-1]}")
         fr = concrete(self.friction)
-        if fr is not None and np.any(~np.isfinite(fr) | (fr < 0) | (fr > 2)):
+        lo, hi = OPTIONAL_LIMITS["friction"]
+        if fr is not None and np.any(~np.isfinite(fr) | (fr < lo) | (fr > hi)):
             raise ConfigError("scene.friction", float(np.ravel(fr)[0]),
-                              "must be finite and in [0, 2]")
+                              f"must be finite and in [{lo:g}, {hi:g}]")
         ms = concrete(self.mass_scale)
-        if ms is not None and np.any(~np.isfinite(ms) | (ms < 0.5) | (ms > 2.0)):
+        lo, hi = OPTIONAL_LIMITS["mass_scale"]
+        if ms is not None and np.any(~np.isfinite(ms) | (ms < lo) | (ms > hi)):
             raise ConfigError("scene.mass_scale", float(np.ravel(ms)[0]),
-                              "must be finite and in [0.5, 2]")
+                              f"must be finite and in [{lo:g}, {hi:g}]")
         co = concrete(self.com_offset)
-        if co is not None and (co.shape[-1] != 3 or np.any(~np.isfinite(co) | (np.abs(co) > 0.3))):
+        lo, hi = OPTIONAL_LIMITS["com_offset"]
+        if co is not None and (co.shape[-1] != 3
+                               or np.any(~np.isfinite(co) | (co < lo) | (co > hi))):
             raise ConfigError("scene.com_offset_m", co.tolist(),
-                              "must be three finite numbers (x, y, z), each within +/-0.3 m")
+                              f"must be three finite numbers (x, y, z), each within +/-{hi:g} m")
         ps = concrete(self.plateau_scale)
         if ps is not None:
             if n_legs is not None and ps.shape[-1] != n_legs:
                 raise ConfigError("scene.plateau_scale", ps.tolist(),
                                   f"must have one entry per leg ({n_legs})")
-            if np.any(~np.isfinite(ps) | (ps < 0.2) | (ps > 5.0)):
+            lo, hi = OPTIONAL_LIMITS["plateau_scale"]
+            if np.any(~np.isfinite(ps) | (ps < lo) | (ps > hi)):
                 raise ConfigError("scene.plateau_scale", ps.tolist(),
-                                  "every entry must be finite and in [0.2, 5]")
+                                  f"every entry must be finite and in [{lo:g}, {hi:g}]")
         return self
 
 
@@ -184,7 +203,7 @@ def is_symmetric(scene: Scene) -> bool:
 
 def scene_from_dict(data: dict) -> Scene:
     """Scene from a TOML-shaped table (keys with units, angles in degrees); validated."""
-    known = {v[4]: k for k, v in SCENE_FIELDS.items()}
+    known = {v.toml: k for k, v in SCENE_FIELDS.items()}
     kwargs = {}
     for key, val in data.items():
         if key in ("friction", "plateau_scale", "mass_scale", "com_offset_m"):
@@ -196,7 +215,7 @@ def scene_from_dict(data: dict) -> Scene:
                                            "com_offset_m"]))
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             raise ConfigError(f"scene.{key}", val, "must be a number")
-        kwargs[known[key]] = float(val) * SCENE_FIELDS[known[key]][5]
+        kwargs[known[key]] = float(val) * SCENE_FIELDS[known[key]].to_si
     if "plateau_scale" in kwargs:
         ps = kwargs["plateau_scale"]
         if not isinstance(ps, list) or not all(
@@ -212,6 +231,24 @@ def scene_from_dict(data: dict) -> Scene:
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in co):
             raise ConfigError("scene.com_offset_m", co, "must be a list of three numbers (x, y, z)")
     return Scene(**kwargs).validate()
+
+
+def scene_to_toml(scene: Scene) -> str:
+    """One scene as a ``[scene]`` table with every field (``scene_from_dict`` reads it back to
+    the same scene): what a run's output folder records."""
+    lines = ["# jaxland scene (units in the keys; angles in degrees)", "[scene]"]
+    for name, f in SCENE_FIELDS.items():
+        val = float(np.asarray(getattr(scene, name))) / f.to_si
+        lines.append(f"{f.toml} = {val!r}  # {f.doc}")
+    for name, key in (("friction", "friction"), ("mass_scale", "mass_scale"),
+                      ("plateau_scale", "plateau_scale"), ("com_offset", "com_offset_m")):
+        val = getattr(scene, name)
+        if val is not None:
+            val = np.asarray(val, dtype=float)
+            shown = repr(float(val)) if val.ndim == 0 else "[" + ", ".join(
+                repr(float(x)) for x in val) + "]"
+            lines.append(f"{key} = {shown}")
+    return "\n".join(lines) + "\n"
 
 
 def load_scene(path) -> Scene:

@@ -1,4 +1,4 @@
-"""Reading TOML files with errors that name the file and what is wrong."""
+"""Reading input files with errors that name the file and what is wrong."""
 
 from __future__ import annotations
 
@@ -8,13 +8,29 @@ from pathlib import Path
 from ._errors import ConfigError
 
 
-def read_toml(path, what: str) -> dict:
-    """Parse the TOML file ``path``; refuse a missing file or bad TOML naming ``what``."""
+def read_text(path, what: str) -> str:
+    """The UTF-8 text of the file ``path``; refuse a missing file, a folder, a path below a
+    file, an unreadable file or one that is not UTF-8 text, naming ``what``."""
     path = Path(path)
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        return path.read_bytes().decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(what, str(path), "file does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(what, str(path), "is a folder, not a file") from None
+    except NotADirectoryError:
+        raise ConfigError(what, str(path), "lies below a file, not in a folder") from None
+    except PermissionError:
+        raise ConfigError(what, str(path), "cannot be read (permission denied)") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(what, str(path), f"is not UTF-8 text (byte {err.start}: "
+                          f"{err.object[err.start:err.start + 1]!r})") from None
+
+
+def read_toml(path, what: str) -> dict:
+    """Parse the TOML file ``path`` (``read_text``'s refusals, and bad TOML), naming ``what``."""
+    text = read_text(path, what)
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(what, str(path), f"is not valid TOML: {err}") from None

@@ -424,9 +424,9 @@ def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clea
     plain = cal.CalibrationProblem([d], NAMES, **kw)
     smooth = cal.CalibrationProblem([d], NAMES, integrator="verlet", smoothing_m=1e-6,
                                     smoothing_N=10.0, **kw)
-    assert (plain.solver.method, plain.solver.smoothing_m) == ("euler", 0.0)
+    assert (plain.solver.method, plain.solver.smoothing_m) == (jl.Euler(), 0.0)
     assert (smooth.solver.method, smooth.solver.smoothing_m, smooth.solver.smoothing_N) == (
-        "verlet", 1e-6, 10.0)
+        jl.Verlet(), 1e-6, 10.0)
     assert smooth._jac is not plain._jac
     again = cal.CalibrationProblem([d], NAMES, integrator="verlet", smoothing_m=1e-6,
                                    smoothing_N=10.0, **kw)

@@ -5,7 +5,7 @@ import pytest
 
 import jaxland as jl
 from jaxland import FullModel
-from jaxland._plots3d import PER_LEG_COLUMNS, REQUIRED_COLUMNS_3D, plot_landing_3d
+from jaxland._plots import PER_LEG_COLUMNS, REQUIRED_COLUMNS_3D, plot_landing_3d
 
 COLUMNS = FullModel.COLUMNS
 

@@ -90,9 +90,27 @@ class AbstractModel(eqx.Module):
     COLUMNS: ClassVar[tuple[str, ...]]  # trajectory columns in CSV order, units in the names
     RATE_CHANNELS: ClassVar[tuple[str, ...]]  # dissipation channels integrated from a power
 
-    @abc.abstractmethod
     def apply_scene(self, vehicle: Vehicle, scene: Scene) -> Vehicle:
-        """The vehicle as this scene changes it (friction, honeycomb scatter, mass)."""
+        """The vehicle as the scene changes it: honeycomb plateau scatter (both plateaus of
+        each leg times ``plateau_scatter``), the friction override, and the mass scale (body
+        mass and inertia)."""
+        if scene.plateau_scale is not None:
+            scale = self.plateau_scatter(scene.plateau_scale)
+            hc = vehicle.honeycomb
+            vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
+                                  (hc.F1 * scale, hc.F2 * scale))
+        if scene.friction is not None:
+            vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
+        if scene.mass_scale is not None:
+            s = scene.mass_scale
+            vehicle = eqx.tree_at(lambda v: (v.m_body, v.I_xx, v.I_yy, v.I_zz), vehicle,
+                                  (vehicle.m_body * s, vehicle.I_xx * s, vehicle.I_yy * s,
+                                   vehicle.I_zz * s))
+        return vehicle
+
+    def plateau_scatter(self, plateau_scale: Array) -> Array:
+        """The plateau-force scale the model's legs take from the scene's per-leg scale."""
+        return plateau_scale
 
     @abc.abstractmethod
     def prepare(self, vehicle: Vehicle, scene: Scene, smoothing: Smoothing = Smoothing()):

@@ -195,21 +195,6 @@ class FullModel(AbstractModel):
     COLUMNS: ClassVar[tuple[str, ...]] = COLUMNS
     RATE_CHANNELS: ClassVar[tuple[str, ...]] = RATE_CHANNELS
 
-    def apply_scene(self, vehicle: Vehicle, scene: Scene) -> Vehicle:
-        """Scene-level friction override and per-leg honeycomb plateau scatter ((n,) F1, F2)."""
-        if scene.plateau_scale is not None:
-            hc = vehicle.honeycomb
-            vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
-                                  (hc.F1 * scene.plateau_scale, hc.F2 * scene.plateau_scale))
-        if scene.friction is not None:
-            vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
-        if scene.mass_scale is not None:
-            s = scene.mass_scale
-            vehicle = eqx.tree_at(lambda v: (v.m_body, v.I_xx, v.I_yy, v.I_zz), vehicle,
-                                  (vehicle.m_body * s, vehicle.I_xx * s, vehicle.I_yy * s,
-                                   vehicle.I_zz * s))
-        return vehicle
-
     def initial_state(self, vehicle: Vehicle, scene: Scene) -> Vehicle3DState:
         """Unloaded vehicle in the scene's attitude, lowest foot ``drop_height`` above the ground
         (measured along the ground normal), moving rigidly with the scene's velocity and rates."""

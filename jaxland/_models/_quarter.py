@@ -85,18 +85,9 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
     COLUMNS: ClassVar[tuple[str, ...]] = COLUMNS
     RATE_CHANNELS: ClassVar[tuple[str, ...]] = RATE_CHANNELS
 
-    def apply_scene(self, vehicle: Vehicle, scene: Scene) -> Vehicle:
-        """Scene-level friction override and (uniform) honeycomb plateau scatter."""
-        if scene.plateau_scale is not None:
-            scale = jnp.mean(scene.plateau_scale, axis=-1)
-            hc = vehicle.honeycomb
-            vehicle = eqx.tree_at(lambda v: (v.honeycomb.F1, v.honeycomb.F2), vehicle,
-                                  (hc.F1 * scale, hc.F2 * scale))
-        if scene.friction is not None:
-            vehicle = eqx.tree_at(lambda v: v.ground.mu, vehicle, scene.friction)
-        if scene.mass_scale is not None:
-            vehicle = eqx.tree_at(lambda v: v.m_body, vehicle, vehicle.m_body * scene.mass_scale)
-        return vehicle
+    def plateau_scatter(self, plateau_scale):
+        """One leg stands for all: the mean scale over the legs."""
+        return jnp.mean(plateau_scale, axis=-1)
 
     def prepare(self, vehicle: Vehicle, scene: Scene,
                 smoothing: Smoothing = Smoothing()) -> QuarterDerived:

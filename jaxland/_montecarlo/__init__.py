@@ -17,10 +17,12 @@ from ._run import MonteCarloResult as MonteCarloResult, run_montecarlo as run_mo
 from ._sample import sample_scenes as sample_scenes
 from ._spec import (
     DISPERSIBLE as DISPERSIBLE,
+    MODEL_CHOICE as MODEL_CHOICE,
     Distribution as Distribution,
     MonteCarloSpec as MonteCarloSpec,
     envelope as envelope,
     load_montecarlo_spec as load_montecarlo_spec,
+    montecarlo_spec_from_dict as montecarlo_spec_from_dict,
 )
 from ._stats import (
     percentiles as percentiles,

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,10 +16,12 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._config import paper_vehicle, validate_vehicle
 from .._errors import ConfigError
+from .._files import atomic_write_csv, flat_columns, staged
 from .._models import MODELS
 from .._params import Vehicle
+from .._progress import ProgressLine
 from .._simulate import landings
-from .._solvers import Result, Solver, stable_step, verdict
+from .._solvers import Result, Solver, stable_step
 from ._sample import sample_scenes
 from ._spec import MonteCarloSpec, envelope
 from ._stats import percentiles, sensitivity, wilson_interval
@@ -43,7 +44,7 @@ def _per_sample(vehicle, solver, model, scenes):
         slip_distance_m=legs(s["slip_distance_m"]),
         peak_body_accel_mps2=s["peak_body_accel_mps2"],
         energy_closure_rel=s["ledger_error_rel"],
-        result=verdict(s, vehicle, solver, mod),
+        result=s["result"],
         tipped_over=s["tipped"],
     )
     if model == "full":
@@ -64,34 +65,20 @@ class MonteCarloResult:
 
     def columns(self) -> dict:
         """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names."""
-        cols = {"sample": np.arange(self.failure.size)}
-        for group in (self.inputs, self.outputs):
-            for name, arr in group.items():
-                arr = np.asarray(arr)
-                if arr.ndim == 1:
-                    cols[name] = arr
-                else:
-                    for i in range(arr.shape[1]):
-                        cols[f"leg{i}_{name}"] = arr[:, i]
-        cols["failure_code"] = self.failure
-        return cols
+        return {"sample": np.arange(self.failure.size),
+                **flat_columns(self.inputs, self.outputs), "failure_code": self.failure}
 
     def save(self, out_dir) -> list[Path]:
         """Write samples.csv and samples.npz (every sample with its inputs), summary.json and
         the figures into ``out_dir``, all through a staging folder."""
-        from .._files import staged
-
         out = Path(out_dir)
-        with staged(out) as staging:
+        with staged(out, "montecarlo") as staging:
             cols = self.columns()
-            names = list(cols)
-            data = np.column_stack([np.asarray(cols[c], dtype=float) for c in names])
-            np.savetxt(staging / "samples.csv", data, delimiter=",", header=",".join(names),
-                       comments="", fmt="%.9g")
+            atomic_write_csv(staging / "samples.csv", cols)
             np.savez_compressed(staging / "samples.npz", **cols)
             (staging / "summary.json").write_text(
                 json.dumps(self.summary, indent=2, default=float) + "\n")
-            from .._plots_mc import plot_montecarlo
+            from .._plots import plot_montecarlo
 
             plot_montecarlo(self, staging / "figures")
             written = sorted(out / p.relative_to(staging) for p in staging.rglob("*")
@@ -100,10 +87,11 @@ class MonteCarloResult:
 
 
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
-                   chunk: int | None = None, devices=None, progress: bool = True
+                   chunk: int | None = None, devices=None, progress: bool | str = True
                    ) -> MonteCarloResult:
     """Run ``spec.n`` dispersed landings; see the module docstring for reproducibility and
-    sharding. ``chunk`` bounds memory (rounded up to a multiple of the device count)."""
+    sharding. ``chunk`` bounds memory (rounded up to a multiple of the device count);
+    ``progress``: a progress line on stderr (a string: the line's label)."""
     vehicle = paper_vehicle() if vehicle is None else vehicle
     validate_vehicle(vehicle)
     model = spec.resolved_model()
@@ -126,6 +114,8 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     run = jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))
     outputs: dict = {}
     inputs: dict = {}
+    label = progress if isinstance(progress, str) else "montecarlo"
+    line = ProgressLine(f"{label}:", quiet=not progress, in_place=True)
     t0 = time.perf_counter()
     for start in range(0, spec.n, chunk):
         count = min(chunk, spec.n - start)
@@ -137,14 +127,10 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
             outputs.setdefault(k, []).append(np.asarray(v)[:count])
         for k, v in ins.items():
             inputs.setdefault(k, []).append(v[:count])
-        if progress:
-            done = start + count
-            rate = done / (time.perf_counter() - t0)
-            print(f"\rmontecarlo: {done}/{spec.n} landings ({model} model, {n_dev} device"
-                  f"{'s' if n_dev > 1 else ''}, {rate:.0f}/s)", end="", file=sys.stderr,
-                  flush=True)
-    if progress:
-        print(file=sys.stderr)
+        done = start + count
+        line(f"{done}/{spec.n} landings ({model} model, {n_dev} device"
+             f"{'s' if n_dev > 1 else ''}, {done / (time.perf_counter() - t0):.0f}/s)")
+    line.close()
     wall = time.perf_counter() - t0
     outputs = {k: np.concatenate(v) for k, v in outputs.items()}
     inputs = {k: np.concatenate(v) for k, v in inputs.items()}

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._errors import ConfigError
 from .._scene import Scene
 from ._spec import DISPERSIBLE, MonteCarloSpec
 
@@ -15,6 +16,9 @@ from ._spec import DISPERSIBLE, MonteCarloSpec
 def sample_scenes(spec: MonteCarloSpec, start: int, count: int, n_legs: int = 4):
     """Scenes ``start .. start + count - 1`` of the spec, as a ``Scene.batch``, with the sampled
     inputs (TOML units; per-leg inputs as (count, n_legs))."""
+    for key, val in spec.fixed.items():
+        if DISPERSIBLE[key].component == "legs" and np.ndim(val) == 1 and len(val) != n_legs:
+            raise ConfigError(f"fixed.{key}", val, f"must have one entry per leg ({n_legs})")
     names = sorted(spec.dispersion)
     root = jax.random.key(spec.seed)
     idx = jnp.arange(start, start + count)
@@ -23,7 +27,7 @@ def sample_scenes(spec: MonteCarloSpec, start: int, count: int, n_legs: int = 4)
         k = jax.random.fold_in(root, i)
         out = {}
         for name in names:
-            shape = (n_legs,) if DISPERSIBLE[name][2] == "legs" else ()
+            shape = (n_legs,) if DISPERSIBLE[name].component == "legs" else ()
             key = jax.random.fold_in(k, zlib.crc32(name.encode()) & 0x7FFFFFFF)
             out[name] = spec.dispersion[name].sample(key, shape)
         return out

@@ -2,31 +2,42 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
+from .._checks import POSITIVE, Choice, Number, parse_table, spec_field
 from .._errors import ConfigError
-from .._scene import SCENE_FIELDS
+from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS
 from .._solvers import FIXED_STEP_METHODS
 from .._toml import read_toml
 
-# Dispersible quantities: TOML key -> (Scene field, TOML->SI factor, component count or None).
-_SCENE_KEYS = {v[4]: (k, v[5], None) for k, v in SCENE_FIELDS.items()}
+
+class Dispersible(NamedTuple):
+    field: str  # the Scene field it sets
+    to_si: float  # TOML -> SI factor
+    component: int | str | None  # vector component, "legs" (one per leg), or None (scalar)
+
+
+# Dispersible quantities by TOML key.
 DISPERSIBLE = {
-    **_SCENE_KEYS,
-    "friction": ("friction", 1.0, None),
-    "mass_scale": ("mass_scale", 1.0, None),
-    "plateau_scale": ("plateau_scale", 1.0, "legs"),
-    "com_offset_x_m": ("com_offset", 1.0, 0),
-    "com_offset_y_m": ("com_offset", 1.0, 1),
-    "com_offset_z_m": ("com_offset", 1.0, 2),
+    **{v.toml: Dispersible(k, v.to_si, None) for k, v in SCENE_FIELDS.items()},
+    "friction": Dispersible("friction", 1.0, None),
+    "mass_scale": Dispersible("mass_scale", 1.0, None),
+    "plateau_scale": Dispersible("plateau_scale", 1.0, "legs"),
+    "com_offset_x_m": Dispersible("com_offset", 1.0, 0),
+    "com_offset_y_m": Dispersible("com_offset", 1.0, 1),
+    "com_offset_z_m": Dispersible("com_offset", 1.0, 2),
 }
-_EXTRA_LIMITS = {"friction": (0.0, 2.0), "mass_scale": (0.5, 2.0), "plateau_scale": (0.2, 5.0),
-                 "com_offset_x_m": (-0.3, 0.3), "com_offset_y_m": (-0.3, 0.3),
-                 "com_offset_z_m": (-0.3, 0.3)}
+# their envelope in TOML units (the scene's own limits; com_offset per component)
+_EXTRA_LIMITS = {
+    **{k: OPTIONAL_LIMITS[k] for k in ("friction", "mass_scale", "plateau_scale")},
+    **{f"com_offset_{a}_m": OPTIONAL_LIMITS["com_offset"] for a in "xyz"},
+}
 
 
 def envelope(key: str) -> tuple[float, float]:
@@ -34,12 +45,26 @@ def envelope(key: str) -> tuple[float, float]:
     if key in _EXTRA_LIMITS:
         return _EXTRA_LIMITS[key]
     field_name, to_si, _ = DISPERSIBLE[key]
-    _, _, lo, hi, _, _ = SCENE_FIELDS[field_name]
-    return lo / to_si, hi / to_si
+    f = SCENE_FIELDS[field_name]
+    return f.lo / to_si, f.hi / to_si
 
 
 # Dispersions that keep a symmetric vertical drop symmetric (the quarter model suffices).
 _SYMMETRIC_KEYS = {"drop_height_m", "sink_speed_mps", "yaw_deg", "friction", "mass_scale"}
+
+
+# Least probability of the normal inside a truncnormal's bounds: far in a tail the sampler
+# returns the bound itself for every sample.
+TRUNCNORMAL_MIN_MASS = 1e-6
+
+
+def _normal_mass(a: float, b: float) -> float:
+    """P(a <= Z <= b) for a standard normal Z, accurate in both tails."""
+    if a >= 0.0:
+        return 0.5 * (math.erfc(a / math.sqrt(2.0)) - math.erfc(b / math.sqrt(2.0)))
+    if b <= 0.0:
+        return _normal_mass(-b, -a)
+    return 1.0 - 0.5 * (math.erfc(-a / math.sqrt(2.0)) + math.erfc(b / math.sqrt(2.0)))
 
 
 @dataclass(frozen=True)
@@ -80,6 +105,15 @@ class Distribution:
         if kind in ("uniform", "truncnormal") and not vals["low"] < vals["high"]:
             raise ConfigError(f"dispersion.{name}.high", vals["high"],
                               f"must exceed low = {vals['low']}")
+        if kind == "truncnormal":
+            mass = _normal_mass((vals["low"] - vals["mean"]) / vals["std"],
+                                (vals["high"] - vals["mean"]) / vals["std"])
+            if mass < TRUNCNORMAL_MIN_MASS:
+                raise ConfigError(f"dispersion.{name}", f"[{vals['low']}, {vals['high']}]",
+                                  f"holds only {mass:.2g} of the normal's probability "
+                                  f"(mean {vals['mean']}, std {vals['std']}); the bounds must "
+                                  f"hold at least {TRUNCNORMAL_MIN_MASS:g} (else every sample "
+                                  "is the bound)")
         return cls(kind, **{k: v for k, v in vals.items()})
 
     def sample(self, key, shape=()):
@@ -93,19 +127,24 @@ class Distribution:
         return self.mean + self.std * jax.random.truncated_normal(key, lo, hi, shape)
 
 
+MODEL_CHOICE = Choice(("auto", "quarter", "full"))
+
+
 @dataclass
 class MonteCarloSpec:
     """What to disperse (``dispersion``: TOML key -> Distribution), what to fix (``fixed``:
-    TOML key -> value), how many samples, the seed and the integration settings."""
+    TOML key -> value), how many samples, the seed and the integration settings (the
+    ``[montecarlo]`` table's keys, checked from the fields' metadata)."""
 
     dispersion: dict
     fixed: dict = field(default_factory=dict)
-    n: int = 1000
-    seed: int = 0
-    dt: float = 1e-5
-    t_end: float = 1.0
-    model: str = "auto"
-    method: str = "euler"  # a fixed-step integrator (FIXED_STEP_METHODS)
+    n: int = spec_field(1000, toml="n", check=Number(integer=True, lo=1))
+    seed: int = spec_field(0, toml="seed", check=Number(integer=True, lo=0, hi=2**31 - 1))
+    dt: float = spec_field(1e-5, toml="dt_s", check=POSITIVE)
+    t_end: float = spec_field(1.0, toml="t_end_s", check=POSITIVE)
+    model: str = spec_field("auto", toml="model", check=MODEL_CHOICE)
+    # fixed-step methods batch without waiting for the slowest sample
+    method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
 
     def __post_init__(self):
         for key in [*self.dispersion, *self.fixed]:
@@ -113,12 +152,16 @@ class MonteCarloSpec:
                 raise ConfigError(f"dispersion.{key}", "?",
                                   "unknown input; known: " + ", ".join(sorted(DISPERSIBLE)))
         for key, val in self.fixed.items():
-            vals = val if isinstance(val, list) and DISPERSIBLE[key][2] == "legs" else [val]
+            per_leg = DISPERSIBLE[key].component == "legs"
+            vals = val if isinstance(val, list) and per_leg else [val]
             if not vals or any(isinstance(v, bool) or not isinstance(v, (int, float))
                                or not math.isfinite(v) for v in vals):
                 raise ConfigError(f"fixed.{key}", val, "must be a finite number"
-                                  + (" or a list of one per leg" if DISPERSIBLE[key][2] == "legs"
-                                     else ""))
+                                  + (" or a list of one per leg" if per_leg else ""))
+            lo, hi = envelope(key)
+            if any(not lo <= v <= hi for v in vals):
+                raise ConfigError(f"fixed.{key}", val,
+                                  f"must lie in the scene envelope [{lo:.4g}, {hi:.4g}]")
         for key, dist in self.dispersion.items():
             lo, hi = envelope(key)
             support = ((dist.mean, dist.mean) if dist.kind == "constant" else
@@ -129,17 +172,9 @@ class MonteCarloSpec:
         both = set(self.dispersion) & set(self.fixed)
         if both:
             raise ConfigError(f"fixed.{sorted(both)[0]}", "?", "is also dispersed; give one")
-        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 1:
-            raise ConfigError("montecarlo.n", self.n, "must be an integer >= 1")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or \
-                not 0 <= self.seed < 2**31:
-            raise ConfigError("montecarlo.seed", self.seed, "must be an integer in [0, 2^31)")
-        if self.model not in ("auto", "quarter", "full"):
-            raise ConfigError("montecarlo.model", self.model, "must be auto, quarter or full")
-        if self.method not in FIXED_STEP_METHODS:
-            raise ConfigError("montecarlo.method", self.method,
-                              f"must be one of {', '.join(FIXED_STEP_METHODS)} (fixed-step "
-                              "methods batch without waiting for the slowest sample)")
+        for f in dataclasses.fields(self):
+            if "check" in f.metadata:
+                f.metadata["check"](f"montecarlo.{f.metadata['toml']}", getattr(self, f.name))
 
     def smallest_model(self) -> str:
         """The quarter model if every dispersed or fixed input keeps the drop symmetric."""
@@ -147,36 +182,43 @@ class MonteCarloSpec:
                                        if not (isinstance(v, (int, float)) and v == 0.0)}
         return "quarter" if keys <= _SYMMETRIC_KEYS else "full"
 
-    def resolved_model(self) -> str:
+    def resolved_model(self, where: str = "montecarlo") -> str:
+        """The model to run: ``model``, or the smallest adequate one for ``auto``; a quarter
+        model asked for dispersions that break the symmetry is refused (as ``where``.model)."""
         model = self.smallest_model() if self.model == "auto" else self.model
         if model == "quarter" and self.smallest_model() == "full":
-            raise ConfigError("montecarlo.model", "quarter", "these dispersions break the "
+            raise ConfigError(f"{where}.model", "quarter", "these dispersions break the "
                               "symmetry of a vertical drop; the full model is needed")
         return model
 
 
-def load_montecarlo_spec(path) -> MonteCarloSpec:
-    """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model, method),
-    ``[dispersion.<input>]`` tables and an optional ``[fixed]`` table (see the README)."""
-    data = read_toml(path, "spec")
-    unknown = set(data) - {"montecarlo", "dispersion", "fixed"}
-    if unknown:
-        raise ConfigError(sorted(unknown)[0], "<table>",
-                          "unknown section; known: montecarlo, dispersion, fixed")
+def montecarlo_spec_from_dict(data: dict, *, keys_excluded=(), **overrides) -> MonteCarloSpec:
+    """A ``MonteCarloSpec`` from the ``montecarlo``, ``dispersion`` and ``fixed`` tables of a
+    TOML-shaped dict (other tables are the caller's); ``keys_excluded`` are ``[montecarlo]``
+    keys the caller does not take."""
     for section in ("montecarlo", "dispersion", "fixed"):
         if not isinstance(data.get(section, {}), dict):
             raise ConfigError(section, data[section], f"must be a table ([{section}])")
     mc = dict(data.get("montecarlo", {}))
-    keys = {"n": "n", "seed": "seed", "dt_s": "dt", "t_end_s": "t_end", "model": "model",
-            "method": "method"}
-    bad = set(mc) - set(keys)
-    if bad:
-        raise ConfigError(f"montecarlo.{sorted(bad)[0]}", "?",
-                          f"unknown key; known: {', '.join(keys)}")
+    for key in keys_excluded:
+        if key in mc:
+            raise ConfigError(f"montecarlo.{key}", mc[key], "is not taken here")
+    kwargs = parse_table(MonteCarloSpec, "montecarlo", mc)
     disp = {}
     for name, table in data.get("dispersion", {}).items():
         if not isinstance(table, dict):
             raise ConfigError(f"dispersion.{name}", table, "must be a table with dist = ...")
         disp[name] = Distribution.from_dict(name, table)
     return MonteCarloSpec(dispersion=disp, fixed=dict(data.get("fixed", {})),
-                          **{keys[k]: v for k, v in mc.items()})
+                          **{**kwargs, **overrides})
+
+
+def load_montecarlo_spec(path) -> MonteCarloSpec:
+    """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model, method),
+    ``[dispersion.<input>]`` tables and an optional ``[fixed]`` table (docs/formats.md)."""
+    data = read_toml(path, "spec")
+    unknown = set(data) - {"montecarlo", "dispersion", "fixed"}
+    if unknown:
+        raise ConfigError(sorted(unknown)[0], "<table>",
+                          "unknown section; known: montecarlo, dispersion, fixed")
+    return montecarlo_spec_from_dict(data)

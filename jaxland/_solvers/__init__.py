@@ -1,6 +1,9 @@
 """Integrators: one contract (``AbstractIntegrator``), five methods, every model that has what
 each method needs. ``Solver`` holds the settings they share."""
 
+import jax
+import jax.numpy as jnp
+
 from ._base import (
     AbstractIntegrator as AbstractIntegrator,
     Result as Result,
@@ -30,6 +33,34 @@ from ._verdict import (
 
 
 def integrate(model, vehicle, scene, solver: Solver):
-    """One landing of ``model`` with ``solver``: ``(trajectory, summary)``. Pure, jittable."""
+    """One landing of ``model`` with ``solver``: ``(trajectory, summary)``. Pure, jittable.
+
+    The summary's ``result`` is the landing's ``verdict`` (a ``Result`` code), and
+    ``bottomed`` says whether the stroke reached the bottoming stop (where the stroke's
+    derivatives are the stop's, not the honeycomb's). Every output of a failed landing keeps its
+    value (for the diagnosis) but has NaN derivatives: a failure never passes as a gradient."""
     solver.method.check_model(model)
-    return solver.method.integrate(model, vehicle, scene, solver)
+    traj, summary = solver.method.integrate(model, vehicle, scene, solver)
+    code = verdict(summary, vehicle, solver, model)
+    failed = jnp.isin(code, jnp.asarray([int(r) for r in Result if r.failed], code.dtype))
+    summary = dict(summary, result=code, bottomed=model.leg_max(summary["max_stroke_m"])
+                   > jnp.min(vehicle.honeycomb.x_L4))
+    return _nan_derivatives((traj, summary), failed)
+
+
+@jax.custom_jvp
+def _guard(x, bad):
+    return x
+
+
+@_guard.defjvp
+def _guard_jvp(primals, tangents):
+    x, bad = primals
+    return x, tangents[0] * jnp.where(bad, jnp.nan, 1.0)
+
+
+def _nan_derivatives(tree, bad):
+    """``tree`` unchanged, its floating leaves' derivatives NaN where ``bad``."""
+    return jax.tree.map(
+        lambda x: _guard(x, bad) if jnp.issubdtype(jnp.result_type(x), jnp.floating) else x,
+        tree)

@@ -22,6 +22,8 @@ from .._errors import ConfigError
 from .._models import AbstractModel, Oscillator
 
 SAVE_DT_MIN = 1e-4  # s: the default output interval is the smallest multiple of dt above this
+T_END_MAX = 100.0  # s, longest simulated duration
+SAVES_MAX = 1_000_000  # most saved samples of one landing (a trajectory of ~40 columns)
 
 
 class Result(enum.IntEnum):
@@ -175,6 +177,13 @@ class Solver(eqx.Module):
         if abs(ratio - round(ratio)) > 1e-6 * ratio:
             raise ConfigError("solver.save_dt", self.save_dt,
                               f"must be a whole multiple of dt = {self.dt} s")
+        if self.t_end > T_END_MAX:
+            raise ConfigError("solver.t_end", self.t_end, f"must be <= {T_END_MAX:g} s (a "
+                              "landing settles within seconds)")
+        if self.n_saves > SAVES_MAX:
+            raise ConfigError("solver.save_dt", self.save_dt,
+                              f"gives {self.n_saves} saved samples over t_end = {self.t_end:g} s;"
+                              f" at most {SAVES_MAX:.0e}: raise save_dt")
         if self.n_steps > 5e8:
             raise ConfigError("solver.dt", self.dt, "t_end/dt must be <= 5e8 steps")
         return self

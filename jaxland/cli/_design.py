@@ -11,40 +11,36 @@ failure.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
+import time
 
-from ._files import staged
+from .._files import staged
+from .._progress import ProgressLine
+from ._common import out_dir
 
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE"]
 
 EXIT_INFEASIBLE = 4
 
 
-class _Progress:
-    """One stderr line per iteration."""
+def _progress(quiet: bool, total: int):
+    """One stderr line per design iteration."""
+    line = ProgressLine("design", quiet=quiet)
 
-    def __init__(self, quiet: bool, total: int):
-        self.quiet, self.total = quiet, total
-
-    def __call__(self, rec: dict) -> None:
-        if self.quiet:
-            return
+    def show(rec: dict) -> None:
         cons = "  ".join(f"{k} {v:+.3f}" for k, v in rec["constraints"].items())
         vals = "  ".join(f"{k} {v:.5g}" for k, v in rec["values"].items())
-        print(f"design iter {rec['iteration']:3d}/{self.total}  objective "
-              f"{rec['objective_measure_mps2']:.4g} m/s^2  g: {cons}  rho {rec['penalty']:.3g}"
-              f"{'  REJECTED' if rec['rejected'] else ''}  |  {vals}  {rec['wall_s']:6.1f} s",
-              file=sys.stderr, flush=True)
+        line(f"iter {rec['iteration']:3d}/{total}  objective "
+             f"{rec['objective_measure_mps2']:.4g} m/s^2  g: {cons}  rho {rec['penalty']:.3g}"
+             f"{'  REJECTED' if rec['rejected'] else ''}  |  {vals}  {rec['wall_s']:6.1f} s")
+    return show
 
 
 def _cmd_design(args) -> int:
     import jaxland as jl
 
-    from ._design import load_design_spec, optimise_design, verify_design
+    from .._design import load_design_spec, optimise_design, verify_design
 
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise jl.ConfigError("--out", str(out), "exists and is not a folder")
+    out = out_dir(args.out)
     spec = load_design_spec(args.spec)
     if args.iterations is not None:
         if args.iterations < 0:
@@ -59,15 +55,21 @@ def _cmd_design(args) -> int:
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
-    result = optimise_design(spec, vehicle, progress=_Progress(args.quiet, spec.iterations))
+    t0 = time.perf_counter()
+    result = optimise_design(spec, vehicle, progress=_progress(args.quiet, spec.iterations))
     if args.verify_n != 0:
+        t_verify = time.perf_counter()
         verify_design(result, progress=not args.quiet)
-    with staged(out) as staging:  # written into place only if all succeed
+        t_verify = time.perf_counter() - t_verify
+    with staged(out, "design") as staging:  # replaces out as a whole, only if all succeed
         if result.status == "feasible":
             (staging / "design_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "design_report.json")
         if not args.no_plots:
             result.plot(staging / "figures")
+    total = time.perf_counter() - t0
+    verified = f", verification {t_verify:.1f} s" if args.verify_n != 0 else ""
+    print(f"jaxland design: total {total:.1f} s (optimisation {result.wall_s:.1f} s{verified})")
     print(f"design {result.status} after {len(result.history) - 1} iterations in "
           f"{result.wall_s:.1f} s (compile {result.compile_s:.1f} s)")
     for v in result.problem.variables:
@@ -81,10 +83,11 @@ def _cmd_design(args) -> int:
     if result.verification:
         v = result.verification
         print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples)")
-        for tag in ("before", "after"):
+        for tag in ("before", "after"):  # the baseline gear, then the design
             r = v[tag]
             tip, bot = r["tip_over"], r["bottoming"]
-            print(f"    {tag:<6} peak accel p50 {r['peak_body_accel_mps2']['p50']:.4g} p99 "
+            label = f"{tag} ({'baseline' if tag == 'before' else 'design'})"
+            print(f"    {label:<17} peak accel p50 {r['peak_body_accel_mps2']['p50']:.4g} p99 "
                   f"{r['peak_body_accel_mps2']['p99']:.4g} m/s^2; max stroke p99 "
                   f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; P(tip) {tip['probability']:.3g} "
                   f"[{tip['ci95_wilson'][0]:.3g}, {tip['ci95_wilson'][1]:.3g}]; P(bottom) "

@@ -16,8 +16,8 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ._models._full import ground_frame, leg_geometry, quat_from_euler, quat_to_matrix
-from ._plots import (
+from .._models._full import ground_frame, leg_geometry, quat_from_euler, quat_to_matrix
+from ._landing import (
     DISSIPATION,
     ELASTIC,
     KN,

@@ -9,7 +9,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ._plots import _save
+from ._landing import _save
 
 __all__ = ["plot_design"]
 
@@ -76,7 +76,7 @@ def _history(result, path: Path) -> Path:
 
 
 def _virgin_curve(vehicle, x):
-    from ._laws import honeycomb
+    from .._laws import honeycomb
 
     hc = vehicle.honeycomb.curve()
     return np.asarray([float(honeycomb(jnp.asarray(xi), jnp.asarray(xi), hc).force) for xi in x])

@@ -8,12 +8,12 @@ headless and leaves no global figure state behind. Each PNG is written atomicall
 
 from __future__ import annotations
 
-import os
-import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .._files import atomic_savefig
 
 __all__ = ["plot_landing", "REQUIRED_COLUMNS"]
 
@@ -106,17 +106,7 @@ def _validate(trajectory, outcomes, breakpoints_m) -> _Landing:
 
 
 def _save(fig, path: Path) -> Path:
-    """Render ``fig`` to ``path`` via a temp file in the same folder, then rename (the temp file
-    is opened like any new file, so the PNG gets the usual umask permissions, not 0600)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    try:
-        with open(tmp, "xb") as fh:
-            fig.savefig(fh, format="png", dpi=DPI)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_savefig(fig, path, dpi=DPI)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -199,9 +189,9 @@ def _fig10(fig, lnd):
         ax["n"].set_ylim(1.3 * low, -4 * low)
         ax["n"].annotate(f"zoomed on contact: the foot starts at {z[0]:.0f} mm", (0.99, 0.97),
                          xycoords="axes fraction", ha="right", va="top", fontsize="small")
-    _time_panel(ax["t"], lnd, "(a) tangential position (from touchdown)", "position [mm]",
+    _time_panel(ax["t"], lnd, "(b) tangential position (from touchdown)", "position [mm]",
                 [("foot", tan)])
-    # (b) the path from just before touchdown on, coloured by time (the drop above is a line).
+    # (c) the path from just before touchdown on, coloured by time (the drop above is a line).
     i0 = max(int(np.searchsorted(lnd.t, lnd.impacts[0][0])) - 20, 0) if lnd.impacts else 0
     xy = np.column_stack([tan[i0:], z[i0:]])
     lc = LineCollection(np.stack([xy[:-1], xy[1:]], axis=1), array=lnd.t[i0:-1],
@@ -211,7 +201,7 @@ def _fig10(fig, lnd):
     ax["p"].axhline(0.0, color="0.3", lw=0.8, ls="--", label="undisturbed ground")
     ax["p"].axhline(-pit.max(), color="tab:brown", lw=0.8, ls=":", label="deepest pit (plastic)")
     fig.colorbar(lc, ax=ax["p"], label="time [s]")
-    _style(ax["p"], "(b) foot path from touchdown", "tangential position [mm]",
+    _style(ax["p"], "(c) foot path from touchdown", "tangential position [mm]",
            "normal position [mm]")
     ax["p"].legend(fontsize="small")
 

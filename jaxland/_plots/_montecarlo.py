@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._plots import _save
+from ._landing import _save
 
 _OUTCOMES = (  # (label, function of (outputs) -> per-sample values, scale, unit)
     ("max stroke, any leg", lambda o: o["max_stroke_m"].max(axis=1), 1e3, "mm"),

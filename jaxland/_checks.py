@@ -1,0 +1,102 @@
+"""Checks of user-given values, one place for every spec: a value is refused with a
+``ConfigError`` naming the field, the value and the rule.
+
+Spec dataclasses declare their TOML keys with ``spec_field(default, toml=..., check=...)``;
+``parse_table`` validates a TOML table against those fields (unknown keys refused, each value
+checked), so a spec's rules are data beside its fields rather than a chain of branches.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from dataclasses import dataclass
+
+from ._errors import ConfigError
+
+
+def _is_number(val) -> bool:
+    return (not isinstance(val, bool) and isinstance(val, numbers.Real)
+            and math.isfinite(val))
+
+
+@dataclass(frozen=True)
+class Number:
+    """A finite number, optionally an integer, within [lo, hi] (``lo_open``/``hi_open``:
+    the bound itself excluded)."""
+
+    integer: bool = False
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def __call__(self, name: str, val):
+        if not _is_number(val):
+            raise ConfigError(name, val, "must be a finite number")
+        if self.integer and not isinstance(val, numbers.Integral):
+            raise ConfigError(name, val, "must be an integer")
+        lo, hi = self.lo, self.hi
+        if lo is not None and (val < lo or (self.lo_open and val == lo)):
+            raise ConfigError(name, val, f"must be {'>' if self.lo_open else '>='} {lo:g}")
+        if hi is not None and (val > hi or (self.hi_open and val == hi)):
+            raise ConfigError(name, val, f"must be {'<' if self.hi_open else '<='} {hi:g}")
+        return val
+
+
+POSITIVE = Number(lo=0.0, lo_open=True)
+NON_NEGATIVE = Number(lo=0.0)
+FRACTION = Number(lo=0.0, hi=1.0, hi_open=True)  # [0, 1)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """One of a fixed set of strings."""
+
+    choices: tuple
+
+    def __call__(self, name: str, val):
+        if val not in self.choices:
+            raise ConfigError(name, val, f"must be one of {', '.join(self.choices)}")
+        return val
+
+
+@dataclass(frozen=True)
+class Text:
+    """A string (a path, a name)."""
+
+    what: str = "a string"
+
+    def __call__(self, name: str, val):
+        if not isinstance(val, str):
+            raise ConfigError(name, val, f"must be {self.what}")
+        return val
+
+
+def spec_field(default, *, toml: str, check, doc: str = "", factory=None):
+    """A spec dataclass field read from the TOML key ``toml`` and validated by ``check``."""
+    meta = dict(toml=toml, check=check, doc=doc)
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def known_keys(prefix: str, table, keys) -> dict:
+    """Refuse a table that is no table, or has a key outside ``keys``."""
+    if not isinstance(table, dict):
+        raise ConfigError(prefix, table, "must be a table")
+    unknown = set(table) - set(keys)
+    if unknown:
+        bad = sorted(unknown)[0]
+        raise ConfigError(f"{prefix}.{bad}", table[bad], f"unknown key; known: {', '.join(keys)}")
+    return table
+
+
+def parse_table(cls, section: str, table) -> dict:
+    """The keyword arguments of ``cls`` that the TOML ``table`` gives, each checked by its
+    field's ``check``; unknown keys are refused."""
+    fields = {f.metadata["toml"]: f for f in dataclasses.fields(cls) if "toml" in f.metadata}
+    known_keys(section, table, list(fields))
+    return {fields[key].name: fields[key].metadata["check"](f"{section}.{key}", val)
+            for key, val in table.items()}

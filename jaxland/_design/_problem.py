@@ -1,0 +1,245 @@
+"""The compiled robust design problem: design variables <-> unconstrained z, the fixed
+scenes, and the measures with their Jacobian."""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._config import paper_vehicle, validate_vehicle
+from .._errors import ConfigError
+from .._models import MODELS
+from .._montecarlo import MonteCarloSpec, sample_scenes
+from .._params import Vehicle
+from .._simulate import landings
+from .._solvers import Result, Solver
+from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
+from ._spec import (
+    _DEG,
+    CELL_VARS,
+    FORCE_VARS,
+    ORDER_GAP_M,
+    ORDER_RATIO,
+    VARIABLES,
+    DesignSpec,
+    DesignVariable,
+)
+
+
+def risk_measure(values, measure: str, level: float = 0.9):
+    """A risk measure of per-scene values (larger = worse): ``mean``, ``max``, ``cvar`` at
+    ``level``: the mean of the worst (1 - level) N values, the boundary sample weighted by its
+    fraction (Rockafellar-Uryasev's CVaR of the empirical distribution), differentiable almost
+    everywhere (through a sort); or ``normal`` at ``level``: mean + z std (sample std, N - 1),
+    z = Phi^-1(level), the level-quantile of a normal with the scenes' mean and spread, smooth
+    in every scene's value."""
+    values = jnp.asarray(values)
+    if measure == "mean":
+        return jnp.mean(values)
+    if measure == "max":
+        return jnp.max(values)
+    n = values.shape[0]
+    if measure == "normal":
+        z = statistics.NormalDist().inv_cdf(level)
+        mean = jnp.mean(values)
+        var = jnp.sum((values - mean) ** 2) / max(n - 1, 1)
+        pos = var > 0.0  # double where: sqrt's gradient stays finite for equal values
+        sd = jnp.where(pos, jnp.sqrt(jnp.where(pos, var, 1.0)), 0.0)
+        return mean + z * sd
+    tail = (1.0 - level) * n
+    worst = -jnp.sort(-values)  # descending
+    w = jnp.clip(tail - jnp.arange(n, dtype=values.dtype), 0.0, 1.0) / tail
+    return jnp.sum(w * worst)
+
+
+class DesignProblem:
+    """The compiled robust design problem: design variables <-> unconstrained ``z``, the fixed
+    scenes, and ``evaluate(z)`` -> measures, their Jacobian and per-scene outcomes."""
+
+    def __init__(self, spec: DesignSpec, vehicle: Vehicle | None = None):
+        self.spec = spec
+        self.vehicle = validate_vehicle(paper_vehicle() if vehicle is None else vehicle)
+        self.model = spec.resolved_model()
+        self.solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end).validate()
+        self.variables = list(spec.variables)
+        self.names = spec.names
+        self.cells = spec.cells
+        mc = spec.montecarlo
+        scene_spec = MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed, n=spec.n_scenes,
+                                    seed=spec.scene_seed, dt=spec.dt, t_end=spec.t_end,
+                                    model=self.model)
+        self.scenes, self.scene_inputs = sample_scenes(scene_spec, 0, spec.n_scenes,
+                                                       self.vehicle.n_legs)
+        self.scenes.validate(self.vehicle.n_legs)
+        self._check_bounds()
+        self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
+                                      baseline_value(self.vehicle, v.name, self.cells))
+                             for v in self.variables}, check=True)
+        self._fn = jax.jit(self._measures)
+        self._jac = jax.jit(self._measures_and_jac)
+
+    # --- variables
+    def _check_bounds(self):
+        """Refuse bound boxes that could produce an invalid vehicle (the orderings the
+        honeycomb and leg need), naming the bound and the rule."""
+        hc, leg = self.vehicle.honeycomb, self.vehicle.leg
+        b = {v.name: (v.low * v.to_si, v.high * v.to_si) for v in self.variables}
+        x_l1 = float(hc.F1 / hc.k_b1)
+        dx3 = float((hc.F2 - hc.F1) / hc.k_b3)
+        if any(n in b for n in CELL_VARS):
+            c = {n: (self.cells[n] * 1e-3,) * 2 for n in CELL_VARS} | b
+            f1_max = float(cells_force(c["primary_cell_size_mm"][0],
+                                        c["primary_foil_thickness_mm"][1], self.cells))
+            f2_min = float(cells_force(c["secondary_cell_size_mm"][1],
+                                        c["secondary_foil_thickness_mm"][0], self.cells))
+            if not f2_min > ORDER_RATIO * f1_max:
+                raise ConfigError("variables.secondary_cell_size_mm.high",
+                                  c["secondary_cell_size_mm"][1] * 1e3,
+                                  f"the cell bounds allow F2 = {f2_min:.4g} N <= {ORDER_RATIO} "
+                                  f"x F1 = {ORDER_RATIO * f1_max:.4g} N; the secondary stage "
+                                  "must be stronger than the primary over the whole box")
+        else:
+            f1_hi = b.get("F1_N", (float(hc.F1),) * 2)[1]
+            f2_hi = b.get("F2_N", (float(hc.F2),) * 2)[1]
+            if not f2_hi > ORDER_RATIO * f1_hi:
+                key = "F2_N.high" if "F2_N" in b else "F1_N.high"
+                raise ConfigError(f"variables.{key}", (f2_hi if "F2_N" in b else f1_hi),
+                                  f"F2 must be able to exceed {ORDER_RATIO} x F1 over the whole "
+                                  f"box: F2 max {f2_hi:.4g} N vs F1 max {f1_hi:.4g} N")
+        if "x_L2_mm" in b and b["x_L2_mm"][0] <= x_l1:
+            raise ConfigError("variables.x_L2_mm.low", b["x_L2_mm"][0] * 1e3,
+                              f"must exceed x_L1 = {x_l1 * 1e3:.4g} mm")
+        x2_hi = b.get("x_L2_mm", (float(hc.x_L2),) * 2)[1]
+        x4_hi = b.get("x_L4_mm", (float(hc.x_L4),) * 2)[1]
+        if not x4_hi > x2_hi + dx3 + ORDER_GAP_M:
+            key = "x_L4_mm.high" if "x_L4_mm" in b else "x_L2_mm.high"
+            raise ConfigError(f"variables.{key}", (x4_hi if "x_L4_mm" in b else x2_hi) * 1e3,
+                              f"x_L4 must be able to exceed x_L2 + (x_L3 - x_L2) + 1 mm over "
+                              f"the whole box (x_L2 max {x2_hi * 1e3:.4g} mm, x_L4 max "
+                              f"{x4_hi * 1e3:.4g} mm)")
+        if x4_hi >= float(leg.L_h0):
+            raise ConfigError("variables.x_L4_mm.high", x4_hi * 1e3,
+                              f"must be shorter than the main strut, L_h0 = "
+                              f"{float(leg.L_h0) * 1e3:.4g} mm")
+        if "theta_b_deg" in b:
+            lo, hi = b["theta_b_deg"]
+            if not (0 < lo and hi < math.pi / 2):
+                raise ConfigError("variables.theta_b_deg", f"[{lo / _DEG:g}, {hi / _DEG:g}]",
+                                  "must lie in (0, 90) deg")
+            if not float(leg.L_h0) * math.sin(lo) > 1.05 * float(leg.H2):
+                raise ConfigError("variables.theta_b_deg.low", lo / _DEG,
+                                  "L_h0 sin theta_b must exceed 1.05 H2 (the leg triangle "
+                                  "degenerates)")
+        if "R_m" in b and not b["R_m"][0] > 0:
+            raise ConfigError("variables.R_m.low", b["R_m"][0], "must be > 0")
+        for n in ("k_a_N_per_m", *FORCE_VARS, *CELL_VARS):
+            if n in b and not b[n][0] > 0:
+                raise ConfigError(f"variables.{n}.low", b[n][0] / VARIABLES[n].to_si, "must be > 0")
+
+    def _bounds(self, vals: dict, v: DesignVariable):
+        lo, hi = v.low * v.to_si, v.high * v.to_si
+        hc = self.vehicle.honeycomb
+        if v.name == "F2_N":  # coupled: F2 >= ORDER_RATIO F1
+            lo = jnp.maximum(lo, ORDER_RATIO * vals.get("F1_N", hc.F1))
+        elif v.name == "x_L4_mm":  # coupled: x_L4 >= x_L3 + gap
+            dx3 = (hc.F2 - hc.F1) / hc.k_b3
+            lo = jnp.maximum(lo, vals.get("x_L2_mm", hc.x_L2) + dx3 + ORDER_GAP_M)
+        return lo, hi
+
+    def from_z(self, z) -> dict:
+        """Design values (SI) from the unconstrained coordinates, through the bounded smooth
+        transforms (in declaration order, so coupled bounds see F1 and x_L2 first)."""
+        vals: dict = {}
+        order = sorted(range(len(self.variables)),
+                       key=lambda i: self.variables[i].name in ("F2_N", "x_L4_mm"))
+        for i in order:
+            v = self.variables[i]
+            lo, hi = self._bounds(vals, v)
+            s = jax.nn.sigmoid(z[i])
+            if v.scale == "log":
+                vals[v.name] = jnp.exp(jnp.log(lo) + (jnp.log(hi) - jnp.log(lo)) * s)
+            else:
+                vals[v.name] = lo + (hi - lo) * s
+        return vals
+
+    def to_z(self, values: dict, check: bool = False) -> np.ndarray:
+        """Unconstrained coordinates of design values (SI)."""
+        z = np.zeros(len(self.variables))
+        vals = {}
+        order = sorted(range(len(self.variables)),
+                       key=lambda i: self.variables[i].name in ("F2_N", "x_L4_mm"))
+        for i in order:
+            v = self.variables[i]
+            lo, hi = (float(x) for x in self._bounds(vals, v))
+            x = float(values[v.name])
+            if v.scale == "log":
+                frac = (math.log(x) - math.log(lo)) / (math.log(hi) - math.log(lo))
+            else:
+                frac = (x - lo) / (hi - lo)
+            if check and not 1e-6 < frac < 1 - 1e-6:
+                raise ConfigError(f"variables.{v.name}", x / v.to_si,
+                                  f"the start (baseline) value must lie strictly inside the "
+                                  f"bounds [{lo / v.to_si:.6g}, {hi / v.to_si:.6g}] "
+                                  f"(give variables.{v.name}.start or widen the bounds)")
+            frac = min(max(frac, 1e-12), 1 - 1e-12)
+            z[i] = math.log(frac / (1 - frac))
+            vals[v.name] = x
+        return z
+
+    def vehicle_at(self, z) -> Vehicle:
+        return apply_design(self.vehicle, self.from_z(z), self.cells)
+
+    # --- outcomes
+    def _per_scene(self, veh):
+        model = MODELS[self.model]
+        _, s = landings(veh, self.scenes, self.solver, model)
+        legmax = model.leg_max
+
+        out = dict(peak_body_accel_mps2=s["peak_body_accel_mps2"],
+                   max_stroke_m=legmax(s["max_stroke_m"]),
+                   slip_distance_m=legmax(s["slip_distance_m"]),
+                   peak_honeycomb_force_N=legmax(s["peak_honeycomb_force_N"]),
+                   failed=s["result"] != int(Result.SUCCESSFUL),
+                   tipped=s["tipped"])
+        if "peak_margin_deficit_m" in s:
+            out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]
+        return out
+
+    def _measures(self, z):
+        """(measures [objective measure, gear mass, g_1..g_m], per-scene outcomes)."""
+        veh = self.vehicle_at(z)
+        per = self._per_scene(veh)
+        ob = self.spec.objective
+        vec = [risk_measure(per["peak_body_accel_mps2"], ob.measure, ob.level),
+               gear_mass_kg(veh, self.cells)]
+        for c in self.spec.constraints:
+            bad = c.badness(per, veh.honeycomb.x_L4)
+            vec.append(risk_measure(bad, c.measure, c.level) / c.scale)
+        return jnp.stack(vec), per
+
+    def _measures_and_jac(self, z):
+        def f(z):
+            vec, per = self._measures(z)
+            return vec, (vec, per)
+
+        jac, (vec, per) = jax.jacfwd(f, has_aux=True)(z)
+        return vec, jac, per
+
+    def evaluate(self, z, jacobian: bool = True):
+        """``(measures, Jacobian d measures / d z or None, per-scene outcomes)``, numpy.
+        ``measures`` = [objective's risk measure, gear mass proxy [kg], g_1 .. g_m]."""
+        z = jnp.asarray(z, jnp.float64)
+        if jacobian:
+            vec, jac, per = self._jac(z)
+            jac = np.asarray(jac)
+        else:
+            vec, per = self._fn(z)
+            jac = None
+        return np.asarray(vec), jac, {k: np.asarray(v) for k, v in per.items()}
+
+
+# ------------------------------------------------------------------------------- optimiser

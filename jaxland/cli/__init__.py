@@ -1,0 +1,114 @@
+"""The ``jaxland`` command: ``config``, ``simulate``, ``montecarlo``, ``fit``, ``predict``,
+``design``. (The benchmarks are scripts in the repository's ``benchmarks/`` folder, not part
+of the installed package.)
+
+Exit codes: 0 success, 2 invalid input (the message names field, value and rule), 3 numerical
+failure of the integration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .._errors import ConfigError, SimulationError
+from .._solvers import METHODS
+from ._montecarlo import cmd_montecarlo
+from ._simulate import cmd_config, cmd_simulate
+
+EXIT_INVALID = 2
+EXIT_NUMERICAL = 3
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="jaxland", description="jaxland: landings of a legged vehicle on crushable "
+        "honeycomb gear (quarter and full 3-D models), Monte Carlo, calibration, design.")
+    from .. import __version__
+
+    p.add_argument("--version", action="version", version=f"jaxland {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    c = sub.add_parser("config", help="print the vehicle configuration (default: the paper's) "
+                                      "as commented TOML")
+    c.add_argument("--config", help="a vehicle TOML to validate and print in full")
+    c.set_defaults(func=cmd_config)
+
+    s = sub.add_parser("simulate", help="simulate one landing, write CSV, summary and figures")
+    s.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
+    s.add_argument("--scene", help="scene TOML ([scene] table, keys as the flags below with "
+                                   "their units, e.g. roll_deg = 3); flags override it")
+    s.add_argument("--model", default="auto", choices=("auto", "quarter", "full"),
+                   help="auto (default): the smallest model that represents the scene exactly")
+    s.add_argument("--drop-height", type=float,
+                   help="clearance of the lowest foot at release [m] (default 0.2)")
+    s.add_argument("--sink-speed", type=float, help="downward speed at release [m/s] (default 0)")
+    s.add_argument("--touchdown-speed", type=float,
+                   help="start at touchdown with this downward speed [m/s]")
+    s.add_argument("--horizontal-speed", type=float, help="horizontal speed [m/s]")
+    s.add_argument("--heading-deg", type=float, help="direction of the horizontal speed [deg]")
+    for ax in ("roll", "pitch", "yaw"):
+        s.add_argument(f"--{ax}-deg", type=float, help=f"body {ax} at release [deg]")
+        s.add_argument(f"--{ax}-rate-degps", type=float, help=f"body {ax} rate [deg/s]")
+    s.add_argument("--slope-deg", type=float, help="ground slope [deg]")
+    s.add_argument("--slope-direction-deg", type=float, help="downhill direction [deg]")
+    s.add_argument("--friction", type=float, help="foot-ground friction mu (overrides config)")
+    s.add_argument("--plateau-scale", type=float, nargs="+",
+                   help="honeycomb plateau-force scale per leg (scatter), one value per leg")
+    s.add_argument("--method", default="euler", choices=METHODS,
+                   help="integrator (default euler; see docs/integrators.md)")
+    s.add_argument("--dt", type=float, default=None,
+                   help="integration step [s] (default 1e-5, or half the method's stability "
+                        "limit for this vehicle if smaller; impulse: the step cap; tsit5: the "
+                        "first step)")
+    s.add_argument("--impulse", type=float, help="impulse step dI of --method impulse [N s]")
+    s.add_argument("--rtol", type=float, help="relative tolerance of --method tsit5")
+    s.add_argument("--atol", type=float, help="absolute tolerance of --method tsit5")
+    s.add_argument("--max-steps", type=int, help="step budget of --method tsit5")
+    s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
+    s.add_argument("--save-dt", type=float, default=None,
+                   help="output sample interval [s] (default max(1e-4, dt))")
+    s.add_argument("--out", default="out/simulate", help="output folder (default out/simulate)")
+    s.add_argument("--no-plots", action="store_true", help="skip the figures")
+    s.set_defaults(func=cmd_simulate)
+
+    m = sub.add_parser("montecarlo", help="dispersed landings: tip-over and bottoming "
+                                          "probabilities, envelopes, sensitivities")
+    m.add_argument("spec", help="Monte Carlo spec TOML ([montecarlo], [dispersion.*], [fixed])")
+    m.add_argument("--n", type=int, help="number of landings (overrides the spec)")
+    m.add_argument("--seed", type=int, help="random seed (overrides the spec)")
+    m.add_argument("--chunk", type=int, help="landings per compiled batch (bounds memory)")
+    m.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
+    m.add_argument("--out", default="out/montecarlo", help="output folder")
+    m.set_defaults(func=cmd_montecarlo)
+
+    # calibration (`fit`, `predict`) lives in its own package, built on jaxland's public API
+    from calibration.cli import add_subcommands
+
+    add_subcommands(sub)
+
+    from ._design import add_subcommands as add_design  # `design`: gear design
+
+    add_design(sub)
+
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ConfigError as err:
+        print(f"jaxland: error: {err}", file=sys.stderr)
+        return EXIT_INVALID
+    except SimulationError as err:
+        print(f"jaxland: numerical failure: {err}", file=sys.stderr)
+        return EXIT_NUMERICAL
+    except KeyboardInterrupt:
+        print("jaxland: interrupted (nothing was written to the output folder)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,51 @@
+"""``jaxland montecarlo``."""
+
+from __future__ import annotations
+
+from ._common import out_dir
+
+# envelopes whose low tail is the danger (the others: the high tail)
+LOW_SIDE = ("min_stability_margin_m",)
+
+
+def cmd_montecarlo(args) -> int:
+    from .._config import load_vehicle, paper_vehicle
+    from .._montecarlo import load_montecarlo_spec, run_montecarlo
+
+    out = out_dir(args.out)
+    spec = load_montecarlo_spec(args.spec)
+    if args.n is not None:
+        spec.n = args.n
+    if args.seed is not None:
+        spec.seed = args.seed
+    spec.__post_init__()  # re-check n and seed after the overrides
+    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    result = run_montecarlo(spec, vehicle, chunk=args.chunk)
+    result.save(out)
+    s = result.summary
+    tip, bot = s["tip_over"], s["bottoming"]
+    print(f"jaxland montecarlo: {s['n']} landings, {s['model']} model, {s['devices']} device(s),"
+          f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
+    failures = f"  {s['failures']}" if s["failures"] else ""
+    print(f"  failed samples      {s['n_failed']}{failures}")
+    if s["n_no_touchdown"]:
+        print(f"  no touchdown        {s['n_no_touchdown']} (counted apart; raise t_end_s)")
+    print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
+          f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
+    print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
+          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']})")
+    for name, env in s["envelopes"].items():
+        if not env:
+            continue
+        if name in LOW_SIDE:  # the side that matters: a small margin is the danger
+            print(f"  {name:<30s} min {env['min']:.4g}  p01 {env['p01']:.4g}  p50 {env['p50']:.4g}")
+        else:
+            print(f"  {name:<30s} p50 {env['p50']:.4g}  p99 {env['p99']:.4g}  max {env['max']:.4g}")
+    if s["sensitivity"]["ranking"]:
+        top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g})"
+                        for r in s["sensitivity"]["ranking"][:3])
+        print(f"  drivers of {s['sensitivity']['target']}: {top}")
+    print(f"wrote {out}/samples.csv, samples.npz, summary.json, figures/*.png")
+    return 0
+
+

@@ -1,0 +1,125 @@
+"""``jaxland simulate`` and ``jaxland config``."""
+
+from __future__ import annotations
+
+import sys
+
+from .._errors import ConfigError
+from .._files import staged
+from ._common import fmt as _fmt, out_dir
+
+
+def cmd_config(args) -> int:
+    from .._config import load_vehicle, vehicle_to_toml
+
+    veh = load_vehicle(args.config) if args.config else None
+    sys.stdout.write(vehicle_to_toml(veh))
+    return 0
+
+
+def _print_summary(o: dict) -> None:
+    rows = [
+        ("touchdown", _fmt(o["touchdown_time_s"], 1, "s")),
+        ("impacts (start-end, s)", ", ".join(
+            f"{i['start_s']:.3f}-{'end' if i['end_s'] is None else format(i['end_s'], '.3f')}"
+            for i in o["impacts"][:5]) + (" ..." if o["n_impacts"] > 5 else "")),
+        ("first-impact stroke", _fmt(o["first_impact_stroke_m"], 1e3, "mm")),
+        ("max stroke", _fmt(o["max_stroke_m"], 1e3, "mm")),
+        ("final stroke", _fmt(o["final_stroke_m"], 1e3, "mm")),
+        ("secondary honeycomb engaged", str(o["secondary_honeycomb_engaged"])),
+        ("outcome", o["classification"]),
+        ("peak ground normal force", _fmt(o["peak_normal_force_N"], 1e-3, "kN")),
+        ("peak ground tangential force", _fmt(o["peak_tangential_force_N"], 1e-3, "kN")),
+        ("peak strut (buffer) force", _fmt(o["peak_strut_force_N"], 1e-3, "kN")),
+        ("peak buffer velocity", _fmt(o["peak_buffer_velocity_mps"], 1, "m/s")),
+        ("peak body acceleration", _fmt(o["peak_body_accel_mps2"], 1, "m/s^2")),
+        ("peak foot acceleration", _fmt(o["peak_foot_accel_mps2"], 1, "m/s^2")),
+        ("foot slip distance", _fmt(o["slip_distance_m"], 1e3, "mm")),
+        ("energy dissipated", _fmt(o["energy_dissipated_J"], 1, "J")),
+        ("energy ledger closure", f"{o['energy_closure_max_J']:.3g} J "
+                                  f"({o['energy_closure_rel']:.2e} of dissipated)"),
+    ]
+    width = max(len(r[0]) for r in rows)
+    for name, val in rows:
+        print(f"  {name:<{width}}  {val}")
+
+
+_SCENE_FLAGS = (  # CLI flag -> scene TOML key (units in the names)
+    ("drop_height", "drop_height_m"), ("sink_speed", "sink_speed_mps"),
+    ("horizontal_speed", "horizontal_speed_mps"), ("heading_deg", "heading_deg"),
+    ("roll_deg", "roll_deg"), ("pitch_deg", "pitch_deg"), ("yaw_deg", "yaw_deg"),
+    ("roll_rate_degps", "roll_rate_degps"), ("pitch_rate_degps", "pitch_rate_degps"),
+    ("yaw_rate_degps", "yaw_rate_degps"), ("slope_deg", "slope_deg"),
+    ("slope_direction_deg", "slope_direction_deg"), ("friction", "friction"),
+    ("plateau_scale", "plateau_scale"),
+)
+
+
+def _scene_from_args(args):
+    from .._scene import scene_from_dict
+    from .._toml import read_toml
+
+    table = {}
+    if args.scene:
+        data = read_toml(args.scene, "--scene")
+        if "scene" in data and len(data) > 1:
+            extra = sorted(set(data) - {"scene"})[0]
+            raise ConfigError(f"--scene {args.scene}: {extra}", "<table>",
+                              "a scene file holds the [scene] table only (vehicle parameters "
+                              "belong in --config; friction = ... inside [scene] overrides mu)")
+        table = dict(data.get("scene", data))
+    for flag, key in _SCENE_FLAGS:
+        val = getattr(args, flag)
+        if val is not None:
+            table[key] = val
+    if args.touchdown_speed is not None:
+        if args.drop_height is not None or args.sink_speed is not None:
+            raise ConfigError("--touchdown-speed", args.touchdown_speed,
+                              "give either --touchdown-speed or --drop-height/--sink-speed")
+        table["drop_height_m"], table["sink_speed_mps"] = 0.0, args.touchdown_speed
+    return scene_from_dict(table)
+
+
+def cmd_simulate(args) -> int:
+    from .._config import load_vehicle, paper_vehicle, vehicle_to_toml
+    from .._scene import scene_to_toml
+    from .._simulate import effective_vehicle, simulate
+
+    out = out_dir(args.out)
+    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    scene = _scene_from_args(args)
+    options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
+               if getattr(args, k) is not None}
+    result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
+                      model=args.model, method=args.method, **options)
+    model = result.outcomes["model"]
+    effective, note = effective_vehicle(vehicle, scene)
+    with staged(out, "simulate") as staging:  # replaces out as a whole, only if all succeed
+        result.to_csv(staging / "trajectory.csv")
+        result.to_json(staging / "summary.json")
+        (staging / "scene.toml").write_text(scene_to_toml(scene))
+        head = ("# the vehicle as the scene ran it (scene friction and mass scale applied)\n"
+                + (f"# {note}\n" if note else ""))
+        (staging / "vehicle.toml").write_text(head + vehicle_to_toml(effective))
+        if not args.no_plots:
+            if model == "quarter":
+                from .._plots import plot_landing
+
+                hc = vehicle.honeycomb
+                bps = {f"x_L{i}": float(getattr(hc, f"x_L{i}")) for i in (1, 2, 3, 4)}
+                plot_landing(result.trajectory, result.outcomes, staging / "figures",
+                             breakpoints_m=bps)
+            else:
+                from .._plots import plot_landing_3d
+
+                plot_landing_3d(result.trajectory, result.outcomes, staging / "figures",
+                                vehicle=vehicle, scene=scene)
+    print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
+          f"sink {float(scene.sink_speed):g} m/s, {result.solver.method.name} dt "
+          f"{result.solver.dt:g} s, {args.t_end:g} s")
+    _print_summary(result.outcomes)
+    print(f"wrote {out}/trajectory.csv, summary.json, scene.toml, vehicle.toml"
+          + ("" if args.no_plots else ", figures/*.png"))
+    return 0
+
+

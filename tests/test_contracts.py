@@ -1,0 +1,210 @@
+"""The typed contracts and the rules that keep answers honest: integrator objects and names,
+the default output interval, result codes (no touchdown is no "stable"), NaN derivatives of a
+failed landing, output folders as one consistent set, and refusals of bad files and specs."""
+
+import json
+import os
+import subprocess
+import sys
+
+import equinox as eqx
+import jax
+import numpy as np
+import pytest
+
+import jaxland as jl
+from jaxland.cli import main
+
+VEH = jl.paper_vehicle()
+
+
+# ---------------------------------------------------------------------------- integrators
+
+def test_integrators_by_name_and_object():
+    assert jl.Solver(method="impulse").method == jl.Impulse()
+    assert jl.integrator("impulse", impulse=0.1) == jl.Impulse(dI=0.1)
+    assert jl.integrator("tsit5", rtol=1e-5).rtol == 1e-5
+    assert isinstance(jl.Solver().method, jl.Euler)
+    with pytest.raises(jl.ConfigError, match=r"solver\.rtol.*not an option of euler"):
+        jl.integrator("euler", rtol=1e-6)
+    with pytest.raises(jl.ConfigError, match=r"solver\.method.*must be one of"):
+        jl.integrator("rk4")
+    with pytest.raises(jl.ConfigError, match=r"solver\.impulse.*> 0"):
+        jl.integrator("impulse", impulse=-1.0)
+
+
+def test_stable_step_is_the_oscillator_limit_in_closed_form():
+    """Symplectic Euler on x'' = -w^2 x - c x' is stable for dt <= (sqrt(c^2 + 4 w^2) - c) /
+    w^2 (2/w without damping); the paper gear's numbers by hand: the foot (1 kg) on the
+    stiffest strut element, the aux struts, the ground in restitution and the tangential
+    spring, damped by D_b F2 and chi F2."""
+    hc, leg, gr = VEH.honeycomb, VEH.leg, VEH.ground
+    m = float(VEH.m_foot)
+    k = (max(float(hc.k_b1), float(hc.k_b3), float(leg.k_topout)) + float(leg.k_a)
+         + float(gr.k) / (1 - float(gr.gamma)) + float(gr.k_tan))
+    w2 = k / m
+    c = (float(leg.D_b) + float(gr.chi)) * float(hc.F2) / m
+    assert float(jl.stable_step(VEH)) == pytest.approx((np.sqrt(c * c + 4 * w2) - c) / w2,
+                                                       rel=1e-12)
+    c_ground = float(gr.chi) * float(hc.F2) / m
+    for method in ("euler_implicit", "verlet"):
+        assert float(jl.stable_step(VEH, method=method)) == pytest.approx(
+            (np.sqrt(c_ground**2 + 4 * w2) - c_ground) / w2, rel=1e-12)
+    assert float(jl.stable_step(VEH, method="tsit5")) == np.inf
+
+
+def test_default_output_interval_is_a_whole_multiple_of_dt():
+    assert jl.Solver(dt=1e-5).save_dt == pytest.approx(1e-4)
+    assert jl.Solver(dt=4e-5).save_dt == pytest.approx(1.2e-4)
+    assert jl.Solver(dt=2e-4).save_dt == pytest.approx(2e-4)
+    jl.Solver(dt=4e-5).validate()  # a whole multiple: accepted
+
+
+# ---------------------------------------------------------------------------- results
+
+def test_a_landing_without_touchdown_is_no_touchdown_not_stable():
+    res = jl.simulate(jl.Scene(drop_height=1.0), t_end=0.1)
+    assert res.outcomes["classification"] == "no_touchdown"
+    assert res.outcomes["result"] == "no_touchdown"
+    spec = jl.MonteCarloSpec(dispersion={"sink_speed_mps": jl.Distribution("uniform", low=0.0,
+                                                                           high=0.5)},
+                             fixed={"drop_height_m": 2.0}, n=4, t_end=0.05)
+    mc = jl.run_montecarlo(spec, progress=False)
+    assert mc.summary["n_no_touchdown"] == 4 and mc.summary["n_failed"] == 0
+    assert mc.summary["tip_over"]["n"] == 0  # counted apart, never as safe landings
+
+
+def test_a_failed_landing_has_nan_derivatives_and_a_good_one_keeps_them():
+    """Three times the stability limit blows up (result LEDGER or NONFINITE): the value stays
+    for the diagnosis, its derivative is NaN. Below the limit the derivative is the plain one
+    (checked against a central difference)."""
+    limit = float(jl.stable_step(VEH))
+
+    def stroke(p, dt):
+        veh = eqx.tree_at(lambda v: v.leg.D_b, VEH, VEH.leg.D_b * p)
+        solver = jl.Solver(dt=dt, t_end=0.3, save_dt=dt * round(1e-3 / dt) if dt < 1e-3 else dt)
+        _, s = jl.landing(veh, jl.Scene(), solver, "quarter")
+        return s["max_stroke_m"], s["result"]
+
+    bad = jax.jit(jax.value_and_grad(lambda p: stroke(p, 3 * limit)[0]))(1.0)
+    code = int(jax.jit(lambda p: stroke(p, 3 * limit)[1])(1.0))
+    assert jl.Result(code).failed and np.isfinite(float(bad[0])) and np.isnan(float(bad[1]))
+    f = jax.jit(lambda p: stroke(p, 1e-5)[0])
+    g = float(jax.jit(jax.grad(lambda p: stroke(p, 1e-5)[0]))(1.0))
+    h = 1e-4
+    assert np.isfinite(g)
+    assert g == pytest.approx((float(f(1 + h)) - float(f(1 - h))) / (2 * h), rel=0.02)
+
+
+# ---------------------------------------------------------------------------- output folders
+
+def _simulate(out, *extra):
+    return main(["simulate", "--drop-height", "0.02", "--t-end", "0.1", "--out", str(out),
+                 *extra])
+
+
+def test_an_output_folder_is_one_set_and_records_its_inputs(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert _simulate(out, "--friction", "0.3") == 0
+    assert (out / "figures").is_dir()
+    marker = json.loads((out / ".jaxland-output.json").read_text())
+    assert marker["command"] == "simulate" and marker["jaxland_version"] == jl.__version__
+    scene = jl.load_scene(out / "scene.toml")
+    assert float(scene.drop_height) == 0.02 and float(scene.friction) == 0.3
+    assert float(jl.load_vehicle(out / "vehicle.toml").ground.mu) == 0.3  # the scene's mu
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["jaxland_version"] == jl.__version__ and summary["save_dt_s"] == 1e-4
+    # a rerun without figures replaces the folder: no figure of the first run survives
+    assert _simulate(out, "--no-plots") == 0
+    assert not (out / "figures").exists()
+    assert not list(tmp_path.glob(".run.*"))  # no staging debris
+
+
+def test_a_foreign_folder_is_refused_before_running(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("mine")
+    assert _simulate(tmp_path) == 2
+    assert "did not write" in capsys.readouterr().err
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+    below = tmp_path / "notes.txt" / "out"
+    assert _simulate(below) == 2
+    assert "lies below" in capsys.readouterr().err
+
+
+def test_staging_debris_of_a_killed_run_is_cleaned(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    debris = tmp_path / f".run.staging-{dead}-abcdef"
+    debris.mkdir()
+    (debris / "trajectory.csv").write_text("half")
+    mine = tmp_path / f".run.staging-{os.getpid()}-abcdef"  # a live run's: kept
+    mine.mkdir()
+    assert _simulate(tmp_path / "run", "--no-plots") == 0
+    assert not debris.exists() and mine.exists()
+
+
+# ---------------------------------------------------------------------------- refusals
+
+@pytest.mark.parametrize("content,rule", [
+    (b'drop_height_m = "\xff"\n', "not UTF-8"),
+    (None, "is a folder"),
+])
+def test_unreadable_files_are_refused_by_name(tmp_path, capsys, content, rule):
+    path = tmp_path / "scene.toml"
+    if content is None:
+        path.mkdir()
+    else:
+        path.write_bytes(content)
+    assert main(["simulate", "--scene", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert rule in err and "scene.toml" in err and "Traceback" not in err
+
+
+def test_a_scene_file_with_other_tables_is_refused(tmp_path, capsys):
+    path = tmp_path / "scene.toml"
+    path.write_text("[scene]\ndrop_height_m = 0.1\n[ground]\nmu = 0.05\n")
+    assert main(["simulate", "--scene", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "ground" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fixed,field", [
+    ({"roll_deg": 89.0}, "fixed.roll_deg"),
+    ({"drop_height_m": -0.5}, "fixed.drop_height_m"),
+])
+def test_fixed_monte_carlo_inputs_outside_the_envelope_are_refused(fixed, field):
+    with pytest.raises(jl.ConfigError, match="envelope") as err:
+        jl.MonteCarloSpec(dispersion={}, fixed=fixed, n=2)
+    assert err.value.field == field
+
+
+def test_truncnormal_far_in_a_tail_is_refused_when_read():
+    with pytest.raises(jl.ConfigError, match="probability") as err:
+        jl.Distribution.from_dict("sink_speed_mps", dict(dist="truncnormal", mean=1.0, std=0.1,
+                                                         low=5.0, high=6.0))
+    assert err.value.field == "dispersion.sink_speed_mps"
+
+
+def test_a_per_leg_value_needs_one_entry_per_leg():
+    spec = jl.MonteCarloSpec(dispersion={}, fixed={"plateau_scale": [1.0, 1.0, 1.0]}, n=2)
+    with pytest.raises(jl.ConfigError, match=r"one entry per leg \(4\)"):
+        jl.run_montecarlo(spec, progress=False)
+
+
+def test_version_and_interrupt(capsys, monkeypatch):
+    with pytest.raises(SystemExit) as ex:
+        main(["--version"])
+    assert ex.value.code == 0 and jl.__version__ in capsys.readouterr().out
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jl._simulate, "simulate", interrupted)
+    assert main(["simulate", "--out", "unused-never-written"]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert not os.path.exists("unused-never-written")
+
+
+def test_long_durations_and_huge_outputs_are_refused_before_running():
+    with pytest.raises(jl.ConfigError, match=r"solver\.t_end"):
+        jl.simulate(t_end=400.0)
+    with pytest.raises(jl.ConfigError, match=r"solver\.save_dt.*saved samples"):
+        jl.simulate(t_end=90.0, save_dt=1e-5)
