@@ -21,7 +21,7 @@ from ._toml import read_toml
 __all__ = ["paper_vehicle", "load_vehicle", "vehicle_from_dict", "vehicle_to_toml",
            "validate_vehicle", "PAPER_CELLS"]
 
-# Table 1 of the paper, and the flow stress we calibrated (see README "The paper's vehicle").
+# Table 1 of the paper, and the flow stress we calibrated (docs/paper-comparison.md).
 # Effective foil flow stress sigma_0 that makes the 0.2 m drop reproduce the paper's 66.5 mm
 # first-impact stroke (with D_b = 1.5 s/m from Table 2). Calibrated by
 # `python benchmarks/paper_reproduction.py --calibrate` (310.2 MPa); for comparison, Al 5052-H38

@@ -257,7 +257,7 @@ def window_problem():
 def test_gradient_of_the_calibration_loss_matches_central_differences(window_problem):
     """On the first impact AD is exact: forward (jacfwd, J^T r) = reverse (grad) to 1e-9, and
     both = central differences to 1e-4 (h = 1e-6 in log parameter), at the truth and at a
-    perturbed start. k and gamma are kinked at ~1e-6 relative spacing (README "Gradients"), so
+    perturbed start. k and gamma are kinked at ~1e-6 relative spacing (docs/model.md section 6), so
     FD secants there are allowed 1e-3; measured here 1e-6 to 1e-5."""
     _, prob = window_problem
     loss = jax.jit(prob.loss_fn())

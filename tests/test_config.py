@@ -17,7 +17,7 @@ def _leaves(v):
 
 
 def test_paper_vehicle_geometry_matches_design_reading():
-    """DESIGN.md section 2: foot rest at (2.257, -2.976) m, auxiliary rest length 2.032 m."""
+    """docs/model.md section 2: foot rest at (2.257, -2.976) m, auxiliary rest length 2.032 m."""
     leg = jl.paper_vehicle().leg
     np.testing.assert_allclose(np.asarray(leg.foot_rest), [2.257, -2.976], atol=1e-3)
     np.testing.assert_allclose(float(leg.L_a0), 2.032, atol=1e-3)

@@ -113,7 +113,7 @@ def test_hard_switches_miss_on_the_first_impact():
 # gamma 1.3e-4, chi 2.9e-5, D_b 1.2e-5, k_b1 5.5e-4, F1 5.6e-5, F2 0 (the window never reaches
 # the second plateau: AD and every secant are 0). Bounds: 1e-4 (the target) where the
 # measured value is below it, 1e-3 for gamma and k_b1, where the bounce sequence itself is that
-# sensitive (README "Gradient quality").
+# sensitive (docs/integrators.md, "Gradient quality").
 CHATTER_TOL = np.array([1e-4, 1e-3, 1e-4, 1e-4, 1e-3, 1e-4, 1e-4])
 
 

@@ -100,7 +100,7 @@ def test_paper_drop_reproduces_calibrated_targets(paper_landing):
     assert set(np.unique(paper_landing.trajectory["phase"])) <= {1.0, 2.0, 3.0, 4.0}
 
 
-# README "The paper's vehicle: paper against jaxland" (benchmarks/results/paper_table.json):
+# docs/paper-comparison.md (benchmarks/results/paper_table.json):
 # quantity: (value in the README's table, band, reason for the band). The model is
 # deterministic at the default dt, so each band is half a unit in the last digit the README
 # prints (another XLA build moves these by round-off, ~1e-12); only the first-impact stroke was

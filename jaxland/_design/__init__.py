@@ -1,6 +1,6 @@
 """Gradient-based landing-gear design, robust over a fixed set of dispersed touchdowns.
 
-The problem (see the README section "Design" for the spec format)::
+The problem (docs/design.md; the spec format in docs/formats.md)::
 
     minimise    J(x) = R_obj[a_peak(x, s)] / a0  +  w_m * m_gear(x) / m0
     subject to  g_i(x) = R_i[b_i(x, s)] / scale_i <= 0,       x in [low, high]

@@ -3,7 +3,7 @@
 With hard switches (max(x, 0), min, clip) every force law is continuous but kinked, and a
 landing crosses the kinks at step boundaries many times (foot chatter, lift-offs, stick/slip):
 the loss of a fit is then exact-but-jagged at small parameter scale and AD disagrees with finite
-differences (DESIGN.md section 6, ``benchmarks/gradient_quality.py``). Rounding the kinks over a
+differences (docs/model.md section 6, ``benchmarks/gradient_quality.py``). Rounding the kinks over a
 width ``w`` makes every law C1 and the loss smooth at scales below the width's.
 
 The ramp used is exact outside (0, w): ``ramp(x, w) = max(x, 0)`` for x <= 0 and x >= w, and
