@@ -16,6 +16,14 @@ A drop test is two files side by side:
                               (-g in free fall, not an accelerometer's specific force)
   ===================  =====  ===========================================================
 
+  Columns in other units are converted where the conversion is unambiguous, and each
+  conversion is logged (``DropTest.unit_conversions``, in the fit report): ``time_ms``,
+  ``normal_force_kN``, ``buffer_force_kN``, ``stroke_mm``, ``body_accel_g`` (standard gravity,
+  9.80665 m/s^2 per g). An accelerometer's specific force (0 in free fall, +1 g at rest) needs
+  no flag: the pre-touchdown offset (step 2 below) removes its +g and leaves the kinematic
+  acceleration, as long as the record holds some free fall before touchdown. Anything else
+  (no unit, an unknown unit) is refused by name.
+
 * ``NAME.toml``: a ``[drop_test]`` table (see ``META_KEYS``) with the drop height (or touchdown
   speed), the sample rate, the instrumented leg and the vehicle configuration.
 
@@ -64,6 +72,15 @@ TIME = "time_s"
 _UNIT_SUFFIX = {"time": "s", "normal_force": "N", "buffer_force": "N", "stroke": "m",
                 "body_accel": "mps2"}
 _UNIT_WORDS = {"s": "s", "N": "N", "m": "m", "mps2": "m/s^2"}
+STANDARD_GRAVITY = 9.80665  # m/s^2 per g (ISO 80000-3)
+# unambiguous conversions: column -> (SI column, factor to SI)
+CONVERSIONS = {
+    "time_ms": (TIME, 1e-3),
+    "normal_force_kN": ("normal_force_N", 1e3),
+    "buffer_force_kN": ("buffer_force_N", 1e3),
+    "stroke_mm": ("stroke_m", 1e-3),
+    "body_accel_g": ("body_accel_mps2", STANDARD_GRAVITY),
+}
 
 META_KEYS = {
     "data_file": "CSV file with the traces, relative to this file (default: same name, .csv)",
@@ -118,6 +135,7 @@ class DropTest:
     offsets: dict = field(default_factory=dict)
     noise_std: dict = field(default_factory=dict)
     noise_source: dict = field(default_factory=dict)
+    unit_conversions: dict = field(default_factory=dict)
 
     @classmethod
     def from_arrays(cls, time_s, channels: dict, *, sample_rate_Hz=None, drop_height_m=None,
@@ -131,9 +149,15 @@ class DropTest:
         if not channels:
             raise _err("columns", TIME, "need at least one data channel besides time_s; known: "
                        + ", ".join(CHANNELS))
-        chans = {}
+        chans, conversions = {}, {}
         for col, vals in channels.items():
             _check_column_name(col)
+            if col in CONVERSIONS:  # an unambiguous unit: convert, and log it
+                si, factor = CONVERSIONS[col]
+                if si in channels:
+                    raise _err(f"column {col!r}", col, f"given twice: as {col} and as {si}")
+                conversions[col] = f"{col} -> {si} (x {factor:g})"
+                vals, col = _as_trace(col, vals) * factor, si
             chans[col] = _as_trace(col, vals)
             if chans[col].shape != time_s.shape:
                 raise _err(col, f"{chans[col].size} samples",
@@ -149,7 +173,8 @@ class DropTest:
         drop = cls(name=name, time_s=time_s, channels=chans, touchdown_speed_mps=v_td,
                    sample_rate_Hz=float(sample_rate_Hz), vehicle=vehicle, drop_height_m=h,
                    sink_speed_mps=v0, sensor_leg=int(sensor_leg), vehicle_config=vehicle_config,
-                   synthetic=bool(synthetic), description=str(description), source=source)
+                   synthetic=bool(synthetic), description=str(description), source=source,
+                   unit_conversions=conversions)
         drop._preprocess()
         return drop
 
@@ -222,6 +247,7 @@ class DropTest:
             offsets={f"{c}": v for c, v in self.offsets.items()},
             noise_std={f"{c}": v for c, v in self.noise_std.items()},
             noise_source=dict(self.noise_source),
+            unit_conversions=dict(self.unit_conversions),
         )
 
 
@@ -250,7 +276,7 @@ def _as_trace(name, vals) -> np.ndarray:
 
 
 def _check_column_name(col: str) -> None:
-    if col in CHANNELS or col == TIME:
+    if col in CHANNELS or col == TIME or col in CONVERSIONS:
         return
     base, _, unit = col.rpartition("_")
     for name, want in _UNIT_SUFFIX.items():
@@ -258,8 +284,9 @@ def _check_column_name(col: str) -> None:
             right = f"{name}_{want}"
             got = "no unit suffix" if col == name else f"unit '{unit}'"
             raise _err(f"column {col!r}", col, f"unit suffix missing or wrong ({got}): the "
-                       f"{name} channel must be in {_UNIT_WORDS[want]}, named {right!r}; "
-                       "convert the values (e.g. mm -> m, kN -> N, ms -> s, g -> m/s^2)")
+                       f"{name} channel must be in {_UNIT_WORDS[want]}, named {right!r} "
+                       f"(or one of the converted units: "
+                       f"{', '.join(c for c in CONVERSIONS if c.startswith(name))})")
     raise _err(f"column {col!r}", col, "unknown column; known: " + ", ".join([TIME, *CHANNELS]))
 
 
@@ -319,7 +346,7 @@ def _read_csv(path: Path):
     if not rows:
         raise _err(str(path), "<empty>", "needs a header row and data")
     header = [h.strip() for h in rows[0]]
-    if TIME not in header:
+    if TIME not in header and "time_ms" not in header:
         near = [h for h in header if h.startswith("time")]
         if near:
             _check_column_name(near[0])
@@ -406,16 +433,25 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
         else:
             vehicle = jl.load_vehicle(meta_path.parent / cfg)
     cols = _read_csv(csv_path)
+    time_conv = {}
+    if "time_ms" in cols:
+        if TIME in cols:
+            raise _err(f"{csv_path.name}: column 'time_ms'", "time_ms",
+                       "given twice: as time_ms and as time_s")
+        cols[TIME] = cols.pop("time_ms") * CONVERSIONS["time_ms"][1]
+        time_conv = {"time_ms": f"time_ms -> {TIME} (x {CONVERSIONS['time_ms'][1]:g})"}
     time_s = cols.pop(TIME)
     where = f"{csv_path.name}"
     try:
-        return DropTest.from_arrays(
+        drop = DropTest.from_arrays(
             time_s, cols, sample_rate_Hz=table["sample_rate_Hz"],
             drop_height_m=table.get("drop_height_m"), sink_speed_mps=table.get("sink_speed_mps"),
             touchdown_speed_mps=table.get("touchdown_speed_mps"),
             sensor_leg=table.get("sensor_leg", 0), vehicle=vehicle, vehicle_config=cfg,
             name=meta_path.stem, synthetic=table.get("synthetic", False),
             description=table.get("description", ""), source=where)
+        drop.unit_conversions = {**time_conv, **drop.unit_conversions}
+        return drop
     except jl.ConfigError as err:
         if err.field.startswith(where):
             raise

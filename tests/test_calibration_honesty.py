@@ -234,3 +234,40 @@ def test_rig_jitter_lowpass_and_unloading_options(rig_records):
         vr.record(vr.truth_vehicle(), 0.2, peak_shape="square", **kw)
     with pytest.raises(jl.ConfigError, match="jitter_s"):
         vr.record(vr.truth_vehicle(), 0.2, jitter_s=1.0, **kw)
+
+
+# ------------------------------------------------------------------- lab units, converted
+
+def test_lab_units_are_converted_and_logged(tmp_path):
+    """kN, mm, ms and g columns load as N, m, s and m/s^2 (logged in the report); an
+    accelerometer's specific force (0 in free fall) comes out as the kinematic acceleration."""
+    t_si, rec, _ = vr.record(vr.truth_vehicle(), 0.2, duration_s=0.2, noise=None,
+                             stroke_offset_m=0.0, crush_peak=0.0)
+    g0 = 9.80665
+    spec_force_g = (rec["body_accel_mps2"] + float(vr.truth_vehicle().g)) / g0
+    cols = {"time_ms": t_si * 1e3, "normal_force_kN": rec["normal_force_N"] * 1e-3,
+            "buffer_force_kN": rec["buffer_force_N"] * 1e-3, "stroke_mm": rec["stroke_m"] * 1e3,
+            "body_accel_g": spec_force_g}
+    lines = [",".join(cols)] + [",".join(f"{x:.12g}" for x in row)
+                                for row in np.column_stack(list(cols.values()))]
+    (tmp_path / "lab.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "lab.toml").write_text("[drop_test]\ndrop_height_m = 0.2\n"
+                                       "sample_rate_Hz = 5000.0\n")
+    d = cal.load_drop_test(tmp_path / "lab.toml")
+    ref = cal.DropTest.from_arrays(t_si, rec, sample_rate_Hz=5000.0, drop_height_m=0.2)
+    np.testing.assert_allclose(d.time_s, t_si, rtol=1e-11, atol=1e-15)
+    for c in ("normal_force_N", "buffer_force_N", "stroke_m"):
+        np.testing.assert_allclose(d.corrected[c], ref.corrected[c], rtol=1e-9,
+                                   atol=1e-9 * np.max(np.abs(ref.corrected[c])))
+    # specific force in g -> kinematic m/s^2 through the pre-touchdown offset
+    np.testing.assert_allclose(d.corrected["body_accel_mps2"], rec["body_accel_mps2"],
+                               atol=1e-6)
+    log = d.summary()["unit_conversions"]
+    assert set(log) == {"time_ms", "normal_force_kN", "buffer_force_kN", "stroke_mm",
+                        "body_accel_g"}
+    assert log["stroke_mm"] == "stroke_mm -> stroke_m (x 0.001)"
+    # the same channel in two units is refused by name
+    with pytest.raises(jl.ConfigError, match="given twice"):
+        cal.DropTest.from_arrays(t_si, {"stroke_mm": rec["stroke_m"] * 1e3,
+                                        "stroke_m": rec["stroke_m"]},
+                                 sample_rate_Hz=5000.0, drop_height_m=0.2)
