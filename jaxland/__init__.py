@@ -58,6 +58,7 @@ from ._montecarlo import (
     Distribution as Distribution,
     MonteCarloResult as MonteCarloResult,
     MonteCarloSpec as MonteCarloSpec,
+    init_distributed as init_distributed,
     load_montecarlo_spec as load_montecarlo_spec,
     run_montecarlo as run_montecarlo,
     sample_scenes as sample_scenes,
@@ -112,5 +113,5 @@ __all__ = [
     "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged", "AbstractModel",
     "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
     "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator", "ProgressLine",
-    "scene_to_toml",
+    "scene_to_toml", "init_distributed",
 ]

@@ -10,8 +10,8 @@ At d = d_max this is k d (compression); below d_max it is the restitution line, 
 pit depth gamma d_max. A fraction gamma of the stored energy is lost per loading (energetic
 restitution coefficient sqrt(1 - gamma)), and a later impact starts from the pit, reloading along
 k_r until it passes the old depth. Nothing is reset on lift-off (resets make losses
-discontinuous, docs/model.md section 6). Damping multiplies by (1 + chi d_dot), d_dot the penetration
-rate, floored at 0 so the ground never pulls.
+discontinuous, docs/model.md section 6). Damping multiplies by (1 + chi d_dot), d_dot the
+penetration rate, floored at 0 so the ground never pulls.
 
 Tangential (paper sections 2.2.2-2.2.4): two springs k_tan on the tangent plane between the foot
 and an anchor point on the ground. Stick while k_tan |u| <= mu F_n (the paper's energy test

@@ -7,13 +7,19 @@ Reproducibility: sample i's inputs depend only on (seed, i, input name), via
 chunk size and any number of devices (and adding an input does not change the others' draws).
 
 Scale-out: the batch axis of each chunk is sharded with ``jax.sharding.NamedSharding`` over a
-1-D mesh of ``jax.devices()``. On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=K``
-(set before importing jax) makes K devices of the host's cores; on a GPU or TPU host the same
-code uses its accelerators; on a multi-host cluster call ``jax.distributed.initialize()`` first
-and every process runs the same program (each then holds its addressable shard).
+1-D mesh of the process's local devices. On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_
+count=K`` (set before importing jax) makes K devices of the host's cores; on a GPU or TPU host
+the same code uses its accelerators. Across processes or machines, start every process with
+``init_distributed`` (JAX's multi-controller runtime; CPU collectives over gloo) and run the same
+program: process p runs chunks p, p + P, ... and the results are gathered with
+``multihost_utils.process_allgather``, identical to one process's.
 """
 
-from ._run import MonteCarloResult as MonteCarloResult, run_montecarlo as run_montecarlo
+from ._run import (
+    MonteCarloResult as MonteCarloResult,
+    init_distributed as init_distributed,
+    run_montecarlo as run_montecarlo,
+)
 from ._sample import sample_scenes as sample_scenes
 from ._spec import (
     DISPERSIBLE as DISPERSIBLE,

@@ -86,6 +86,21 @@ class MonteCarloResult:
         return written
 
 
+def init_distributed(coordinator: str, num_processes: int, process_id: int) -> None:
+    """Join a Monte Carlo run of ``num_processes`` processes (one per machine, or several on one)
+    before any JAX computation: ``coordinator`` is ``host:port`` of process 0, reachable by all.
+    CPU processes exchange results over gloo; on GPUs JAX picks its own collectives."""
+    for name, val, ok in (("num_processes", num_processes, num_processes >= 1),
+                          ("process_id", process_id, 0 <= process_id < max(num_processes, 1))):
+        if isinstance(val, bool) or not isinstance(val, int) or not ok:
+            raise ConfigError(name, val, "must be an integer >= 1" if name == "num_processes"
+                              else f"must be an integer in [0, {num_processes})")
+    if ":" not in coordinator:
+        raise ConfigError("coordinator", coordinator, "must be host:port")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator, num_processes=num_processes, process_id=process_id)
+
+
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
                    chunk: int | None = None, devices=None, progress: bool | str = True
                    ) -> MonteCarloResult:
@@ -97,7 +112,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     model = spec.resolved_model()
     solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
                     method=spec.method).validate()
-    devices = list(jax.devices() if devices is None else devices)
+    devices = list(jax.local_devices() if devices is None else devices)
     n_dev = len(devices)
     chunk = min(spec.n, 512 if model == "quarter" else 64) if chunk is None else int(chunk)
     if chunk < 1:
@@ -111,40 +126,62 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
                           f"exceeds the a-priori stability limit {limit:.3g} s of "
                           f"{spec.method}")
 
+    # Several processes (jax.distributed): process p runs chunks p, p + P, ...; every sample's
+    # inputs depend only on (seed, index), so the gathered result is the one-process result.
+    n_proc, rank = jax.process_count(), jax.process_index()
+    starts = list(range(0, spec.n, chunk))[rank::n_proc]
     run = jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))
     outputs: dict = {}
     inputs: dict = {}
     label = progress if isinstance(progress, str) else "montecarlo"
-    line = ProgressLine(f"{label}:", quiet=not progress, in_place=True)
+    line = ProgressLine(f"{label}:", quiet=not progress or rank != 0, in_place=True)
     t0 = time.perf_counter()
-    for start in range(0, spec.n, chunk):
+    done = 0
+    for start in starts:
         count = min(chunk, spec.n - start)
         scenes, ins = sample_scenes(spec, start, chunk, vehicle.n_legs)  # padded chunk
         scenes = jax.tree.map(
             lambda x: jax.device_put(x, batch_sharding) if np.ndim(x) >= 1 else x, scenes)
         res = jax.device_get(run(scenes))
-        for k, v in res.items():
-            outputs.setdefault(k, []).append(np.asarray(v)[:count])
-        for k, v in ins.items():
-            inputs.setdefault(k, []).append(v[:count])
-        done = start + count
+        for group, new in ((outputs, res), (inputs, ins)):
+            for k, v in new.items():
+                v = np.asarray(v)[:count]
+                if k not in group:
+                    group[k] = np.zeros((spec.n, *v.shape[1:]), v.dtype)
+                group[k][start:start + count] = v
+        done += count
         line(f"{done}/{spec.n} landings ({model} model, {n_dev} device"
-             f"{'s' if n_dev > 1 else ''}, {done / (time.perf_counter() - t0):.0f}/s)")
+             f"{'s' if n_dev > 1 else ''}{_of_processes(n_proc)}, "
+             f"{done / (time.perf_counter() - t0):.0f}/s)")
     line.close()
     wall = time.perf_counter() - t0
-    outputs = {k: np.concatenate(v) for k, v in outputs.items()}
-    inputs = {k: np.concatenate(v) for k, v in inputs.items()}
+    if n_proc > 1:
+        outputs, inputs = _gather(outputs, inputs, spec.n, chunk, n_proc)
 
     bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
     failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
-    failure[~_insideenvelope(inputs, spec)] = int(Result.OUTSIDE_ENVELOPE)
+    failure[~_inside_envelope(inputs, spec)] = int(Result.OUTSIDE_ENVELOPE)
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
     return MonteCarloResult(inputs, outputs, failure, summary)
 
 
-def _insideenvelope(inputs: dict, spec: MonteCarloSpec) -> np.ndarray:
+def _of_processes(n_proc: int) -> str:
+    return f" in each of {n_proc} processes" if n_proc > 1 else ""
+
+
+def _gather(outputs: dict, inputs: dict, n: int, chunk: int, n_proc: int):
+    """Every process's samples, from all processes (``process_allgather``): sample i comes from
+    the process that ran its chunk."""
+    from jax.experimental import multihost_utils
+
+    owner = (np.arange(n) // chunk) % n_proc
+    both = multihost_utils.process_allgather((outputs, inputs), tiled=False)
+    return jax.tree.map(lambda x: x[owner, np.arange(n)], both)
+
+
+def _inside_envelope(inputs: dict, spec: MonteCarloSpec) -> np.ndarray:
     """Per sample: every dispersed input within the scene envelope (unbounded distributions can
     draw outside it; such samples are recorded as failures, Result.OUTSIDE_ENVELOPE, not as
     landings)."""
@@ -170,7 +207,8 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
     return dict(
         n=spec.n, seed=spec.seed, model=model, method=spec.method, dt_s=spec.dt,
         t_end_s=spec.t_end,
-        devices=n_dev, chunk=chunk, wall_s=wall, landings_per_s=spec.n / wall,
+        devices=n_dev, processes=jax.process_count(), chunk=chunk, wall_s=wall,
+        landings_per_s=spec.n / wall,
         n_failed=int(failed.sum()), failures=reasons,
         failed_samples=np.flatnonzero(failed).tolist()[:100],
         n_no_touchdown=int((failure == int(Result.NO_TOUCHDOWN)).sum()),

@@ -81,6 +81,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--chunk", type=int, help="landings per compiled batch (bounds memory)")
     m.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
     m.add_argument("--out", default="out/montecarlo", help="output folder")
+    m.add_argument("--coordinator", metavar="HOST:PORT",
+                   help="run as one of --num-processes processes (jax.distributed; process 0 "
+                        "listens on HOST:PORT and writes the outputs)")
+    m.add_argument("--num-processes", type=int, default=1, help="processes in the run")
+    m.add_argument("--process-id", type=int, default=0, help="this process, 0 .. N-1")
     m.set_defaults(func=cmd_montecarlo)
 
     # calibration (`fit`, `predict`) lives in its own package, built on jaxland's public API

@@ -10,9 +10,11 @@ LOW_SIDE = ("min_stability_margin_m",)
 
 def cmd_montecarlo(args) -> int:
     from .._config import load_vehicle, paper_vehicle
-    from .._montecarlo import load_montecarlo_spec, run_montecarlo
+    from .._montecarlo import init_distributed, load_montecarlo_spec, run_montecarlo
 
     out = out_dir(args.out)
+    if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
+        init_distributed(args.coordinator, args.num_processes, args.process_id)
     spec = load_montecarlo_spec(args.spec)
     if args.n is not None:
         spec.n = args.n
@@ -21,6 +23,10 @@ def cmd_montecarlo(args) -> int:
     spec.__post_init__()  # re-check n and seed after the overrides
     vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
     result = run_montecarlo(spec, vehicle, chunk=args.chunk)
+    import jax
+
+    if jax.process_index() != 0:
+        return 0
     result.save(out)
     s = result.summary
     tip, bot = s["tip_over"], s["bottoming"]
