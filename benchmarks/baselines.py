@@ -11,12 +11,13 @@ runners then raise ``RuntimeError`` naming the extra, and the CLI exits with cod
 
 What is here
 ------------
-1. ``forces``: a plain-float scalar port of ``jaxland._quarter.evaluate`` and every law it calls
-   (two-stage honeycomb with permanent set, elastic unloading and bottoming; strut damping with
-   its floor; top-out stop; the auxiliary strut pair; normal contact with pit memory and chi
-   damping; tangential stick/slip return map). Parameters are one float64 vector (``P_*``
-   indices) built by ``params_vector`` from the jaxland ``Vehicle`` with jaxland's own derived
-   numbers (``Honeycomb.curve()``, ``Leg.L_a0_pair``, ``Leg.foot_rest``, ``Vehicle.m_quarter``).
+1. ``forces``: a plain-float scalar port of ``QuarterModel.evaluate``
+   (``jaxland._models._quarter``) and every law it calls (two-stage honeycomb with permanent
+   set, elastic unloading and bottoming; strut damping with its floor; top-out stop; the
+   auxiliary strut pair; normal contact with pit memory and chi damping; tangential stick/slip
+   return map). Parameters are one float64 vector (``P_*`` indices) built by ``params_vector``
+   from the jaxland ``Vehicle`` with jaxland's own derived numbers (``Honeycomb.curve()``,
+   ``Leg.L_a0_pair``, ``Leg.foot_rest``, ``Vehicle.m_quarter``).
 2. ``euler_run`` / ``euler_batch``: numba loops of jaxland's fixed-step symplectic Euler (forces
    and return-mapped memories at (q_n, v_n); v_{n+1} = v_n + dt a; q_{n+1} = q_n + dt v_{n+1}),
    the compiled-loop limit. Peaks are running maxima over the evaluated states s_0 .. s_{N-1}
@@ -130,7 +131,7 @@ MISSING_MESSAGE = (
 
 OUT = Path(__file__).resolve().parent / "results" / "baselines.json"
 THREADS = 2
-ENERGY_TOLERANCE = 0.1  # jaxland._integrate.ENERGY_TOLERANCE: failure above this x energy scale
+ENERGY_TOLERANCE = 0.1  # jaxland._solvers._loop.ENERGY_TOLERANCE: failure above this x energy scale
 SAVE_DT = 1e-3
 T_END = 1.2
 EULER_DTS = (1.6e-4, 8e-5, 4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6)
@@ -217,7 +218,8 @@ def initial_state(vehicle, scene) -> np.ndarray:
 
 
 def energy_scale(P, scene) -> float:
-    """jaxland._quarter.energy_scale: the energy the landing has to absorb, bounded [J]."""
+    """QuarterModel.energy_scale (jaxland._models._quarter): the energy the landing has to
+    absorb, bounded [J]."""
     m = P[P_MQ] + P[P_MF]
     height = float(scene.drop_height) + 2.5 * P[P_XL4]
     return float(m * (0.5 * float(scene.sink_speed) ** 2 + P[P_G] * height))
@@ -232,7 +234,7 @@ def _clip(x, lo, hi):
 
 @njit(cache=False, fastmath=False, error_model="numpy")
 def forces(zb, rf, zf, vzb, vrf, vzf, xmax_prev, dmax_prev, anchor_prev, P):
-    """``jaxland._quarter.evaluate`` on plain floats. Returns a tuple:
+    """``jaxland._models._quarter.QuarterModel.evaluate`` on plain floats. Returns a tuple:
 
     0-2  accelerations (a_body_z, a_foot_r, a_foot_z) [m/s^2]
     3-4  stroke x_b [m], stroke rate v_b [m/s] (compression positive)
