@@ -96,11 +96,23 @@ def ladders(vehicle, small=False):
 
 
 def _solver(label, t_end, save_dt=1e-3, **kw):
-    """A Solver for a chart label (a method, or a label whose settings name the method)."""
+    """A Solver for a chart label (a method, or a label whose settings name the method); the
+    method's own options (impulse, rtol, atol, max_steps, adjoint) go to ``jl.integrator``."""
     method = kw.pop("method", label)
     dt = kw.pop("dt")
     save = max(1, round(save_dt / dt)) * dt
-    return Solver(dt=dt, t_end=t_end, save_dt=save, method=method, **kw)
+    smoothing = {k: kw.pop(k) for k in ("smoothing_m", "smoothing_N") if k in kw}
+    return Solver(dt=dt, t_end=t_end, save_dt=save, method=jl.integrator(method, **kw),
+                  **smoothing)
+
+
+def _reverse(solver):
+    """The same solver with reverse-mode gradients (the variable-step methods carry an adjoint
+    option; the fixed-step ones take jax.grad as they are)."""
+    if hasattr(solver.method, "adjoint"):
+        return dataclasses.replace(solver,
+                                   method=dataclasses.replace(solver.method, adjoint="reverse"))
+    return solver
 
 
 def _run(vehicle, scene, solver, repeats):
@@ -185,7 +197,7 @@ def throughput_and_gradients(small=False, repeats=3, progress=print):
         theta = jnp.zeros(6)
         _, c_f, t_f = _timed(lambda th: loss(th, solver), (theta,), repeats)
         _, c_j, t_j = _timed(jax.jacfwd(lambda th: loss(th, solver)), (theta,), repeats)
-        rev = dataclasses.replace(solver, adjoint="reverse")
+        rev = _reverse(solver)
         try:
             _, c_g, t_g = _timed(jax.grad(lambda th: loss(th, rev)), (theta,), repeats)
         except Exception as err:  # noqa: BLE001 - record what failed, keep benchmarking
