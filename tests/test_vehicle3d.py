@@ -110,24 +110,20 @@ def _rigid_tip_speed(vehicle):
 
 def test_tip_over_on_both_sides_of_the_rigid_body_boundary():
     """With sticky ground (friction 2) a landing at 1.3 x the rigid-body critical speed towards
-    an edge tips over; at 0.7 x it does not. (Measured: the simulated boundary lies between 3.0
-    and 3.25 m/s; the rigid-body criterion gives 3.31 m/s.)"""
+    an edge tips over, through the front door (jl.simulate): classified "tipped", and the tilt
+    when it tips is the geometric tipping angle atan(d/h) = 28 deg (peaks stop at the tip; plus
+    the leading legs' crush). The README's measured bracket (upright at 3.0 m/s, tipped at
+    3.25 m/s) is pinned in tests/test_tipover.py, with the body inertia checked there by
+    angular-momentum balance."""
     v_crit = _rigid_tip_speed(VEH)
     assert 3.0 < v_crit < 3.6
-    solver = jl.Solver(dt=1e-5, t_end=2.0, save_dt=1e-2)
-    scenes = Scene.batch(horizontal_speed=jnp.array([0.7, 1.3]) * v_crit, drop_height=0.0,
-                         sink_speed=1.0, heading=np.pi / 4, friction=2.0)
-    out = jax.jit(lambda s: jl.landings(VEH, s, solver, "full")[1])(scenes)
-    margin = -np.asarray(out["peak_margin_deficit_m"])
-    assert margin[0] > 0.2 and not bool(out["tipped"][0])  # gentle: stays up
-    assert margin[1] < 0.0 and bool(out["tipped"][1])  # steep: tips over
-    # peaks stop at the tip, so the tilt then is the geometric tipping angle atan(d/h) = 28 deg
-    # (plus the leading legs' crush)
-    d, h = _edge_geometry(VEH)
-    assert abs(float(out["peak_tilt_deg"][1]) - np.degrees(np.arctan2(d, h))) < 4.0
     res = jl.simulate(Scene(horizontal_speed=1.3 * v_crit, drop_height=0.0, sink_speed=1.0,
-                            heading=np.pi / 4, friction=2.0), t_end=2.0, save_dt=1e-2)
-    assert res.outcomes["tipped_over"] and res.outcomes["classification"] == "tipped"
+                            heading=np.pi / 4, friction=2.0), t_end=0.8, save_dt=1e-2)
+    o = res.outcomes
+    assert o["tipped_over"] and o["classification"] == "tipped"
+    assert o["min_stability_margin_m"] < 0.0
+    d, h = _edge_geometry(VEH)
+    assert abs(o["peak_tilt_deg"] - np.degrees(np.arctan2(d, h))) < 4.0
 
 
 def test_jit_vmap_grad_through_a_3d_landing_match_finite_differences():
