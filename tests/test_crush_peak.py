@@ -265,6 +265,10 @@ def test_unloading_ratio_sets_the_recovery_after_the_secondary_stage():
         i = np.argmax(np.arange(len(f)) > 300_000)
         zero = x[i:][np.argmax(f[i:] <= 0.0)]
         np.testing.assert_allclose(x_m - zero, expected, rtol=1e-4)
+        # it starts from the secondary plateau, and its first slope is rho k_b3
+        np.testing.assert_allclose(f[i - 1], F2, rtol=1e-9)
+        slope = (f[i - 1] - f[i + 10]) / (x[i - 1] - x[i + 10])
+        np.testing.assert_allclose(slope, (1.0 if rho is None else rho) * K3, rtol=1e-6)
 
 
 # ------------------------------------------------------------------------------- gradients
