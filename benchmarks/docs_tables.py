@@ -175,6 +175,11 @@ def integrators_accuracy() -> str:
     return "\n".join(out)
 
 
+def _ratio(x) -> str:
+    """A cost ratio; '-' where the gradient was refused or failed (NaN)."""
+    return f"{x:.1f}" if x is not None and math.isfinite(x) else "-"
+
+
 def integrators_throughput() -> str:
     tg = _load("integrators.json")["throughput"]
     sizes = [r["batch"] for r in next(iter(tg.values()))["batches"]]
@@ -184,7 +189,7 @@ def integrators_throughput() -> str:
                             for k, v in d["setting"].items())
         rows.append([method, setting, f"{d['forward_s'] * 1e3:.3g}",
                      *(f"{r['landings_per_s']:.0f}" for r in d["batches"]),
-                     f"{d['jacfwd_ratio']:.1f}", f"{d['grad_ratio']:.1f}",
+                     _ratio(d["jacfwd_ratio"]), _ratio(d["grad_ratio"]),
                      f"{d['batches'][0]['compile_s']:.2f}"])
     return _table(["method", "setting [s, N s]", "one landing [ms]",
                    *(f"landings/s, batch {n}" for n in sizes), "jacfwd 6 / forward [-]",
