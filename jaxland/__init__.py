@@ -44,6 +44,7 @@ from ._errors import (
 )
 from ._files import (
     atomic_savefig as atomic_savefig,
+    atomic_write_csv as atomic_write_csv,
     atomic_write_text as atomic_write_text,
     staged as staged,
 )
@@ -113,5 +114,5 @@ __all__ = [
     "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged", "AbstractModel",
     "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
     "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator", "ProgressLine",
-    "scene_to_toml", "init_distributed",
+    "scene_to_toml", "init_distributed", "atomic_write_csv",
 ]

@@ -33,6 +33,7 @@ from ._solvers import (
     Tsit5,
     integrate,
     integrator,
+    scene_force_bound,
     stable_step,
     step_limit_reached,
 )
@@ -256,7 +257,21 @@ def default_step(vehicle: Vehicle, method="euler", model: AbstractModel = MODELS
     times the a-priori stability limit of ``method`` (an integrator or its name) for
     ``vehicle`` (its stiffest spring and damping on the foot) if that is smaller, rounded down
     to a whole fraction of 1e-4 s so the default output interval is a whole number of steps."""
-    safe = STEP_SAFETY * float(stable_step(vehicle, method=method, model=model))
+    return _step_below(float(stable_step(vehicle, method=method, model=model)))
+
+
+def retry_step(vehicle: Vehicle, scene: Scene, method="euler",
+               model: AbstractModel = MODELS["quarter"]):
+    """The step for a second try of a landing whose default step failed [s]: ``STEP_SAFETY``
+    times the limit at the forces the scene's energy can reach (``scene_force_bound``: the
+    bottoming stop and the strut damping it loads), rounded as ``default_step``'s."""
+    force, bottomed = scene_force_bound(vehicle, scene, model)
+    return _step_below(float(stable_step(vehicle, honeycomb_force=force, normal_force=force,
+                                         bottomed=bottomed, method=method, model=model)))
+
+
+def _step_below(limit: float) -> float:
+    safe = STEP_SAFETY * limit
     if not safe > 0.0:  # the impulse step itself is beyond its limit: simulate says so
         return DEFAULT_DT
     return DEFAULT_DT if safe >= DEFAULT_DT else 1e-4 / math.ceil(1e-4 / safe)
@@ -290,7 +305,10 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     ``smoothing_N``).
 
     ``dt=None`` chooses the step (``default_step``): 1e-5 s, the accuracy default, or the
-    method's stability limit for this vehicle times ``STEP_SAFETY`` if that is smaller.
+    method's stability limit for this vehicle times ``STEP_SAFETY`` if that is smaller; if that
+    landing fails numerically (a hard landing that bottoms out loads the explicit strut damping
+    far beyond the a-priori forces), it is run once more at ``retry_step``, the limit at the
+    forces the scene's energy can reach, and the outcomes say so (``retried_from_dt_s``).
 
     ``model`` is ``"auto"`` (the smallest exact model for the scene: ``choose_model``),
     ``"quarter"`` or ``"full"``. Raises ``ConfigError`` for invalid inputs or a step above the
@@ -298,8 +316,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     integration blows up or an adaptive solver stalls.
     """
     scene = Scene() if scene is None else scene
-    vehicle = paper_vehicle() if vehicle is None else vehicle
-    validate_vehicle(vehicle)
+    vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     scene.validate(vehicle.n_legs)
     if jax.tree.leaves(batch_axes(scene)):  # some field is batched
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "
@@ -312,7 +329,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
                  if k in solver_options}
     method = integrator(method, **solver_options)  # options, before they are used
     method.check_model(mod)
-    if dt is None:
+    chosen = dt is None
+    if chosen:
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
@@ -320,9 +338,19 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         check_step(solver, vehicle, mod)
     solver.validate()
     traj, summary = _landing_jit(vehicle, scene, solver, mod)
+    retried = None
+    if chosen and Result(int(summary["result"])).failed and not isinstance(method, Tsit5):
+        again = retry_step(vehicle, scene, method, mod)
+        if again < solver.dt:
+            retried = solver.dt
+            solver = Solver(dt=again, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
+            solver.validate()
+            traj, summary = _landing_jit(vehicle, scene, solver, mod)
     traj = {k: np.asarray(traj[k]) for k in mod.COLUMNS}
     _check_numerics(summary, vehicle, solver, mod)
     outcomes = _outcomes(summary, traj, vehicle, scene, solver, mod.name)
+    if retried is not None:
+        outcomes["retried_from_dt_s"] = retried
     if outcomes["tipped_over"]:
         outcomes["note"] = ("the vehicle tipped over; after tip_over_time_s the body, which has "
                             "no ground contact of its own, is not modelled physically, and "

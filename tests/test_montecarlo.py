@@ -116,7 +116,7 @@ def test_failed_samples_are_counted_and_the_rest_is_intact():
     its own single run."""
     spec = MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("uniform", low=2.0,
                                                                       high=18.0)},
-                          fixed={"drop_height_m": 0.0}, n=8, seed=1, t_end=0.1)
+                          fixed={"drop_height_m": 0.0}, n=8, seed=1, t_end=0.1, retry=False)
     res = run_montecarlo(spec, progress=False)
     s = res.summary
     assert 0 < s["n_failed"] < spec.n and sum(s["failures"].values()) == s["n_failed"]
@@ -127,6 +127,29 @@ def test_failed_samples_are_counted_and_the_rest_is_intact():
                           save_dt=0.1).outcomes
         np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one["max_stroke_m"],
                                    rtol=1e-9)
+
+
+def test_failed_samples_are_retried_with_implicit_damping():
+    """The same touchdowns with retries (the default): the hard ones, which failed from
+    explicit Euler's explicit strut damping, run again with it implicit (euler_implicit), land
+    and bottom out, with the max stroke of simulate's own retry (explicit Euler at the step the
+    scene's energy needs) to 1e-3; the others keep their numbers."""
+    spec = MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("uniform", low=2.0,
+                                                                      high=18.0)},
+                          fixed={"drop_height_m": 0.0}, n=8, seed=1, t_end=0.1)
+    res = run_montecarlo(spec, progress=False)
+    s = res.summary
+    assert s["n_failed"] == 0 and 0 < s["n_retried"] < spec.n
+    assert s["retry_method"] == "euler_implicit"
+    retried = res.outputs["retried"]
+    assert res.outputs["bottomed_out"][retried].all()
+    v = res.inputs["sink_speed_mps"]
+    assert v[retried].min() > v[~retried].max()  # the hard ones
+    i = int(np.flatnonzero(retried)[0])
+    one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1, save_dt=0.1)
+    assert one.outcomes["retried_from_dt_s"] == spec.dt
+    np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one.outcomes["max_stroke_m"],
+                               rtol=1e-3)
 
 
 def test_bad_specs_are_refused_by_name(tmp_path):

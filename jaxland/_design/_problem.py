@@ -62,7 +62,7 @@ class DesignProblem:
 
     def __init__(self, spec: DesignSpec, vehicle: Vehicle | None = None):
         self.spec = spec
-        self.vehicle = validate_vehicle(paper_vehicle() if vehicle is None else vehicle)
+        self.vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
         self.model = spec.resolved_model()
         self.solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end).validate()
         self.variables = list(spec.variables)

@@ -155,6 +155,11 @@ class AbstractModel(eqx.Module):
     def final_summary(self, state, record: dict) -> dict[str, Array]:
         """Model-specific outcomes at the end of the landing."""
 
+    def leg_mass(self, vehicle: Vehicle) -> Array:
+        """Body mass one leg may have to stop [kg] (the quarter model: its share; a model whose
+        legs can touch down one by one: the whole body)."""
+        return vehicle.m_body
+
     def leg_max(self, x: Array) -> Array:
         """A per-leg summary value reduced to the landing's worst leg (identity for one leg)."""
         return x

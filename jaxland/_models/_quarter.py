@@ -85,6 +85,9 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
     COLUMNS: ClassVar[tuple[str, ...]] = COLUMNS
     RATE_CHANNELS: ClassVar[tuple[str, ...]] = RATE_CHANNELS
 
+    def leg_mass(self, vehicle):
+        return vehicle.m_quarter
+
     def plateau_scatter(self, plateau_scale):
         """One leg stands for all: the mean scale over the legs."""
         return jnp.mean(plateau_scale, axis=-1)

@@ -107,8 +107,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     """Run ``spec.n`` dispersed landings; see the module docstring for reproducibility and
     sharding. ``chunk`` bounds memory (rounded up to a multiple of the device count);
     ``progress``: a progress line on stderr (a string: the line's label)."""
-    vehicle = paper_vehicle() if vehicle is None else vehicle
-    validate_vehicle(vehicle)
+    vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     model = spec.resolved_model()
     solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
                     method=spec.method).validate()
@@ -158,6 +157,10 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     if n_proc > 1:
         outputs, inputs = _gather(outputs, inputs, spec.n, chunk, n_proc)
 
+    outputs["dt_s"] = np.full(spec.n, float(spec.dt))
+    outputs["retried"] = np.zeros(spec.n, bool)
+    if spec.retry:
+        _retry(spec, vehicle, model, outputs, line)
     bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
     failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
     failure[~_inside_envelope(inputs, spec)] = int(Result.OUTSIDE_ENVELOPE)
@@ -165,6 +168,41 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
     return MonteCarloResult(inputs, outputs, failure, summary)
+
+
+RETRIED = (Result.NONFINITE, Result.LEDGER, Result.CLOSURE, Result.STEP_ABOVE_LIMIT)
+
+
+def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, line) -> None:
+    """Run the samples that failed numerically once more and keep the new outcomes with the
+    step used (``dt_s``; ``retried``). Explicit Euler's failures on hard landings come from its
+    explicit strut damping, which grows with the force: they are rerun with the damping
+    implicit (``euler_implicit``, whose limit does not depend on the force); a method that
+    already takes it implicitly is rerun at ``retry_step``, the limit at the forces the
+    samples' energy can reach. Every process runs the same retries (same results)."""
+    from .._simulate import retry_step
+
+    failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]))
+    if failed.size == 0:
+        return
+    method = "euler_implicit" if spec.method == "euler" else spec.method
+    scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=failed)
+    one = [jax.tree.map(lambda x, i=i: x[i] if np.ndim(x) >= 1 else x, scenes)
+           for i in range(failed.size)]
+    dt = min([spec.dt] + [retry_step(vehicle, sc, method, MODELS[model]) for sc in one])
+    if method == spec.method and not dt < spec.dt:
+        return
+    try:
+        solver = Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method).validate()
+    except ConfigError:  # t_end is no whole multiple of that step: the failures stand
+        return
+    line(f"retrying {failed.size} failed sample(s) with {method} at dt = {dt:.3g} s")
+    res = jax.device_get(jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))(scenes))
+    for k, v in res.items():
+        outputs[k][failed] = np.asarray(v)
+    outputs["dt_s"][failed] = dt
+    outputs["retried"][failed] = True
+    line.close()
 
 
 def _of_processes(n_proc: int) -> str:
@@ -212,6 +250,9 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         n_failed=int(failed.sum()), failures=reasons,
         failed_samples=np.flatnonzero(failed).tolist()[:100],
         n_no_touchdown=int((failure == int(Result.NO_TOUCHDOWN)).sum()),
+        n_retried=int(outputs["retried"].sum()),
+        retry_method=("euler_implicit" if spec.method == "euler" else spec.method)
+        if outputs["retried"].any() else None,
         tip_over=dict(count=k_tip, n=n_ok, probability=k_tip / max(n_ok, 1),
                       ci95_wilson=wilson_interval(k_tip, n_ok)),
         bottoming=dict(count=k_bot, n=n_ok, probability=k_bot / max(n_ok, 1),

@@ -13,15 +13,17 @@ from .._scene import Scene
 from ._spec import DISPERSIBLE, MonteCarloSpec
 
 
-def sample_scenes(spec: MonteCarloSpec, start: int, count: int, n_legs: int = 4):
-    """Scenes ``start .. start + count - 1`` of the spec, as a ``Scene.batch``, with the sampled
-    inputs (TOML units; per-leg inputs as (count, n_legs))."""
+def sample_scenes(spec: MonteCarloSpec, start: int, count: int, n_legs: int = 4, *,
+                  indices=None):
+    """Scenes ``start .. start + count - 1`` of the spec (or the samples ``indices``), as a
+    ``Scene.batch``, with the sampled inputs (TOML units; per-leg inputs as (count, n_legs))."""
     for key, val in spec.fixed.items():
         if DISPERSIBLE[key].component == "legs" and np.ndim(val) == 1 and len(val) != n_legs:
             raise ConfigError(f"fixed.{key}", val, f"must have one entry per leg ({n_legs})")
     names = sorted(spec.dispersion)
     root = jax.random.key(spec.seed)
-    idx = jnp.arange(start, start + count)
+    idx = jnp.arange(start, start + count) if indices is None else jnp.asarray(indices)
+    count = int(idx.shape[0])
 
     def one(i):
         k = jax.random.fold_in(root, i)

@@ -145,6 +145,8 @@ class MonteCarloSpec:
     model: str = spec_field("auto", toml="model", check=MODEL_CHOICE)
     # fixed-step methods batch without waiting for the slowest sample
     method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
+    # rerun samples that fail numerically once (with implicit strut damping; run._retry)
+    retry: bool = spec_field(True, toml="retry", check=Choice((True, False)))
 
     def __post_init__(self):
         for key in [*self.dispersion, *self.fixed]:

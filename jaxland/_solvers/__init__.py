@@ -23,7 +23,7 @@ from ._names import (
     METHODS as METHODS,
     integrator as integrator,
 )
-from ._stability import stable_step as stable_step
+from ._stability import scene_force_bound as scene_force_bound, stable_step as stable_step
 from ._tsit5 import Tsit5 as Tsit5
 from ._verdict import (
     CLOSURE_LIMIT as CLOSURE_LIMIT,
