@@ -14,7 +14,8 @@ replacement there, and the tests run from the scratch copy (``PYTHONPATH`` puts 
 first, ahead of the editable install).
 
 A mutation finds its target by searching for the code string across its search folders
-(``jaxland/`` unless stated), not by a fixed path, so it survives files moving. Outcomes:
+(``jaxland/`` unless stated), not by a fixed path, so it survives files moving; where the code
+was rewritten, a mutation may list the other spellings it accepts (``also``). Outcomes:
 - ``killed``: some test of its files failed (the bug was caught);
 - ``survived``: every test passed with the bug in place;
 - ``target not found``: the code string is nowhere (the code changed: update the mutation);
@@ -49,6 +50,7 @@ class Mutation:
     replace: str
     tests: tuple  # pytest targets (files or node ids), relative to the repository
     search: tuple = ("jaxland",)
+    also: tuple = ()  # other (find, replace) spellings of the same code, tried in turn
 
 
 M = Mutation
@@ -70,17 +72,23 @@ MUTATIONS = [
       "se = np.sqrt(np.diag(cov_p))", "se = np.sqrt(0.5 * np.diag(cov_p))",
       ("tests/test_calibration_coverage.py",), ("calibration",)),
     M("design_stroke_sign", "design stroke constraint with its sign flipped",
-      'return per["max_stroke_m"] - (veh.honeycomb.x_L4 - c.threshold)',
-      'return (veh.honeycomb.x_L4 - c.threshold) - per["max_stroke_m"]',
-      ("tests/test_design_constraints.py",)),
+      'return per["max_stroke_m"] - (x_L4 - self.threshold)',
+      'return (x_L4 - self.threshold) - per["max_stroke_m"]',
+      ("tests/test_design_constraints.py",),
+      also=(('return per["max_stroke_m"] - (veh.honeycomb.x_L4 - c.threshold)',
+             'return (veh.honeycomb.x_L4 - c.threshold) - per["max_stroke_m"]'),)),
     M("design_stability_sign", "design stability constraint with its sign flipped",
-      'return c.threshold - per["min_stability_margin_m"]',
-      'return per["min_stability_margin_m"] - c.threshold',
-      ("tests/test_design_constraints.py",)),
+      'return self.threshold - per["min_stability_margin_m"]',
+      'return per["min_stability_margin_m"] - self.threshold',
+      ("tests/test_design_constraints.py",),
+      also=(('return c.threshold - per["min_stability_margin_m"]',
+             'return per["min_stability_margin_m"] - c.threshold'),)),
     M("design_slip_sign", "design slip constraint with its sign flipped",
-      'return per["slip_distance_m"] - c.threshold',
-      'return c.threshold - per["slip_distance_m"]',
-      ("tests/test_design_constraints.py",)),
+      'return per["slip_distance_m"] - self.threshold',
+      'return self.threshold - per["slip_distance_m"]',
+      ("tests/test_design_constraints.py",),
+      also=(('return per["slip_distance_m"] - c.threshold',
+             'return c.threshold - per["slip_distance_m"]'),)),
     M("margin_softmin_x10", "stability margin soft-min width x 10",
       "MARGIN_SOFTNESS_M = 0.01", "MARGIN_SOFTNESS_M = 0.1", ("tests/test_tipover.py",)),
     M("margin_projected_along_normal", "CoM projected along the ground normal, not gravity",
@@ -135,14 +143,19 @@ def _copy_source(source: str, dest: Path) -> None:
         subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
 
 
-def _locate(scratch: Path, m: Mutation) -> list[tuple[Path, int]]:
-    hits = []
-    for folder in m.search:
-        for path in sorted((scratch / folder).rglob("*.py")):
-            n = path.read_text().count(m.find)
-            if n:
-                hits.append((path, n))
-    return hits
+def _locate(scratch: Path, m: Mutation) -> tuple[list[tuple[Path, int]], str, str]:
+    """Files holding the mutation's code string (the first spelling found, of ``find`` and then
+    ``also``), and that spelling's (find, replace)."""
+    for find, replace in ((m.find, m.replace), *m.also):
+        hits = []
+        for folder in m.search:
+            for path in sorted((scratch / folder).rglob("*.py")):
+                n = path.read_text().count(find)
+                if n:
+                    hits.append((path, n))
+        if hits:
+            return hits, find, replace
+    return [], m.find, m.replace
 
 
 def _pytest(scratch: Path, targets, timeout: float) -> tuple[int, float, list[str], str]:
@@ -180,7 +193,8 @@ def run(mutations, *, source: str, timeout: float, keep: bool, log=print) -> dic
         results = []
         for m in mutations:
             rec = dict(asdict(m), status=None, files=[], seconds=None, failed_tests=[])
-            hits = _locate(tree, m)
+            hits, find, replace = _locate(tree, m)
+            rec["applied"] = dict(find=find, replace=replace)
             rec["files"] = [str(p.relative_to(tree)) for p, _ in hits]
             if not hits:
                 rec["status"] = "target not found"
@@ -199,7 +213,7 @@ def run(mutations, *, source: str, timeout: float, keep: bool, log=print) -> dic
                 else:
                     path = hits[0][0]
                     original = path.read_text()
-                    path.write_text(original.replace(m.find, m.replace))
+                    path.write_text(original.replace(find, replace))
                     try:
                         rc, sec, failed, tail = _pytest(tree, m.tests, timeout)
                     finally:
@@ -251,7 +265,7 @@ def main(argv=None) -> int:
             ap.error(f"unknown mutation(s): {', '.join(sorted(unknown))}")
         chosen = [m for m in MUTATIONS if m.name in args.only]
     if args.tests:
-        chosen = [Mutation(m.name, m.what, m.find, m.replace, tuple(args.tests), m.search)
+        chosen = [Mutation(m.name, m.what, m.find, m.replace, tuple(args.tests), m.search, m.also)
                   for m in chosen]
     report = run(chosen, source=args.source, timeout=args.timeout, keep=args.keep,
                  log=lambda s: print(s, file=sys.stderr, flush=True))
