@@ -232,6 +232,15 @@ def validate_vehicle(veh: Vehicle) -> Vehicle:
                               f"breakpoints must increase: x_L3 = x_L2 + (F2-F1)/k_b3 = "
                               f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4")
         _check_peaks_and_unloading(hc, veh.ground, F1, F2, k1, k3, x2, x4)
+    inertia = [concrete(x) for x in (veh.I_xx, veh.I_yy, veh.I_zz)]
+    if all(x is not None for x in inertia):
+        for i, name in enumerate(("I_xx_kg_m2", "I_yy_kg_m2", "I_zz_kg_m2")):
+            others = inertia[(i + 1) % 3] + inertia[(i + 2) % 3]
+            if np.any(~(inertia[i] <= others)):
+                raise ConfigError(f"body.{name}", float(np.max(inertia[i])),
+                                  f"must be <= the sum of the other two principal moments "
+                                  f"({float(np.min(others)):.6g} kg m^2): no rigid body has "
+                                  "such an inertia")
     leg = veh.leg
     L, th, H2 = concrete(leg.L_h0), concrete(leg.theta_b), concrete(leg.H2)
     if x4 is not None and L is not None and np.any(~(x4 < L)):
@@ -299,30 +308,43 @@ def _fmt(val) -> str:
     return text if any(c in text for c in ".e") else text + ".0"
 
 
-def vehicle_to_toml(veh: Vehicle | None = None) -> str:
-    """Render a vehicle (default: the paper's) as a commented TOML document."""
+def _unit(md) -> str:
+    """The unit shown for a field: its TOML key's, and "-" for a dimensionless one."""
+    unit = "deg" if md["toml"].endswith("_deg") else (
+        "mm" if md["toml"].endswith("_mm") else md["unit"])
+    return "-" if unit == "1" else unit
+
+
+def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
+                    given_by: str = "the configuration file") -> str:
+    """Render a vehicle (default: the paper's) as a commented TOML document. Keys in
+    ``given`` ("section.key") are marked as set by ``given_by`` instead of citing their
+    default's source."""
     veh = paper_vehicle() if veh is None else veh
+    given = set() if given is None else given
     lines = [
         "# jaxland vehicle configuration (SI units unless the key says otherwise).",
         "# Each key: value, then its meaning, source and validity rule.",
         "",
         "[body]",
     ]
+
+    def line(section, md, val):
+        source = (f"SET BY {given_by}" if f"{section}.{md['toml']}" in given
+                  else md["source"])
+        return (f"{md['toml']} = {_fmt(float(val) / md['to_si'])}"
+                f"  # {md['doc']} [{_unit(md)}]; {source}; rule {md['rule']}")
+
     for f in field_info(Vehicle):
-        md = f.metadata
-        lines.append(f"{md['toml']} = {_fmt(float(getattr(veh, f.name)) / md['to_si'])}"
-                     f"  # {md['doc']} [{md['unit']}]; {md['source']}; rule {md['rule']}")
+        lines.append(line("body", f.metadata, getattr(veh, f.name)))
     lines.append(f"n_legs = {veh.n_legs}  # number of legs, equally spaced in azimuth; >= 3")
     for section, mod in (("leg", veh.leg), ("honeycomb", veh.honeycomb), ("ground", veh.ground)):
         lines += ["", f"[{section}]"]
         for f in field_info(type(mod)):
             md = f.metadata
-            unit = "deg" if md["toml"].endswith("_deg") else (
-                "mm" if md["toml"].endswith("_mm") else md["unit"])
             val = getattr(mod, f.name)
             val = md["off"] * md["to_si"] if val is None else val  # an extension, off
-            lines.append(f"{md['toml']} = {_fmt(float(val) / md['to_si'])}"
-                         f"  # {md['doc']} [{unit}]; {md['source']}; rule {md['rule']}")
+            lines.append(line(section, md, val))
         if section == "honeycomb":
             bonded_doc = Honeycomb.__dataclass_fields__["bonded"].metadata["doc"]
             lines.append(f"bonded = {_fmt(mod.bonded)}  # {bonded_doc}")

@@ -224,7 +224,7 @@ class Leg(eqx.Module):
         "in (0, 90) deg", toml="theta_b_deg", to_si=math.pi / 180.0)
     h: jnp.ndarray = _param(
         "m", "lateral half-spacing of the two auxiliary struts (used by 3-D models only)",
-        "paper Table 2, our reading (DESIGN.md section 2)", ">= 0", toml="h_m")
+        "paper Table 2, our reading (docs/model.md section 2)", ">= 0", toml="h_m")
     k_a: jnp.ndarray = _param(
         "N/m", "combined axial stiffness of the leg's pair of auxiliary struts (k_a / 2 each; "
         "massless springs)",

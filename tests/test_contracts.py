@@ -208,3 +208,23 @@ def test_long_durations_and_huge_outputs_are_refused_before_running():
         jl.simulate(t_end=400.0)
     with pytest.raises(jl.ConfigError, match=r"solver\.save_dt.*saved samples"):
         jl.simulate(t_end=90.0, save_dt=1e-5)
+
+
+def test_config_marks_the_values_a_file_set(tmp_path, capsys):
+    cfg = tmp_path / "mine.toml"
+    cfg.write_text("[ground]\nmu = 0.3\n")
+    assert main(["config", "--config", str(cfg)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    mu = next(line for line in lines if line.startswith("mu ="))
+    assert mu.startswith("mu = 0.3") and f"SET BY {cfg}" in mu and "paper Table 2" not in mu
+    assert "[-]" in mu  # dimensionless, not "1" after the number
+    k = next(line for line in lines if line.startswith("k_N_per_m ="))
+    assert "SET BY" not in k and "paper Table 2" in k
+
+
+def test_an_impossible_inertia_is_refused():
+    """Principal moments obey the triangle inequality (I_zz = I_xx + I_yy for a flat plate)."""
+    veh = eqx.tree_at(lambda v: v.I_zz, VEH, VEH.I_xx + VEH.I_yy + 1.0)
+    with pytest.raises(jl.ConfigError, match=r"body\.I_zz_kg_m2.*sum of the other two"):
+        jl.validate_vehicle(veh)
+    jl.validate_vehicle(eqx.tree_at(lambda v: v.I_zz, VEH, VEH.I_xx + VEH.I_yy))

@@ -12,8 +12,15 @@ from ._common import fmt as _fmt, out_dir
 def cmd_config(args) -> int:
     from .._config import load_vehicle, vehicle_to_toml
 
-    veh = load_vehicle(args.config) if args.config else None
-    sys.stdout.write(vehicle_to_toml(veh))
+    if not args.config:
+        sys.stdout.write(vehicle_to_toml())
+        return 0
+    from .._toml import read_toml
+
+    given = {f"{section}.{key}" for section, table in read_toml(args.config, "config").items()
+             if isinstance(table, dict) for key in table}
+    sys.stdout.write(vehicle_to_toml(load_vehicle(args.config), given=given,
+                                     given_by=args.config))
     return 0
 
 
