@@ -257,7 +257,7 @@ def window_problem():
 def test_gradient_of_the_calibration_loss_matches_central_differences(window_problem):
     """On the first impact AD is exact: forward (jacfwd, J^T r) = reverse (grad) to 1e-9, and
     both = central differences to 1e-4 (h = 1e-6 in log parameter), at the truth and at a
-    perturbed start. k and gamma are kinked at ~1e-6 relative spacing (README "Gradients"), so
+    perturbed start. k and gamma are kinked at ~1e-6 relative spacing (docs/model.md section 6), so
     FD secants there are allowed 1e-3; measured here 1e-6 to 1e-5."""
     _, prob = window_problem
     loss = jax.jit(prob.loss_fn())
@@ -424,9 +424,9 @@ def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clea
     plain = cal.CalibrationProblem([d], NAMES, **kw)
     smooth = cal.CalibrationProblem([d], NAMES, integrator="verlet", smoothing_m=1e-6,
                                     smoothing_N=10.0, **kw)
-    assert (plain.solver.method, plain.solver.smoothing_m) == ("euler", 0.0)
+    assert (plain.solver.method, plain.solver.smoothing_m) == (jl.Euler(), 0.0)
     assert (smooth.solver.method, smooth.solver.smoothing_m, smooth.solver.smoothing_N) == (
-        "verlet", 1e-6, 10.0)
+        jl.Verlet(), 1e-6, 10.0)
     assert smooth._jac is not plain._jac
     again = cal.CalibrationProblem([d], NAMES, integrator="verlet", smoothing_m=1e-6,
                                    smoothing_N=10.0, **kw)
