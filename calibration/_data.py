@@ -47,6 +47,7 @@ document it):
 from __future__ import annotations
 
 import csv
+import io
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -337,12 +338,9 @@ def _touchdown_speed(h, v0, v_td, g):
 # ---------------------------------------------------------------------------------- files
 
 def _read_csv(path: Path):
-    try:
-        fh = path.open(newline="")
-    except FileNotFoundError:
-        raise _err("data_file", str(path), "file does not exist") from None
-    with fh:
-        rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    text = jl.read_text(path, "data_file")  # refuses missing, folder and non-UTF-8 files
+    rows = [r for r in csv.reader(io.StringIO(text, newline=""))
+            if r and not r[0].lstrip().startswith("#")]
     if not rows:
         raise _err(str(path), "<empty>", "needs a header row and data")
     header = [h.strip() for h in rows[0]]

@@ -44,10 +44,12 @@ def _start(text: str | None) -> dict | None:
 
 
 def _out_dir(path: str) -> Path:
-    out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise jl.ConfigError("--out", str(out), "exists and is not a folder")
-    return out
+    return jl.check_output_folder(path)  # before any work: a file, or someone else's folder
+
+
+def stopped_at_cap(result) -> bool:
+    """The fit's last stage ended at its iteration cap, not at a minimum."""
+    return bool(result.stages) and result.stages[-1].get("status") == "max_iter"
 
 
 class _Progress:
@@ -113,7 +115,7 @@ def _cmd_fit(args) -> int:
             result = _fit.fit(drops, names, **fit_kw)
     for w in caught:
         print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
-    with staged(out) as staging:  # written into place only if all succeed
+    with staged(out, "fit") as staging:  # replaces out as a whole, only if all succeed
         (staging / "fitted_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "fit_report.json")
         if cmp is not None:
@@ -141,7 +143,13 @@ def _cmd_fit(args) -> int:
             print(f"  {label}: chi2 {cmp[label]['chi2']:.6g}, largest misfit {where}")
     width = max(len(n) for n in result.names)
     diag = result.diagnostics
-    print(f"fitted in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
+    capped = stopped_at_cap(result)
+    if capped:
+        print(f"jaxland fit: warning: the last stage stopped at its iteration cap (--max-iter "
+              f"{args.max_iter}) before converging: the values below are not a minimum; "
+              "raise --max-iter or use --method lm", file=sys.stderr)
+    verb = "NOT CONVERGED," if capped else "fitted"
+    print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
           + ("  MISFIT: trust the HAC standard errors" if diag["misfit"] else ""))
@@ -166,7 +174,7 @@ def _cmd_predict(args) -> int:
     vehicle = jl.load_vehicle(args.config)
     drops = [load_drop_test(p, vehicle=vehicle) for p in args.data]
     preds = [predict(vehicle, d) for d in drops]
-    with staged(out) as staging:  # written into place only if all succeed
+    with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
         for p in preds:
             p.to_json(staging / f"prediction_{p.drop.name}.json")
             if not args.no_plots:

@@ -46,6 +46,7 @@ from ._files import (
     atomic_savefig as atomic_savefig,
     atomic_write_csv as atomic_write_csv,
     atomic_write_text as atomic_write_text,
+    check_out as check_output_folder,
     staged as staged,
 )
 from ._models import (
@@ -101,6 +102,7 @@ from ._solvers import (
     integrator as integrator,
     stable_step as stable_step,
 )
+from ._toml import read_text as read_text
 
 __all__ = [
     "laws", "load_vehicle", "paper_vehicle", "validate_vehicle", "vehicle_from_dict",
@@ -114,5 +116,5 @@ __all__ = [
     "plot_montecarlo", "atomic_savefig", "atomic_write_text", "staged", "AbstractModel",
     "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
     "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator", "ProgressLine",
-    "scene_to_toml", "init_distributed", "atomic_write_csv",
+    "scene_to_toml", "init_distributed", "atomic_write_csv", "check_output_folder", "read_text",
 ]

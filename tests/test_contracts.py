@@ -228,3 +228,31 @@ def test_an_impossible_inertia_is_refused():
     with pytest.raises(jl.ConfigError, match=r"body\.I_zz_kg_m2.*sum of the other two"):
         jl.validate_vehicle(veh)
     jl.validate_vehicle(eqx.tree_at(lambda v: v.I_zz, VEH, VEH.I_xx + VEH.I_yy))
+
+
+def test_drop_test_data_that_is_not_utf8_is_refused(tmp_path):
+    import shutil
+
+    import calibration as cal
+
+    src = jl.__file__.rsplit("/jaxland/", 1)[0] + "/data/synthetic"
+    for name in ("drop_h0.20m.toml", "nominal_vehicle.toml"):
+        shutil.copy(f"{src}/{name}", tmp_path)
+    (tmp_path / "drop_h0.20m.csv").write_bytes(b"time_s,stroke_m\n0.0,\xff\n")
+    with pytest.raises(jl.ConfigError, match="not UTF-8") as err:
+        cal.load_drop_test(tmp_path / "drop_h0.20m.toml")
+    assert err.value.field == "data_file"
+
+
+def test_a_fit_stopped_at_its_iteration_cap_is_told_apart():
+    """jaxland fit prints NOT CONVERGED and a warning instead of "fitted" when its last stage
+    ended at the iteration cap (the optimisers' status "max_iter")."""
+    from types import SimpleNamespace
+
+    from calibration.cli import stopped_at_cap
+
+    assert stopped_at_cap(SimpleNamespace(stages=[{"status": "converged"},
+                                                  {"status": "max_iter"}]))
+    assert not stopped_at_cap(SimpleNamespace(stages=[{"status": "max_iter"},
+                                                      {"status": "converged"}]))
+    assert not stopped_at_cap(SimpleNamespace(stages=[{"status": "no_decrease"}]))

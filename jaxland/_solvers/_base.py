@@ -19,7 +19,7 @@ import equinox as eqx
 from jaxtyping import Array
 
 from .._errors import ConfigError
-from .._models import AbstractModel, Oscillator
+from .._models import AbstractModel, Oscillator, Smoothing
 
 SAVE_DT_MIN = 1e-4  # s: the default output interval is the smallest multiple of dt above this
 T_END_MAX = 100.0  # s, longest simulated duration
@@ -150,9 +150,7 @@ class Solver(eqx.Module):
         return self.n_saves * self.save_every
 
     @property
-    def smoothing(self):
-        from .._models import Smoothing
-
+    def smoothing(self) -> Smoothing:
         return Smoothing(float(self.smoothing_m), float(self.smoothing_N))
 
     def validate_values(self) -> Solver:
