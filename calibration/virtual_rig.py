@@ -197,14 +197,6 @@ def drop_test(drop_height_m: float, *, vehicle: jl.Vehicle | None = None,
         description="SYNTHETIC (calibration.virtual_rig)")
 
 
-def _csv_text(time_s, channels: dict, banner: str) -> str:
-    cols = ["time_s", *channels]
-    lines = [f"# {banner}", ",".join(cols)]
-    data = np.column_stack([time_s, *channels.values()])
-    lines += [",".join(f"{x:.7g}" for x in row) for row in data]
-    return "\n".join(lines) + "\n"
-
-
 def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False, seed=0,
                     vehicle_config="nominal_vehicle.toml", duration_s=1.2):
     """Write ``drop_hX.XXm.csv`` and ``.toml`` (metadata) into ``out_dir``; return their paths.
@@ -246,7 +238,7 @@ def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False,
         f"true_peak_body_accel_mps2 = {info['peak_body_accel_mps2']:.9g}",
     ]
     csv_path, meta_path = out_dir / f"{stem}.csv", out_dir / f"{stem}.toml"
-    atomic_write_text(csv_path, _csv_text(t, ch, banner))
+    jl.atomic_write_csv(csv_path, {"time_s": t, **ch}, digits=7, comments=[banner])
     atomic_write_text(meta_path, "\n".join(meta) + "\n")
     return csv_path, meta_path
 
