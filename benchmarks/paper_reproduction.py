@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 import jaxland as jl
-from jaxland._config import PAPER_CELLS, _cells_to_forces
 
 OUT = Path(__file__).resolve().parent / "results"
 
@@ -56,7 +55,7 @@ PEAK_LENGTH_MM = 2.0
 
 
 def vehicle_for(sigma0: float, bonded: bool = False):
-    f1, f2 = _cells_to_forces(dict(PAPER_CELLS, flow_stress_Pa=sigma0))
+    f1, f2 = jl.plateau_forces_from_cells(dict(jl.PAPER_CELLS, flow_stress_Pa=sigma0))
     return jl.vehicle_from_dict({"honeycomb": {
         "cells": {"flow_stress_Pa": sigma0}, "bonded": bonded,
         "k_b1_N_per_m": f1 / 0.47e-3, "k_b3_N_per_m": (f2 - f1) / 0.63e-3}})

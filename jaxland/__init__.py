@@ -21,8 +21,10 @@ _jax.config.update("jax_enable_x64", True)
 
 from . import _laws as laws
 from ._config import (
+    PAPER_CELLS as PAPER_CELLS,
     load_vehicle as load_vehicle,
     paper_vehicle as paper_vehicle,
+    plateau_forces_from_cells as plateau_forces_from_cells,
     validate_vehicle as validate_vehicle,
     vehicle_from_dict as vehicle_from_dict,
     vehicle_to_toml as vehicle_to_toml,
@@ -89,6 +91,7 @@ from ._simulate import (
     simulate as simulate,
 )
 from ._solvers import (
+    CLOSURE_LIMIT as CLOSURE_LIMIT,
     FIXED_STEP_METHODS as FIXED_STEP_METHODS,
     METHODS as METHODS,
     AbstractIntegrator as AbstractIntegrator,
@@ -117,4 +120,5 @@ __all__ = [
     "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
     "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator", "ProgressLine",
     "scene_to_toml", "init_distributed", "atomic_write_csv", "check_output_folder", "read_text",
+    "PAPER_CELLS", "CLOSURE_LIMIT", "plateau_forces_from_cells",
 ]

@@ -41,7 +41,9 @@ _PAPER_X_L1_MM = 0.47
 _PAPER_DX_L3_MM = 58.23 - 57.60
 
 
-def _cells_to_forces(cells: dict) -> tuple[float, float]:
+def plateau_forces_from_cells(cells: dict) -> tuple[float, float]:
+    """(F1, F2) [N] of the two honeycomb stages from their cells (``PAPER_CELLS``'s keys) by
+    Wierzbicki's crush formula."""
     d = cells["section_diameter_mm"] * 1e-3
     s0 = cells["flow_stress_Pa"]
     f1 = plateau_force(cells["primary_cell_size_mm"] * 1e-3,
@@ -52,7 +54,7 @@ def _cells_to_forces(cells: dict) -> tuple[float, float]:
 
 
 def _paper_dict() -> dict:
-    f1, f2 = _cells_to_forces(PAPER_CELLS)
+    f1, f2 = plateau_forces_from_cells(PAPER_CELLS)
     return {
         "body": dict(m_body_kg=1120.0, m_foot_kg=1.0, g_mps2=9.81,
                      I_xx_kg_m2=round(1120.0 * (3 * 0.6**2 + 3.2**2) / 12.0, 3),
@@ -126,7 +128,7 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         for key, val in full.items():
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not val > 0:
                 raise ConfigError(f"honeycomb.cells.{key}", val, "must be a number > 0")
-        merged["honeycomb"]["F1_N"], merged["honeycomb"]["F2_N"] = _cells_to_forces(full)
+        merged["honeycomb"]["F1_N"], merged["honeycomb"]["F2_N"] = plateau_forces_from_cells(full)
     body = merged["body"]
     n_legs = body["n_legs"]
     if isinstance(n_legs, bool) or not isinstance(n_legs, int) or not 3 <= n_legs <= 12:
