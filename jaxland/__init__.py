@@ -34,9 +34,12 @@ from ._design import (
     DesignProblem as DesignProblem,
     DesignResult as DesignResult,
     DesignSpec as DesignSpec,
+    apply_design as apply_design,
     design_spec_from_dict as design_spec_from_dict,
+    gear_mass_kg as gear_mass_kg,
     load_design_spec as load_design_spec,
     optimise_design as optimise_design,
+    risk_measure as risk_measure,
     verify_design as verify_design,
 )
 from ._errors import (
@@ -120,5 +123,6 @@ __all__ = [
     "Evaluation", "FullModel", "Oscillator", "QuarterModel", "AbstractIntegrator", "Euler",
     "EulerImplicit", "Impulse", "Result", "Tsit5", "Verlet", "integrator", "ProgressLine",
     "scene_to_toml", "init_distributed", "atomic_write_csv", "check_output_folder", "read_text",
-    "PAPER_CELLS", "CLOSURE_LIMIT", "plateau_forces_from_cells",
+    "PAPER_CELLS", "CLOSURE_LIMIT", "plateau_forces_from_cells", "apply_design",
+    "gear_mass_kg", "risk_measure",
 ]

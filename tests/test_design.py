@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxland as jl
-from jaxland._design import (
+from jaxland import (
     DesignProblem,
     apply_design,
     design_spec_from_dict,
