@@ -64,12 +64,15 @@ def main() -> None:
     ap.add_argument("--quarter-n", type=int, default=10_000)
     ap.add_argument("--full-n", type=int, default=10_000)
     ap.add_argument("--t-end", type=float, default=1.0, help="simulated time per landing [s]")
+    ap.add_argument("--models", nargs="+", default=["quarter", "full"],
+                    choices=("quarter", "full"))
     add_out_args(ap)
     args = ap.parse_args()
     out = out_dir(args.out, args.quick)
     if args.quick:
         args.quarter_n, args.full_n, args.t_end = 16, 4, 0.1
-    rows = [run("quarter", args.quarter_n, args.t_end), run("full", args.full_n, args.t_end)]
+    sizes = dict(quarter=args.quarter_n, full=args.full_n)
+    rows = [run(model, sizes[model], args.t_end) for model in args.models]
     for r in rows:
         print(r, flush=True)
     write_json(out / "envelope.json", dict(machine=machine(), rows=rows))

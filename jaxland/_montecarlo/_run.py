@@ -173,35 +173,47 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
 RETRIED = (Result.NONFINITE, Result.LEDGER, Result.CLOSURE, Result.STEP_ABOVE_LIMIT)
 
 
+RETRY_STEPS = 3  # tries after the first: the retry step, then a quarter of it, then a 16th
+
+
 def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, line) -> None:
-    """Run the samples that failed numerically once more and keep the new outcomes with the
-    step used (``dt_s``; ``retried``). Explicit Euler's failures on hard landings come from its
+    """Run the samples that failed numerically again and keep the new outcomes with the step
+    used (``dt_s``; ``retried``). Explicit Euler's failures on hard landings come from its
     explicit strut damping, which grows with the force: they are rerun with the damping
     implicit (``euler_implicit``, whose limit does not depend on the force); a method that
     already takes it implicitly is rerun at ``retry_step``, the limit at the forces the
-    samples' energy can reach. Every process runs the same retries (same results)."""
+    samples' energy can reach. Samples still failing are rerun at a quarter of that step, up
+    to ``RETRY_STEPS`` tries. Every process runs the same retries (same results)."""
     from .._simulate import retry_step
 
-    failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]))
-    if failed.size == 0:
-        return
     method = "euler_implicit" if spec.method == "euler" else spec.method
-    scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=failed)
-    one = [jax.tree.map(lambda x, i=i: x[i] if np.ndim(x) >= 1 else x, scenes)
-           for i in range(failed.size)]
-    dt = min([spec.dt] + [retry_step(vehicle, sc, method, MODELS[model]) for sc in one])
-    if method == spec.method and not dt < spec.dt:
-        return
-    try:
-        solver = Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method).validate()
-    except ConfigError:  # t_end is no whole multiple of that step: the failures stand
-        return
-    line(f"retrying {failed.size} failed sample(s) with {method} at dt = {dt:.3g} s")
-    res = jax.device_get(jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))(scenes))
-    for k, v in res.items():
-        outputs[k][failed] = np.asarray(v)
-    outputs["dt_s"][failed] = dt
-    outputs["retried"][failed] = True
+    dt = None
+    for attempt in range(RETRY_STEPS):
+        failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]))
+        if failed.size == 0:
+            break
+        scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=failed)
+        if dt is None:
+            one = [jax.tree.map(lambda x, i=i: x[i] if np.ndim(x) >= 1 else x, scenes)
+                   for i in range(failed.size)]
+            dt = min([spec.dt] + [retry_step(vehicle, sc, method, MODELS[model]) for sc in one])
+            if method == spec.method and not dt < spec.dt:
+                break
+        else:
+            dt = dt / 4.0
+        try:
+            solver = Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end,
+                            method=method).validate()
+        except ConfigError:  # t_end is no whole multiple of that step: the failures stand
+            break
+        line(f"retry {attempt + 1}: {failed.size} failed sample(s) with {method} at "
+             f"dt = {dt:.3g} s")
+        run = jax.jit(lambda sc, solver=solver: _per_sample(vehicle, solver, model, sc))
+        res = jax.device_get(run(scenes))
+        for k, v in res.items():
+            outputs[k][failed] = np.asarray(v)
+        outputs["dt_s"][failed] = dt
+        outputs["retried"][failed] = True
     line.close()
 
 
