@@ -103,10 +103,21 @@ def check_out(out) -> Path:
                                   else f"lies below {p}, which is a file")
             break
     if out.is_dir() and not (out / MARKER).exists() and any(
-            not c.name.startswith(".") for c in out.iterdir()):
+            not c.name.startswith(".") and not _known_output(c.name) for c in out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
                           f"{MARKER}): give a new or empty folder, its files would be replaced")
     return out
+
+
+# What jaxland's commands write: a folder holding only these (written before the marker existed)
+# is jaxland's too.
+_OUTPUT_NAMES = {"trajectory.csv", "summary.json", "vehicle.toml", "scene.toml", "figures",
+                 "samples.csv", "samples.npz", "design_report.json", "design_vehicle.toml",
+                 "fitted_vehicle.toml", "fit_report.json", "model_comparison.json"}
+
+
+def _known_output(name: str) -> bool:
+    return name in _OUTPUT_NAMES or (name.startswith("prediction_") and name.endswith(".json"))
 
 
 def _alive(pid: int) -> bool:

@@ -256,3 +256,13 @@ def test_a_fit_stopped_at_its_iteration_cap_is_told_apart():
     assert not stopped_at_cap(SimpleNamespace(stages=[{"status": "max_iter"},
                                                       {"status": "converged"}]))
     assert not stopped_at_cap(SimpleNamespace(stages=[{"status": "no_decrease"}]))
+
+
+def test_a_folder_of_earlier_jaxland_outputs_is_replaced(tmp_path):
+    """Outputs written before the marker existed (only jaxland's file names) are jaxland's."""
+    out = tmp_path / "old"
+    (out / "figures").mkdir(parents=True)
+    (out / "summary.json").write_text("{}")
+    (out / "figures" / "fig09_foot_velocity.png").write_bytes(b"")
+    assert _simulate(out, "--no-plots") == 0
+    assert not (out / "figures").exists() and (out / ".jaxland-output.json").exists()
