@@ -50,8 +50,7 @@ from _common import (
 )
 
 import jaxland as jl
-from jaxland import Scene, Solver, landing, landings, stable_step
-from jaxland._simulate import CLOSURE_LIMIT  # private: simulate's ledger-closure acceptance limit
+from jaxland import CLOSURE_LIMIT, Scene, Solver, landing, landings, stable_step
 
 # "peak buffer force" is the strut load (honeycomb plus damping, what a load cell reads): the
 # honeycomb force alone peaks at its plateau F2 in every run
