@@ -6,7 +6,8 @@ each cell printed, returned and plotted as nbformat-4 outputs.
 No Jupyter kernel is needed (the project does not depend on nbclient or ipykernel). Figures are
 collected the way Jupyter's inline backend does: on ``plt.show()`` and at the end of each cell,
 every open pyplot figure becomes a PNG ``display_data`` output and is closed. A cell's last
-expression, if any, becomes its ``execute_result``. Each notebook runs in a scratch working
+expression, if any, becomes its ``execute_result``; warnings are shown (in the cell's stderr),
+not raised, as in a kernel. Each notebook runs in a scratch working
 folder. The run uses ``JAXLAND_NOTEBOOK_SMALL=1``
 (small sizes) and matplotlib's Agg backend; ``--write`` stores the outputs in the notebook
 files, which is how the committed notebooks carry their figures. tests/test_notebooks.py runs
@@ -24,6 +25,7 @@ import json
 import os
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -101,7 +103,11 @@ def run(path: Path, write: bool = False) -> dict:
                 _figures(outputs)
 
             plt.show = flush
-            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            # warnings are shown, as a kernel shows them, not raised (pytest's filter turns
+            # them into errors otherwise)
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+                    warnings.catch_warnings():
+                warnings.simplefilter("default")
                 exec(compile(tree, f"{Path(path).name}[cell {i}]", "exec"), namespace)
                 value = (eval(compile(ast.Expression(last.value), f"{Path(path).name}[cell {i}]",
                                       "eval"), namespace) if last is not None else None)
