@@ -66,6 +66,10 @@ def _address_repr(value) -> bool:
     return r.startswith("<") and " at 0x" in r
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
 def _stream(outputs: list, name: str, text: str) -> None:
     if text:
         outputs.append({"output_type": "stream", "name": name, "text": _lines(text)})
@@ -108,6 +112,7 @@ def run(path: Path, write: bool = False) -> dict:
             with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
                     warnings.catch_warnings():
                 warnings.simplefilter("default")
+                warnings.showwarning = _show_warning
                 exec(compile(tree, f"{Path(path).name}[cell {i}]", "exec"), namespace)
                 value = (eval(compile(ast.Expression(last.value), f"{Path(path).name}[cell {i}]",
                                       "eval"), namespace) if last is not None else None)
