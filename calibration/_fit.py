@@ -66,7 +66,7 @@ __all__ = ["fit", "FitResult", "IdentifiabilityWarning", "MisfitWarning", "WINDO
 WINDOWS_S = (0.01, 0.03, 0.1)
 # The fitting integrator (``jaxland.Solver.method``) and, per integrator, the switch-smoothing
 # widths (smoothing_m [m], smoothing_N [N]) used when none are given. Chosen from
-# benchmarks/bench_fit.py (both variants side by side; README "Calibration").
+# benchmarks/bench_fit.py (both variants side by side; docs/calibration.md).
 INTEGRATOR = "euler"
 SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0)}
 REFINE_WINDOW_S = 0.15

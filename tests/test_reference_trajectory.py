@@ -1,13 +1,13 @@
 """The unsmoothed code against a stored reference trajectory.
 
-README "Gradient quality": "With both widths 0 (the default) the code is the unsmoothed one, bit
-for bit". Comparing two Solvers that are the same object cannot fail; this compares the
+docs/integrators.md, "Gradient quality": "With both widths 0 (the default) the code is the
+unsmoothed one, bit for bit". Comparing two Solvers that are the same object cannot fail; this compares the
 smoothing-0 runs with numbers written once to tests/data/reference_unsmoothed.json by
 
     .venv/bin/python tests/test_reference_trajectory.py --write
 
 (on jaxland at commit b261030, before the package refactor). The scenes are short and switch a
-lot: the README's chatter scene (stiff, plastic ground, barely damped strut, 30 ms from
+lot: the documented chatter scene (stiff, plastic ground, barely damped strut, 30 ms from
 touchdown at 0.1 m drop: the foot bounces) with four integrators on the quarter model, and a
 tilted, sliding landing on a slope on the full 3-D model (80 ms: all four feet down).
 Tolerance: 1e-8 of each channel's largest magnitude. That admits round-off, which the chatter

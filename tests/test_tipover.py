@@ -1,16 +1,16 @@
 """Stability margin, tip-over and body inertia of the full 3-D model, against geometry and the
-README's claims.
+documented claims (docs/model.md section 4).
 
 References, independent of the code under test:
 - the paper vehicle's footprint from its Table 2 geometry (config fields R, L_h0, theta_b):
-  foot radius r_f = R + L_h0 cos(theta_b) = 0.6 + 3.19 cos(58.7 deg) = 2.2573 m (README
-  "Quarter model": the foot rests at (2.257, -2.976) m); with four legs at 0, 90, 180, 270 deg
+  foot radius r_f = R + L_h0 cos(theta_b) = 0.6 + 3.19 cos(58.7 deg) = 2.2573 m (docs/model.md
+  section 2: the foot rests at (2.257, -2.976) m); with four legs at 0, 90, 180, 270 deg
   the centre of mass at rest is d = r_f cos(45 deg) = 1.5961 m from each edge of the square;
 - the documented soft minimum over edges, m = -tau log sum_i exp(-d_i / tau), tau = 1 cm
-  (README "Full 3-D model": "width 1 cm, which reads about 1.4 cm low at rest": tau log 4);
-- the README's tip-over bracket: friction 2, sink 1 m/s, heading 45 deg, drop height 0, "it tips
+  (docs/model.md section 4: "width 1 cm, which reads about 1.4 cm low at rest": tau log 4);
+- the documented tip-over bracket: friction 2, sink 1 m/s, heading 45 deg, drop height 0, "it tips
   between 3.0 and 3.25 m/s";
-- the README's body inertia (a solid cylinder), through the balance of angular momentum and the
+- the documented body inertia (a solid cylinder), through the balance of angular momentum and the
   torque impulse of the ground reactions in a frictionless landing.
 """
 
@@ -24,7 +24,7 @@ import pytest
 import jaxland as jl
 
 VEH = jl.paper_vehicle()
-TAU = 0.01  # m, the README's soft-min width
+TAU = 0.01  # m, the documented soft-min width
 REST = jl.Solver(dt=1e-5, t_end=2e-3, save_dt=1e-3)  # two steps' worth: the state at release
 
 
@@ -45,7 +45,7 @@ def margin_at_release():
 
 
 def test_footprint_is_the_paper_geometry():
-    """Table 2 geometry (not the code) gives the foot radius the README states."""
+    """Table 2 geometry (not the code) gives the foot radius the docs state."""
     assert _foot_radius() == pytest.approx(0.6 + 3.19 * math.cos(math.radians(58.7)), abs=1e-9)
     assert _foot_radius() == pytest.approx(2.257, abs=5e-4)
 
@@ -82,12 +82,12 @@ def test_margin_on_a_slope_is_measured_in_the_ground_plane(margin_at_release):
     assert got == pytest.approx(d - TAU * math.log(4.0), abs=1e-6)
 
 
-BRACKET = (3.0, 3.25)  # m/s, README "Tip-over boundary": "it tips between 3.0 and 3.25 m/s"
+BRACKET = (3.0, 3.25)  # m/s, docs/model.md section 4: "it tips between 3.0 and 3.25 m/s"
 
 
 @pytest.fixture(scope="module")
 def bracket_outcomes():
-    """The README's scene at both ends of its bracket, one vmapped batch. 1.4 s covers the
+    """The documented scene at both ends of its bracket, one vmapped batch. 1.4 s covers the
     upright case's deepest margin (measured at 1.18 s) and the tip (at 0.69 s)."""
     solver = jl.Solver(dt=1e-5, t_end=1.4, save_dt=0.1)
     scenes = jl.Scene.batch(horizontal_speed=jnp.array(BRACKET), drop_height=0.0,
@@ -113,7 +113,7 @@ def test_tip_over_bracket_as_the_readme_states_it(bracket_outcomes):
 # ---------------------------------------------------------------- inertia, by momentum balance
 
 def _rotation(roll, pitch, yaw):
-    """Body-to-world rotation of the README's attitude (yaw about z, then pitch about y, then
+    """Body-to-world rotation of the documented attitude (yaw about z, then pitch about y, then
     roll about x: R = Rz(yaw) Ry(pitch) Rx(roll))."""
     cr, sr, cp, sp, cy, sy = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
                               np.cos(yaw), np.sin(yaw))
@@ -127,7 +127,7 @@ def test_angular_momentum_balance_with_the_documented_inertia():
     """A tilted, spinning landing on frictionless level ground: the only external forces are
     the vertical ground reactions at the feet and gravity, so the system's angular momentum
     about the world origin changes by their torque impulse. The angular momentum is built here
-    from the trajectory and the README's inertia (a solid cylinder, r = 0.6 m, L = 3.2 m:
+    from the trajectory and the documented inertia (a solid cylinder, r = 0.6 m, L = 3.2 m:
     I_xx = I_yy = m (3 r^2 + L^2) / 12 = 1057, I_zz = m r^2 / 2 = 202 kg m^2), not the code's:
     L = R I w + m_b r_b x v_b + sum m_f r_f x v_f. The horizontal components balance to 1.2e-4
     of the torque impulse (first order in dt: 6.2e-5 at half the step); a model whose inertia
