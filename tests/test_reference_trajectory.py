@@ -2,7 +2,8 @@
 
 docs/integrators.md, "Gradient quality": "With both widths 0 (the default) the code is the
 unsmoothed one, bit for bit". Comparing two Solvers that are the same object cannot fail;
-this compares the smoothing-0 runs with numbers written once to tests/data/reference_unsmoothed.json by
+this compares the smoothing-0 runs with numbers written once to
+tests/data/reference_unsmoothed.json by
 
     .venv/bin/python tests/test_reference_trajectory.py --write
 
