@@ -515,7 +515,15 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         stages.append(rec)
     final = problem.windowed(stages_w[-1])
     values = final.values(theta)
-    unc = _uncertainty(final, theta, huber_c)
+    try:
+        if not np.all(np.isfinite(np.asarray(theta))):
+            raise np.linalg.LinAlgError("non-finite parameters")
+        unc = _uncertainty(final, theta, huber_c)
+    except np.linalg.LinAlgError as err:  # the model cannot follow the record at all
+        raise jl.SimulationError(
+            f"the fit found no usable minimum ({err}): the model does not follow the record "
+            "at all; check the drop test's metadata against the record (drop_height_m, "
+            "sink_speed_mps or touchdown_speed_mps, sensor_leg, units)") from None
     identified, msgs = _identifiability(names, values, unc)
     for m in msgs:
         warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
