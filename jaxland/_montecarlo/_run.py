@@ -21,7 +21,7 @@ from .._models import MODELS
 from .._params import Vehicle
 from .._progress import ProgressLine
 from .._simulate import landings
-from .._solvers import Result, Solver, stable_step
+from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import sample_scenes
 from ._spec import MonteCarloSpec, envelope
 from ._stats import percentiles, sensitivity, wilson_interval
@@ -246,7 +246,7 @@ def _inside_envelope(inputs: dict, spec: MonteCarloSpec) -> np.ndarray:
 
 def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dict:
     ok = failure == int(Result.SUCCESSFUL)
-    failed = np.isin(failure, [int(r) for r in Result if r.failed])
+    failed = np.isin(failure, FAILED_CODES)
     n_ok = int(ok.sum())
     k_tip = int(outputs["tipped_over"][ok].sum())
     k_bot = int(outputs["bottomed_out"][ok].sum())

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 
 from ._base import (
+    FAILED_CODES as FAILED_CODES,
     AbstractIntegrator as AbstractIntegrator,
     Result as Result,
     Solver as Solver,
@@ -42,7 +43,7 @@ def integrate(model, vehicle, scene, solver: Solver):
     solver.method.check_model(model)
     traj, summary = solver.method.integrate(model, vehicle, scene, solver)
     code = verdict(summary, vehicle, solver, model)
-    failed = jnp.isin(code, jnp.asarray([int(r) for r in Result if r.failed], code.dtype))
+    failed = jnp.isin(code, jnp.asarray(FAILED_CODES, code.dtype))
     summary = dict(summary, result=code, bottomed=model.leg_max(summary["max_stroke_m"])
                    > jnp.min(vehicle.honeycomb.x_L4))
     return _nan_derivatives((traj, summary), failed)

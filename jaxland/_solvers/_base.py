@@ -49,8 +49,11 @@ class Result(enum.IntEnum):
     def failed(self) -> bool:
         """The landing's numbers are not to be used (a landing without touchdown is no failure,
         but no landing either: statistics count it apart)."""
-        return self not in (Result.SUCCESSFUL, Result.NO_TOUCHDOWN)
+        return int(self) in FAILED_CODES
 
+
+# the codes whose numbers are not to be used (Result.failed), as plain ints for array tests
+FAILED_CODES = tuple(int(r) for r in Result if r not in (Result.SUCCESSFUL, Result.NO_TOUCHDOWN))
 
 _MESSAGES = {
     Result.SUCCESSFUL: "the landing ran to its end",

@@ -92,7 +92,6 @@ class Impulse(AbstractIntegrator):
         return jnp.min(jnp.sqrt(jnp.maximum(room, 0.0) / w2))
 
     def integrate(self, model, vehicle, scene, solver):
-        self.check_model(model)
         st = setup(model, vehicle, scene, solver)
         veh, derived = st.vehicle, st.derived
         cap, d_impulse = solver.dt, self.dI

@@ -63,7 +63,6 @@ class Tsit5(AbstractIntegrator):
         Peaks, the event log and the ledger are read at the save points."""
         import diffrax
 
-        self.check_model(model)
         vehicle, scene = _no_derivatives((vehicle, scene))
         st = setup(model, vehicle, scene, solver)
         veh, derived = st.vehicle, st.derived
