@@ -71,4 +71,4 @@ from ._spec import (
     design_spec_from_dict as design_spec_from_dict,
     load_design_spec as load_design_spec,
 )
-from ._verify import verify_design as verify_design
+from ._verify import design_verified as design_verified, verify_design as verify_design

@@ -156,9 +156,10 @@ def step_schedule(spec: DesignSpec, n_iter: int):
 
 def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
                     iterations: int | None = None, progress=None,
-                    problem: DesignProblem | None = None) -> DesignResult:
+                    problem: DesignProblem | None = None, start=None) -> DesignResult:
     """Run the augmented-Lagrangian design loop (module docstring); ``progress(dict)`` is called
-    once per iteration. Raises ``SimulationError`` if a landing fails at the start point."""
+    once per iteration. ``start``: design values (SI, by name) to start from instead of the
+    problem's start point. Raises ``SimulationError`` if a landing fails at the start point."""
     from .._errors import SimulationError
 
     prob = DesignProblem(spec, vehicle) if problem is None else problem
@@ -171,7 +172,7 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
         raise ConfigError("design.dt_s", spec.dt, f"exceeds the stability limit {limit:.3g} s of "
                           "the start design")
     t0 = time.perf_counter()
-    z = np.asarray(prob.z0, dtype=float).copy()
+    z = np.asarray(prob.z0 if start is None else prob.to_z(start), dtype=float).copy()
     vec, jac, per = prob.evaluate(z)
     compile_s = time.perf_counter() - t0
     if np.any(per["failed"]) or not np.all(np.isfinite(vec)):

@@ -3,9 +3,11 @@ scenes, and the measures with their Jacobian."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,6 +17,7 @@ from .._errors import ConfigError
 from .._models import MODELS
 from .._montecarlo import MonteCarloSpec, sample_scenes
 from .._params import Vehicle
+from .._scene import batch_axes
 from .._simulate import landings
 from .._solvers import Result, Solver
 from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
@@ -28,6 +31,14 @@ from ._spec import (
     DesignSpec,
     DesignVariable,
 )
+
+
+def _join_scenes(a, b):
+    """Two scene batches of one dispersion as one batch (batched fields joined)."""
+    axes = batch_axes(a)
+    names = [n for n in a.__dataclass_fields__ if getattr(axes, n) == 0]
+    return eqx.tree_at(lambda s: [getattr(s, n) for n in names], a,
+                       [jnp.concatenate([getattr(a, n), getattr(b, n)]) for n in names])
 
 
 def risk_measure(values, measure: str, level: float = 0.9):
@@ -60,8 +71,12 @@ class DesignProblem:
     """The compiled robust design problem: design variables <-> unconstrained ``z``, the fixed
     scenes, and ``evaluate(z)`` -> measures, their Jacobian and per-scene outcomes."""
 
-    def __init__(self, spec: DesignSpec, vehicle: Vehicle | None = None):
+    def __init__(self, spec: DesignSpec, vehicle: Vehicle | None = None,
+                 added: tuple = ()):
+        """``added``: landings joined to the design scenes, as ``(seed, indices)`` pairs of
+        Monte Carlo samples of the spec's dispersion (the verification's violators)."""
         self.spec = spec
+        self.added = tuple((int(seed), tuple(int(i) for i in idx)) for seed, idx in added)
         self.vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
         self.model = spec.resolved_model()
         self.solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end).validate()
@@ -74,6 +89,12 @@ class DesignProblem:
                                     model=self.model)
         self.scenes, self.scene_inputs = sample_scenes(scene_spec, 0, spec.n_scenes,
                                                        self.vehicle.n_legs)
+        for seed, idx in self.added:
+            more, ins = sample_scenes(dataclasses.replace(scene_spec, seed=seed), 0, 0,
+                                      self.vehicle.n_legs, indices=np.asarray(idx))
+            self.scenes = _join_scenes(self.scenes, more)
+            self.scene_inputs = {k: np.concatenate([v, ins[k]])
+                                 for k, v in self.scene_inputs.items()}
         self.scenes.validate(self.vehicle.n_legs)
         self._check_bounds()
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else

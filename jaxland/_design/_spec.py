@@ -172,6 +172,15 @@ class DesignSpec:
     patience: int = spec_field(0, toml="patience", check=Number(integer=True, lo=0,
                                                                 hi=100000))
     stop_rtol: float = spec_field(1e-3, toml="stop_rtol", check=POSITIVE)
+    # after a verification that does not meet every constraint: re-optimise with its violating
+    # landings added to the design scenes, at most this many times (0: verify only)
+    verify_rounds: int = spec_field(2, toml="verify_rounds",
+                                    check=Number(integer=True, lo=0, hi=10))
+    # landings added per violated constraint and round (the worst first)
+    verify_add: int = spec_field(4, toml="verify_add", check=Number(integer=True, lo=1, hi=100))
+    # optimiser iterations of each re-optimisation (from the previous design)
+    reoptimise_iterations: int = spec_field(15, toml="reoptimise_iterations",
+                                            check=Number(integer=True, lo=1, hi=100000))
     cells: dict = field(default_factory=lambda: dict(PAPER_CELLS))
     # path of the baseline vehicle TOML (default: the paper's)
     vehicle: str | None = spec_field(None, toml="vehicle", check=Text("a path (string)"))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import statistics
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -9,7 +11,7 @@ from .._errors import ConfigError
 from .._montecarlo import MonteCarloSpec, percentiles, run_montecarlo, wilson_interval
 from .._params import Vehicle
 from .._solvers import Result
-from ._optimise import DesignResult
+from ._optimise import DesignResult, optimise_design
 from ._problem import risk_measure
 from ._spec import DesignSpec
 
@@ -35,35 +37,210 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
     per = dict(max_stroke_m=stroke, slip_distance_m=o["slip_distance_m"].max(axis=1)[ok])
     if "min_stability_margin_m" in o:
         per["min_stability_margin_m"] = o["min_stability_margin_m"][ok]
-    viol = {}
+    viol, checks = {}, {}
+    index = np.flatnonzero(ok)
     for c in spec.constraints:
-        k = int(np.sum(c.badness(per, float(vehicle.honeycomb.x_L4)) > 0))
+        bad = np.asarray(c.badness(per, float(vehicle.honeycomb.x_L4)))
+        k = int(np.sum(bad > 0))
         viol[c.name] = dict(count=k, n=n, probability=k / max(n, 1),
                             ci95_wilson=wilson_interval(k, n))
+        checks[c.name] = _check(c, bad, index, res.summary["seed"])
     out["constraint_violations"] = viol
+    out["constraints"] = checks
+    out["met"] = all(ch["met"] for ch in checks.values()) and out["n_failed"] == 0
     return out
 
 
+BOOTSTRAP = 2000  # resamples of the verification landings for the measures' 95 % intervals
+
+
+def _risk_rows(values: np.ndarray, measure: str, level: float) -> np.ndarray:
+    """``risk_measure`` of each row of ``values`` (numpy, for the bootstrap)."""
+    n = values.shape[-1]
+    if measure == "mean":
+        return values.mean(axis=-1)
+    if measure == "max":
+        return values.max(axis=-1)
+    if measure == "normal":
+        z = statistics.NormalDist().inv_cdf(level)
+        return values.mean(axis=-1) + z * values.std(axis=-1, ddof=1 if n > 1 else 0)
+    tail = (1.0 - level) * n
+    w = np.clip(tail - np.arange(n), 0.0, 1.0) / tail
+    return (-np.sort(-values, axis=-1) * w).sum(axis=-1)
+
+
+def _check(c, bad: np.ndarray, index: np.ndarray, seed: int) -> dict:
+    """One constraint judged on the verification landings with the optimiser's own risk
+    measure (normalised like g: <= 0 is met), its 95 % bootstrap percentile interval, and the
+    violating samples (Monte Carlo indices, the worst first). The constraint is met when the
+    interval's upper end is <= 0: the fresh landings show it holds, not only that they do not
+    show it fails."""
+    g = bad / c.scale
+    if g.size == 0:
+        return dict(measure=c.measure, level=c.level, g=None, ci95=[None, None], met=False,
+                    violators=[])
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    boot = _risk_rows(g[rng.integers(0, g.size, (BOOTSTRAP, g.size))], c.measure, c.level)
+    lo, hi = (float(x) for x in np.quantile(boot, [0.025, 0.975]))
+    est = float(_risk_rows(g[None, :], c.measure, c.level)[0])
+    order = np.argsort(-g)
+    return dict(measure=c.measure, level=c.level, g=est, value_si=est * c.scale,
+                ci95=[lo, hi], met=bool(hi <= 0.0),
+                violators=[int(index[i]) for i in order if g[i] > 0])
+
+
+def _verification_spec(result: DesignResult, n, seed) -> MonteCarloSpec:
+    mc = result.spec.montecarlo
+    return MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed,
+                          n=mc.n if n is None else int(n), seed=seed, dt=mc.dt, t_end=mc.t_end,
+                          model=result.problem.model)
+
+
 def verify_design(result: DesignResult, *, n: int | None = None, seed: int | None = None,
-                  progress: bool = False) -> dict:
+                  progress: bool = False, before: bool = True) -> dict:
     """Re-check the baseline and the design with an independent Monte Carlo: fresh samples
     (``montecarlo.seed``, never the design's ``scene_seed``), the spec's verification ``dt_s``
-    and ``t_end_s``, unsmoothed outcomes. Stores and returns the before/after comparison."""
+    and ``t_end_s``, unsmoothed outcomes. Stores and returns the before/after comparison
+    (``before=False``: the design only; ``before`` is then None)."""
     spec = result.spec
     mc = spec.montecarlo
     seed = mc.seed if seed is None else seed
     if seed == spec.scene_seed:
         raise ConfigError("seed", seed, "must differ from design.scene_seed (fresh samples)")
-    vspec = MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed,
-                           n=mc.n if n is None else int(n), seed=seed, dt=mc.dt, t_end=mc.t_end,
-                           model=result.problem.model)
+    vspec = _verification_spec(result, n, seed)
     before = run_montecarlo(vspec, result.baseline,
-                            progress=progress and "verification, before (baseline)")
+                            progress=progress and "verification, before (baseline)"
+                            ) if before else None
     after = run_montecarlo(vspec, result.vehicle,
                            progress=progress and "verification, after (design)")
     result.mc_before, result.mc_after = before, after
     result.verification = dict(
         n=vspec.n, seed=seed, dt_s=vspec.dt, t_end_s=vspec.t_end, model=vspec.model,
         smoothing="none (the optimisation used none either)",
-        before=_judge(before, result.baseline, spec), after=_judge(after, result.vehicle, spec))
+        before=None if before is None else _judge(before, result.baseline, spec),
+        after=_judge(after, result.vehicle, spec))
     return result.verification
+
+
+def _fresh_seed(spec: DesignSpec, round_: int) -> int:
+    """The verification seed of re-optimisation round ``round_``: fresh samples each round,
+    never the design scenes' seed."""
+    seed = spec.montecarlo.seed + round_
+    return seed + 1 if seed == spec.scene_seed else seed
+
+
+def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int | None = None,
+                    rounds: int | None = None, progress=None, mc_progress: bool = False,
+                    say=None) -> DesignResult:
+    """Optimise, verify on fresh landings, and while a constraint is not met (the upper end of
+    its 95 % interval on the verification landings is above its limit) add the violating
+    landings to the design scenes and re-optimise from the last design, at most ``rounds``
+    (default ``design.verify_rounds``) times, each verified on new fresh samples.
+
+    The result's ``verification`` gains ``verified`` (every constraint met, no failed sample),
+    ``rounds`` (what each round added and found) and, when not verified, ``reason``: why the
+    loop stopped. ``say(str)`` receives one line per round."""
+    from ._optimise import _summaries
+    from ._problem import DesignProblem
+
+    rounds = spec.verify_rounds if rounds is None else int(rounds)
+    if rounds < 0:
+        raise ConfigError("verify_rounds", rounds, "must be >= 0")
+    say = say or (lambda msg: None)
+    result = optimise_design(spec, vehicle, progress=progress)
+    for rec in result.history:
+        rec["round"] = 0
+    history, log = list(result.history), []
+    if result.status != "feasible":
+        return result
+    seed = _fresh_seed(spec, 0)
+    verify_design(result, n=n, seed=seed, progress=mc_progress)
+    added: tuple = ()
+    reason = None
+    for r in range(1, rounds + 2):
+        after = result.verification["after"]
+        unmet = [name for name, ch in after["constraints"].items() if not ch["met"]]
+        log.append(dict(round=r - 1, seed=seed, unmet=unmet, n_failed=after["n_failed"],
+                        design=dict(result.values),
+                        g={k: ch["g"] for k, ch in after["constraints"].items()},
+                        ci95={k: ch["ci95"] for k, ch in after["constraints"].items()}))
+        if not unmet:
+            break
+        say(f"verification round {r - 1} (seed {seed}): not met: "
+            + ", ".join(f"{k} g = {after['constraints'][k]['g']:+.3g} "
+                        f"(95 % up to {after['constraints'][k]['ci95'][1]:+.3g})"
+                        for k in unmet))
+        if r > rounds:
+            reason = (f"{', '.join(unmet)} not met after {rounds} re-optimisation round(s) "
+                      f"(design.verify_rounds)")
+            break
+        picks: list = []
+        for name in unmet:
+            ch = after["constraints"][name]
+            picks += [i for i in ch["violators"] if i not in picks][:spec.verify_add]
+        if not picks:
+            reason = (f"{', '.join(unmet)}: not met on the verification landings although none "
+                      "of them violates it alone (the measure's tail lies beyond the samples); "
+                      "raise montecarlo.n or the constraint's margin")
+            break
+        trial = added + ((seed, tuple(picks)),)
+        problem = DesignProblem(spec, result.baseline, added=trial)
+        z_prev = problem.to_z({k: v * _to_si(k) for k, v in result.values.items()})
+        _, _, per = problem.evaluate(z_prev)
+        n_base = spec.n_scenes
+        hit = {c.name: int(np.sum(np.asarray(c.badness(
+            {k: v[n_base:] for k, v in per.items()},
+            float(problem.vehicle_at(jnp.asarray(z_prev)).honeycomb.x_L4))) > 0))
+            for c in spec.constraints if c.name in unmet}
+        late = [name for name, k in hit.items() if k == 0]
+        if late:  # re-optimising on landings that meet the constraint cannot move it
+            reason = (f"{', '.join(late)}: the violating verification landings meet the "
+                      f"constraint over the design's {spec.t_end:g} s and violate it only later "
+                      f"(the verification runs {spec.montecarlo.t_end:g} s): raise "
+                      "design.t_end_s")
+            break
+        added = trial
+        say(f"round {r}: re-optimising with {len(picks)} violating landing(s) added "
+            f"({sum(len(i) for _, i in added)} in all, {problem.scenes.sink_speed.shape[0]} "
+            "scenes)")
+        start_values = result.start_values
+        result = optimise_design(spec, iterations=spec.reoptimise_iterations, progress=progress,
+                                 problem=problem,
+                                 start={k: v * _to_si(k) for k, v in result.values.items()})
+        for rec in result.history:
+            rec["round"] = r
+            rec["iteration"] += len(history)
+        history += result.history
+        result.start_values = start_values
+        vec0, _, per0 = problem.evaluate(problem.z0)
+        result.at_start = _summaries(problem, vec0, per0, problem.z0)
+        if result.status != "feasible":
+            reason = "the re-optimisation with the added landings found no feasible design"
+            break
+        seed = _fresh_seed(spec, r)
+        verify_design(result, n=n, seed=seed, progress=mc_progress, before=False)
+    result.history = history
+    ver = result.verification
+    if ver is not None:
+        if ver["before"] is None:  # the baseline on the same fresh samples as the last round
+            vspec = _verification_spec(result, n, ver["seed"])
+            result.mc_before = run_montecarlo(
+                vspec, result.baseline,
+                progress=mc_progress and "verification, before (baseline)")
+            ver["before"] = _judge(result.mc_before, result.baseline, spec)
+        last = ver["after"]
+        ver["verified"] = bool(not reason and result.status == "feasible"
+                               and all(ch["met"] for ch in last["constraints"].values())
+                               and last["n_failed"] == 0)
+        if not ver["verified"] and reason is None:
+            reason = f"{last['n_failed']} verification landing(s) failed numerically"
+        ver["reason"] = reason
+        ver["rounds"] = log
+        ver["added_landings"] = [dict(seed=s, samples=list(i)) for s, i in added]
+    return result
+
+
+def _to_si(name: str) -> float:
+    from ._spec import VARIABLES
+
+    return VARIABLES[name].to_si

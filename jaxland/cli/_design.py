@@ -3,9 +3,10 @@
 ``add_subcommands(subparsers)`` registers it on an ``argparse`` subparsers object. The handler
 writes, through a staging folder moved into place only once every file exists:
 ``design_vehicle.toml`` (loadable by ``jaxland simulate --config``; only for a feasible design),
-``design_report.json`` and ``figures/design_*.png``. Exit codes: 0 feasible design, 4 no
-feasible design found (the report names the violated constraints), 2 invalid input, 3 numerical
-failure.
+``design_report.json`` and ``figures/design_*.png``. Exit codes: 0 feasible design that passed
+its verification, 4 no feasible design found (the report names the violated constraints), 5 a
+design feasible on its scenes that the verification Monte Carlo does not confirm after the
+re-optimisation rounds (the report and stderr say why), 2 invalid input, 3 numerical failure.
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ from .._files import staged
 from .._progress import ProgressLine
 from ._common import out_dir
 
-__all__ = ["add_subcommands", "EXIT_INFEASIBLE"]
+__all__ = ["add_subcommands", "EXIT_INFEASIBLE", "EXIT_UNVERIFIED"]
 
 EXIT_INFEASIBLE = 4
+EXIT_UNVERIFIED = 5
 
 
 def _progress(quiet: bool, total: int):
@@ -38,7 +40,7 @@ def _progress(quiet: bool, total: int):
 def _cmd_design(args) -> int:
     import jaxland as jl
 
-    from .._design import load_design_spec, optimise_design, verify_design
+    from .._design import design_verified, load_design_spec, optimise_design
 
     out = out_dir(args.out)
     spec = load_design_spec(args.spec)
@@ -56,11 +58,13 @@ def _cmd_design(args) -> int:
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
     t0 = time.perf_counter()
-    result = optimise_design(spec, vehicle, progress=_progress(args.quiet, spec.iterations))
-    if args.verify_n != 0:
-        t_verify = time.perf_counter()
-        verify_design(result, progress=not args.quiet)
-        t_verify = time.perf_counter() - t_verify
+    if args.verify_n == 0:
+        result = optimise_design(spec, vehicle, progress=_progress(args.quiet, spec.iterations))
+    else:
+        result = design_verified(spec, vehicle, progress=_progress(args.quiet, spec.iterations),
+                                 mc_progress=not args.quiet,
+                                 say=lambda msg: print(f"jaxland design: {msg}",
+                                                       file=sys.stderr))
     with staged(out, "design") as staging:  # replaces out as a whole, only if all succeed
         if result.status == "feasible":
             (staging / "design_vehicle.toml").write_text(result.to_toml())
@@ -68,8 +72,7 @@ def _cmd_design(args) -> int:
         if not args.no_plots:
             result.plot(staging / "figures")
     total = time.perf_counter() - t0
-    verified = f", verification {t_verify:.1f} s" if args.verify_n != 0 else ""
-    print(f"jaxland design: total {total:.1f} s (optimisation {result.wall_s:.1f} s{verified})")
+    print(f"jaxland design: total {total:.1f} s (last optimisation {result.wall_s:.1f} s)")
     print(f"design {result.status} after {len(result.history) - 1} iterations in "
           f"{result.wall_s:.1f} s (compile {result.compile_s:.1f} s)")
     for v in result.problem.variables:
@@ -82,7 +85,12 @@ def _cmd_design(args) -> int:
         print(f"  constraint {name:<10} g {s0['constraints'][name]['g']:+.4f} -> {c['g']:+.4f}")
     if result.verification:
         v = result.verification
-        print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples)")
+        print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples), "
+              f"{len(v['rounds']) - 1} re-optimisation round(s)")
+        for name, ch in v["after"]["constraints"].items():
+            print(f"    constraint {name:<10} {ch['measure']} on the verification landings: g "
+                  f"{ch['g']:+.4f}, 95 % [{ch['ci95'][0]:+.4f}, {ch['ci95'][1]:+.4f}]: "
+                  f"{'met' if ch['met'] else 'NOT MET'}")
         for tag in ("before", "after"):  # the baseline gear, then the design
             r = v[tag]
             tip, bot = r["tip_over"], r["bottoming"]
@@ -102,6 +110,10 @@ def _cmd_design(args) -> int:
         return EXIT_INFEASIBLE
     print(f"wrote {out}/design_vehicle.toml, design_report.json"
           + ("" if args.no_plots else ", figures/*.png"))
+    if result.verification and not result.verification["verified"]:
+        print(f"jaxland design: NOT VERIFIED: {result.verification['reason']}",
+              file=sys.stderr)
+        return EXIT_UNVERIFIED
     return 0
 
 
