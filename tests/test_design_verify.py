@@ -97,3 +97,13 @@ def test_violations_after_the_design_horizon_are_named_not_looped():
     v = res.verification
     assert not v["verified"] and "design.t_end_s" in v["reason"]
     assert len(v["rounds"]) == 1 and v["added_landings"] == []
+
+
+def test_design_method_is_the_design_landings_integrator_and_refused_by_name():
+    spec = copy.deepcopy(SPEC)
+    spec["design"]["method"] = "euler_implicit"
+    prob = jl.DesignProblem(jl.design_spec_from_dict(spec))
+    assert isinstance(prob.solver.method, jl.EulerImplicit)
+    spec["design"]["method"] = "tsit5"  # adaptive: no fixed step to differentiate through
+    with pytest.raises(jl.ConfigError, match=r"design\.method = 'tsit5': must be one of"):
+        jl.design_spec_from_dict(spec)

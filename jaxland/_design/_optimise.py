@@ -16,6 +16,7 @@ import optax
 from .._config import validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
 from .._files import atomic_write_text
+from .._models import MODELS
 from .._params import Vehicle
 from .._simulate import _py
 from .._solvers import stable_step
@@ -167,10 +168,11 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
     if n_iter < 0:
         raise ConfigError("iterations", n_iter, "must be >= 0")
     n_con = len(spec.constraints)
-    limit = float(stable_step(prob.vehicle_at(jnp.asarray(prob.z0))))
+    limit = float(stable_step(prob.vehicle_at(jnp.asarray(prob.z0)), method=spec.method,
+                              model=MODELS[prob.model]))
     if spec.dt > limit:
         raise ConfigError("design.dt_s", spec.dt, f"exceeds the stability limit {limit:.3g} s of "
-                          "the start design")
+                          f"{spec.method} for the start design")
     t0 = time.perf_counter()
     z = np.asarray(prob.z0 if start is None else prob.to_z(start), dtype=float).copy()
     vec, jac, per = prob.evaluate(z)

@@ -79,7 +79,8 @@ class DesignProblem:
         self.added = tuple((int(seed), tuple(int(i) for i in idx)) for seed, idx in added)
         self.vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
         self.model = spec.resolved_model()
-        self.solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end).validate()
+        self.solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
+                             method=spec.method).validate()
         self.variables = list(spec.variables)
         self.names = spec.names
         self.cells = spec.cells

@@ -23,7 +23,7 @@ from .._checks import (
 from .._config import PAPER_CELLS
 from .._errors import ConfigError
 from .._montecarlo import MODEL_CHOICE, MonteCarloSpec, montecarlo_spec_from_dict
-from .._solvers import Solver
+from .._solvers import FIXED_STEP_METHODS, Solver
 from .._toml import read_toml
 
 _DEG = math.pi / 180.0
@@ -153,6 +153,8 @@ class DesignSpec:
     dt: float = spec_field(1e-5, toml="dt_s", check=POSITIVE)
     t_end: float = spec_field(0.5, toml="t_end_s", check=POSITIVE)
     model: str = spec_field("auto", toml="model", check=MODEL_CHOICE)
+    # fixed-step method of the design landings (the verification uses montecarlo.method)
+    method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
     learning_rate: float = spec_field(0.1, toml="learning_rate", check=POSITIVE)
     outer_every: int = spec_field(10, toml="outer_every", check=_COUNT)
     penalty: float = spec_field(10.0, toml="penalty", check=POSITIVE)
@@ -295,7 +297,7 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
     if model == "quarter" and any(c.name == "stability" for c in constraints):
         raise ConfigError("constraints.stability", "<table>", "needs the full 3-D model (a "
                           "symmetric drop cannot tip); set design.model = \"full\"")
-    Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end).validate()
+    Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end, method=spec.method).validate()
     return spec
 
 
