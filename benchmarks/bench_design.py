@@ -160,7 +160,12 @@ def table(report: dict) -> dict:
                 on_design_scenes=dict(before=report["at_start"], after=report["at_design"]),
                 verification=dict(n=v["n"], seed=v["seed"], t_end_s=v["t_end_s"],
                                   before=pick(v["before"]), after=pick(v["after"]),
-                                  wall_s=v["before"]["wall_s"] + v["after"]["wall_s"]))
+                                  verified=v.get("verified"), reason=v.get("reason"),
+                                  rounds=v.get("rounds"), added_landings=v.get("added_landings"),
+                                  constraints_after=v["after"].get("constraints"),
+                                  constraints_before=v["before"].get("constraints"),
+                                  wall_s=v["before"]["wall_s"] + v["after"]["wall_s"]),
+                total_wall_s=v.get("total_wall_s"))
 
 
 def main(argv=None) -> None:

@@ -382,6 +382,17 @@ def design_verification() -> str:
          f"{a['min_stability_margin_p01_m']:.4g}"],
         ["failed samples", str(b["n_failed"]), str(a["n_failed"])],
     ]
+    ca, cb = v.get("constraints_after") or {}, v.get("constraints_before") or {}
+    for name, c in ca.items():  # the constraint's own measure on the fresh landings
+        rows.append([f"{name} constraint g ({c['measure']}; <= 0 met), 95 % bootstrap",
+                     *(f"{x[name]['g']:+.3f} [{x[name]['ci95'][0]:+.3f}, "
+                       f"{x[name]['ci95'][1]:+.3f}] {'met' if x[name]['met'] else 'NOT met'}"
+                       if name in x else "" for x in (cb, ca))])
+    if v.get("verified") is not None:
+        rounds = len(v.get("rounds") or [1]) - 1
+        rows.append(["verified (re-optimisation rounds; landings added)", "",
+                     f"{'yes' if v['verified'] else 'NO: ' + str(v['reason'])} ({rounds}; "
+                     f"{sum(len(x['samples']) for x in v.get('added_landings') or [])})"])
     return _table([f"quantity (verification: n = {v['n']} fresh landings, seed {v['seed']}, "
                    f"{v['t_end_s']:g} s)", "before (paper gear)", "after (design)"], rows)
 

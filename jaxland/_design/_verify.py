@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import statistics
+import time
 
 import jax.numpy as jnp
 import numpy as np
@@ -147,6 +148,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
     if rounds < 0:
         raise ConfigError("verify_rounds", rounds, "must be >= 0")
     say = say or (lambda msg: None)
+    t0 = time.perf_counter()
     result = optimise_design(spec, vehicle, progress=progress)
     for rec in result.history:
         rec["round"] = 0
@@ -237,6 +239,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         ver["reason"] = reason
         ver["rounds"] = log
         ver["added_landings"] = [dict(seed=s, samples=list(i)) for s, i in added]
+        ver["total_wall_s"] = time.perf_counter() - t0  # every round and verification
     return result
 
 
