@@ -24,19 +24,31 @@ A drop test is two files side by side:
   acceleration, as long as the record holds some free fall before touchdown. Anything else
   (no unit, an unknown unit) is refused by name.
 
+  Several instrumented legs: the same channels prefixed with the leg, ``leg2_stroke_m``,
+  ``leg0_normal_force_kN`` (one series per leg and channel; a column without a prefix sits on
+  ``sensor_leg``). A drop test is a symmetric vertical drop, so every leg follows the same
+  quarter model: each leg's series is another measurement of it, with its own offset and
+  noise (leg-to-leg differences, e.g. honeycomb scatter, show in the per-series residuals).
+  The body acceleration belongs to the body and takes no leg prefix.
+
 * ``NAME.toml``: a ``[drop_test]`` table (see ``META_KEYS``) with the drop height (or touchdown
-  speed), the sample rate, the instrumented leg and the vehicle configuration.
+  speed), the sample rate, the instrumented leg and the vehicle configuration; optionally the
+  record's touchdown or release time, what the accelerometer measures, and a CFC filter.
 
 Preprocessing (done on load, stored on the ``DropTest``; README of ``data/`` and the report
 document it):
 
 1. **Touchdown** is detected from the force onset (normal force, else buffer force, else body
    acceleration, else stroke): the first sample above ``baseline + max(8 sigma_hp, 5 % of the
-   channel's rise)``, then extrapolated back along the rising edge to the baseline. The fit
-   refines it as a parameter per drop (``t0``).
-2. **Offsets** per channel are the mean of the pre-touchdown segment minus the free-fall value
-   the model has there (0 for forces and stroke, -g for the body acceleration). This removes
-   e.g. a stroke sensor's zero error. A record needs ``MIN_PRE_SAMPLES`` before touchdown.
+   channel's rise)``, then extrapolated back along the rising edge to the baseline. Or it is
+   given: ``touchdown_time_s`` in the metadata (a record that starts at touchdown). The fit
+   refines it as a parameter per drop (``t0``). With ``release_time_s`` the free fall from
+   release to touchdown is checked against the drop height (``FREE_FALL_REL``).
+2. **Offsets** per channel are the mean of the pre-touchdown segment (after the release, when
+   it is given) minus the free-fall value the model has there (0 for forces and stroke, -g for
+   the body acceleration). This removes e.g. a stroke sensor's zero error. A record with fewer
+   than ``MIN_PRE_SAMPLES`` before touchdown (one that starts at touchdown) keeps its zero: the
+   offsets are taken as 0, and say so (``offset_source``).
 3. **Noise** per channel is the standard deviation of the pre-touchdown segment when it has at
    least ``MIN_NOISE_SAMPLES`` samples, else a high-pass estimate (median absolute second
    difference / 0.6745 / sqrt(6), robust to the signal) over the whole record. A floor of
@@ -49,6 +61,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,7 +70,8 @@ import numpy as np
 
 import jaxland as jl
 
-__all__ = ["CHANNELS", "DropTest", "load_drop_test", "load_drop_tests", "META_KEYS"]
+__all__ = ["CHANNELS", "DropTest", "load_drop_test", "load_drop_tests", "META_KEYS",
+           "base_channel", "leg_of"]
 
 # channel column -> (unit, quarter-model trajectory column, free-fall value before touchdown
 # (None: -g), description)
@@ -83,6 +97,9 @@ CONVERSIONS = {
     "body_accel_g": ("body_accel_mps2", STANDARD_GRAVITY),
 }
 
+LEG_COLUMN = re.compile(r"^leg(\d+)_(.+)$")  # leg2_stroke_m: the stroke on leg 2
+ACCEL_KINDS = ("kinematic", "specific_force")
+
 META_KEYS = {
     "data_file": "CSV file with the traces, relative to this file (default: same name, .csv)",
     "drop_height_m": "lowest foot's clearance above the ground at release [m], in [0, 50]",
@@ -92,6 +109,18 @@ META_KEYS = {
     "sample_rate_Hz": "sample rate of the traces [Hz]; must match the time column within 1 %",
     "sensor_leg": "index of the leg (and foot) the sensors sit on, in [0, n_legs)",
     "vehicle_config": "vehicle TOML, relative to this file (default: the paper vehicle)",
+    "touchdown_time_s": "time of touchdown on the record's time axis [s] (default: detected "
+                        "from the force onset); for records that start at touchdown",
+    "release_time_s": "time of release on the record's time axis [s], may precede the record "
+                      "(a record that starts mid-fall); the free fall to touchdown is checked "
+                      "against drop_height_m",
+    "body_accel_kind": "what the body acceleration column measures: 'kinematic' (-g in free "
+                       "fall) or 'specific_force' (an accelerometer: 0 in free fall, +1 g at "
+                       "rest); default: read from the pre-touchdown level",
+    "filter_cfc": "SAE J211 channel frequency class applied alike to data and model in the "
+                  "misfit: 60, 180, 600 or 1000 for every channel, or a table {column = class}",
+    "filter_data_prefiltered": "true when the record was already filtered with filter_cfc by "
+                               "the lab: then only the model is filtered (default false)",
     "synthetic": "true for generated data (e.g. by calibration.virtual_rig)",
     "description": "free text",
 }
@@ -102,6 +131,11 @@ MIN_NOISE_SAMPLES = 50  # pre-touchdown samples for a noise estimate from that s
 MIN_AFTER_S = 0.05  # s of record after touchdown
 MIN_SAMPLES = 50
 NOISE_FLOOR_REL = 1e-4  # noise floor, fraction of the channel's range (noise-free data)
+# the drop height that the free fall from release to touchdown implies must match the
+# metadata's within FREE_FALL_REL of it or FREE_FALL_ABS_M, whichever is larger (a release
+# mechanism's delay of a few ms is 1-3 % of the height at 0.2 m)
+FREE_FALL_REL = 0.05
+FREE_FALL_ABS_M = 2e-3
 _ONSET_ORDER = ("normal_force_N", "buffer_force_N", "body_accel_mps2", "stroke_m")
 
 
@@ -109,13 +143,27 @@ def _err(field_, value, rule):
     return jl.ConfigError(field_, value, rule)
 
 
+def base_channel(col: str) -> str:
+    """The channel of a data column: ``leg2_stroke_m`` -> ``stroke_m``."""
+    m = LEG_COLUMN.match(col)
+    return m.group(2) if m else col
+
+
+def leg_of(col: str, sensor_leg: int = 0) -> int:
+    """The leg a data column sits on (``sensor_leg`` for a column without a leg prefix)."""
+    m = LEG_COLUMN.match(col)
+    return int(m.group(1)) if m else int(sensor_leg)
+
+
 @dataclass
 class DropTest:
     """One drop test: validated traces, metadata and preprocessing.
 
-    ``channels`` maps column names (``stroke_m`` ...) to raw samples; ``corrected`` gives them
-    with the offsets removed. Times are the record's own (``time_s``); ``touchdown_time_s`` is
-    the detected touchdown on that axis.
+    ``channels`` maps column names (``stroke_m``, ``leg2_stroke_m`` ...) to raw samples;
+    ``corrected`` gives them with the offsets removed. Times are the record's own (``time_s``);
+    ``touchdown_time_s`` is the detected (or given) touchdown on that axis. ``filters`` maps a
+    column to its SAE J211 class (``calibration._filter``), applied alike to data and model in
+    the misfit.
     """
 
     name: str
@@ -134,31 +182,56 @@ class DropTest:
     touchdown_time_s: float = float("nan")
     onset_channel: str = ""
     offsets: dict = field(default_factory=dict)
+    offset_source: str = ""
     noise_std: dict = field(default_factory=dict)
     noise_source: dict = field(default_factory=dict)
     unit_conversions: dict = field(default_factory=dict)
+    touchdown_given_s: float | None = None
+    release_time_s: float | None = None
+    free_fall: dict = field(default_factory=dict)
+    body_accel_kind: str | None = None
+    filters: dict = field(default_factory=dict)
+    filter_data_prefiltered: bool = False
 
     @classmethod
     def from_arrays(cls, time_s, channels: dict, *, sample_rate_Hz=None, drop_height_m=None,
                     sink_speed_mps=None, touchdown_speed_mps=None, sensor_leg=0, vehicle=None,
                     vehicle_config=None, name="drop", synthetic=False, description="",
-                    source="<arrays>") -> DropTest:
+                    source="<arrays>", touchdown_time_s=None, release_time_s=None,
+                    body_accel_kind=None, filter_cfc=None,
+                    filter_data_prefiltered=False) -> DropTest:
         """Validate and preprocess traces given as arrays (what ``load_drop_test`` does after
-        reading the files). Raises ``jaxland.ConfigError`` naming field, value and rule."""
+        reading the files). Raises ``jaxland.ConfigError`` naming field, value and rule.
+        The keywords are the metadata keys (``META_KEYS``) in SI units."""
         vehicle = jl.paper_vehicle() if vehicle is None else vehicle
         time_s = _as_trace(TIME, time_s)
         if not channels:
             raise _err("columns", TIME, "need at least one data channel besides time_s; known: "
                        + ", ".join(CHANNELS))
-        chans, conversions = {}, {}
+        n_legs = vehicle.n_legs
+        if isinstance(sensor_leg, bool) or not isinstance(sensor_leg, (int, np.integer)) \
+                or not 0 <= int(sensor_leg) < n_legs:
+            raise _err("sensor_leg", sensor_leg, f"must be an integer in [0, {n_legs}) "
+                       "(the vehicle's legs)")
+        chans, conversions, seen = {}, {}, {}
         for col, vals in channels.items():
             _check_column_name(col)
-            if col in CONVERSIONS:  # an unambiguous unit: convert, and log it
-                si, factor = CONVERSIONS[col]
-                if si in channels:
-                    raise _err(f"column {col!r}", col, f"given twice: as {col} and as {si}")
-                conversions[col] = f"{col} -> {si} (x {factor:g})"
-                vals, col = _as_trace(col, vals) * factor, si
+            m = LEG_COLUMN.match(col)
+            prefix, base = (f"leg{m.group(1)}_", m.group(2)) if m else ("", col)
+            if m and not int(m.group(1)) < n_legs:
+                raise _err(f"column {col!r}", int(m.group(1)), f"leg index must be in [0, "
+                           f"{n_legs}) (the vehicle's legs)")
+            if base in CONVERSIONS:  # an unambiguous unit: convert, and log it
+                si, factor = CONVERSIONS[base]
+                conversions[col] = f"{col} -> {prefix}{si} (x {factor:g})"
+                vals, col = _as_trace(col, vals) * factor, prefix + si
+            # one series per leg and channel: leg{sensor_leg}_x is the same series as x
+            key = (leg_of(col, sensor_leg), base_channel(col))
+            if key in seen:
+                raise _err(f"column {col!r}", col, f"given twice: leg {key[0]}'s "
+                           f"{key[1]} is also column {seen[key]!r} (a column without a leg "
+                           f"prefix sits on sensor_leg = {int(sensor_leg)})")
+            seen[key] = col
             chans[col] = _as_trace(col, vals)
             if chans[col].shape != time_s.shape:
                 raise _err(col, f"{chans[col].size} samples",
@@ -166,23 +239,48 @@ class DropTest:
         _check_time(time_s, sample_rate_Hz)
         g = float(vehicle.g)
         v_td, h, v0 = _touchdown_speed(drop_height_m, sink_speed_mps, touchdown_speed_mps, g)
-        n_legs = vehicle.n_legs
-        if isinstance(sensor_leg, bool) or not isinstance(sensor_leg, (int, np.integer)) \
-                or not 0 <= int(sensor_leg) < n_legs:
-            raise _err("sensor_leg", sensor_leg, f"must be an integer in [0, {n_legs}) "
-                       "(the vehicle's legs)")
+        if body_accel_kind is not None and body_accel_kind not in ACCEL_KINDS:
+            raise _err("body_accel_kind", body_accel_kind, "must be one of "
+                       + ", ".join(ACCEL_KINDS))
+        if body_accel_kind == "specific_force":
+            acc = "body_accel_mps2"
+            if acc in chans:
+                chans[acc] = chans[acc] - g
+                conversions[acc + " (specific force)"] = (
+                    f"{acc}: specific force -> kinematic acceleration (- g = {g:g} m/s^2)")
+        for key, val in (("touchdown_time_s", touchdown_time_s),
+                         ("release_time_s", release_time_s)):
+            if val is not None and (isinstance(val, bool) or not isinstance(val, (int, float))
+                                    or not math.isfinite(val)):
+                raise _err(key, val, "must be a finite number [s] on the record's time axis")
+        if release_time_s is not None and h is None:
+            raise _err("release_time_s", release_time_s, "needs drop_height_m (the free fall "
+                       "from release is checked against the drop height)")
+        filters = _filters(filter_cfc, chans, float(sample_rate_Hz))
+        if not isinstance(filter_data_prefiltered, bool):
+            raise _err("filter_data_prefiltered", filter_data_prefiltered, "must be true or "
+                       "false")
+        if filter_data_prefiltered and not filters:
+            raise _err("filter_data_prefiltered", True, "needs filter_cfc (the class the lab "
+                       "filtered the record with)")
         drop = cls(name=name, time_s=time_s, channels=chans, touchdown_speed_mps=v_td,
                    sample_rate_Hz=float(sample_rate_Hz), vehicle=vehicle, drop_height_m=h,
                    sink_speed_mps=v0, sensor_leg=int(sensor_leg), vehicle_config=vehicle_config,
                    synthetic=bool(synthetic), description=str(description), source=source,
-                   unit_conversions=conversions)
+                   unit_conversions=conversions,
+                   touchdown_given_s=None if touchdown_time_s is None else float(
+                       touchdown_time_s),
+                   release_time_s=None if release_time_s is None else float(release_time_s),
+                   body_accel_kind=body_accel_kind, filters=filters,
+                   filter_data_prefiltered=bool(filter_data_prefiltered))
         drop._preprocess()
         return drop
 
     # ------------------------------------------------------------------ preprocessing
-    def _preprocess(self) -> None:
+    def _detect_touchdown(self) -> tuple[float, str]:
         t = self.time_s
-        onset = next(c for c in _ONSET_ORDER if c in self.channels)
+        onset = min(self.channels, key=lambda c: (_ONSET_ORDER.index(base_channel(c)),
+                                                   leg_of(c, self.sensor_leg)))
         y = self.channels[onset]
         n_base = max(MIN_PRE_SAMPLES // 2, 3)
         base = float(np.median(y[:n_base]))
@@ -199,24 +297,52 @@ class DropTest:
             raise _err(f"{self.source}: touchdown", f"sample {i_c}",
                        f"no touchdown found inside the record: the {onset} onset is at the "
                        f"start; need >= {MIN_PRE_SAMPLES} samples before touchdown (to set the "
-                       "sensor offsets)")
+                       "sensor offsets), or give drop_test.touchdown_time_s for a record that "
+                       "starts at touchdown")
         # back along the rising edge (two samples above the threshold) to the baseline
         y1, y2 = abs(y[i_c] - base), abs(y[min(i_c + 1, len(y) - 1)] - base)
         slope = (y2 - y1) / (t[i_c + 1] - t[i_c]) if i_c + 1 < len(t) else 0.0
         t0 = t[i_c] - y1 / slope if slope > 0 else t[i_c - 1]
-        t0 = float(min(max(t0, t[i_c - 1] - (t[i_c] - t[i_c - 1])), t[i_c]))
+        return float(min(max(t0, t[i_c - 1] - (t[i_c] - t[i_c - 1])), t[i_c])), onset
+
+    def _preprocess(self) -> None:
+        t = self.time_s
+        dt = 1.0 / self.sample_rate_Hz
+        if self.touchdown_given_s is not None:
+            t0, onset = self.touchdown_given_s, "metadata (touchdown_time_s)"
+            if not t[0] - dt <= t0 <= t[-1]:
+                raise _err("touchdown_time_s", t0, f"must lie in the record [{t[0]:.6g}, "
+                           f"{t[-1]:.6g}] s (or one sample before its start)")
+        else:
+            t0, onset = self._detect_touchdown()
         if t[-1] - t0 < MIN_AFTER_S or len(t) < MIN_SAMPLES:
             raise _err(f"{self.source}: time_s", f"{t[-1] - t0:.4g} s after touchdown",
                        f"record too short: need >= {MIN_AFTER_S} s after touchdown and >= "
                        f"{MIN_SAMPLES} samples")
         self.touchdown_time_s, self.onset_channel = t0, onset
-        pre = t < t0 - 0.5 / self.sample_rate_Hz
+        if self.release_time_s is not None:
+            self._check_free_fall()
+        pre = t < t0 - 0.5 * dt
+        if self.release_time_s is not None:  # before release the rig holds the vehicle
+            pre &= t > self.release_time_s + 0.5 * dt
+        n_pre = int(np.sum(pre))
+        acc = "body_accel_mps2"
+        if n_pre < MIN_PRE_SAMPLES and acc in self.channels and self.body_accel_kind is None:
+            raise _err("body_accel_kind", None, f"missing: the record has {n_pre} samples of "
+                       f"free fall before touchdown (< {MIN_PRE_SAMPLES}), too few to tell the "
+                       "body acceleration's zero; say what it measures: 'kinematic' (-g in free "
+                       "fall) or 'specific_force' (0 in free fall)")
+        self.offset_source = (
+            "pre-touchdown mean" if n_pre >= MIN_PRE_SAMPLES else
+            f"none: {n_pre} samples before touchdown (< {MIN_PRE_SAMPLES}), the sensors' zero "
+            "is kept")
         g = float(self.vehicle.g)
         for col, vals in self.channels.items():
-            free_fall = CHANNELS[col][2]
+            free_fall = CHANNELS[base_channel(col)][2]
             free_fall = -g if free_fall is None else free_fall
             seg = vals[pre]
-            self.offsets[col] = float(np.mean(seg)) - free_fall
+            self.offsets[col] = (float(np.mean(seg)) - free_fall if n_pre >= MIN_PRE_SAMPLES
+                                 else 0.0)
             span = float(np.max(vals) - np.min(vals))
             if seg.size >= MIN_NOISE_SAMPLES:
                 sig_c, src = float(np.std(seg, ddof=1)), "pre-touchdown segment std"
@@ -227,6 +353,31 @@ class DropTest:
                 sig_c, src = floor, f"floor ({NOISE_FLOOR_REL:g} of the channel's range)"
             self.noise_std[col], self.noise_source[col] = sig_c, src
 
+    def _check_free_fall(self) -> None:
+        """The drop height the free fall from release to touchdown implies against the
+        metadata's: refused by name when they disagree (``FREE_FALL_REL``, ``FREE_FALL_ABS_M``).
+        """
+        g = float(self.vehicle.g)
+        t_ff = self.touchdown_time_s - self.release_time_s
+        h, v0 = self.drop_height_m, self.sink_speed_mps
+        if t_ff <= 0.0:
+            raise _err("release_time_s", self.release_time_s, f"must precede the touchdown "
+                       f"({self.touchdown_time_s:.6g} s on the record's axis)")
+        h_ff = v0 * t_ff + 0.5 * g * t_ff * t_ff
+        t_h = (math.sqrt(v0 * v0 + 2.0 * g * h) - v0) / g
+        tol = max(FREE_FALL_REL * h, FREE_FALL_ABS_M)
+        self.free_fall = dict(release_time_s=self.release_time_s,
+                              touchdown_time_s=self.touchdown_time_s, free_fall_s=t_ff,
+                              free_fall_of_drop_height_s=t_h, implied_drop_height_m=h_ff,
+                              tolerance_m=tol)
+        if abs(h_ff - h) > tol:
+            raise _err("drop_height_m", h, f"contradicts the record's free fall: release at "
+                       f"{self.release_time_s:.6g} s and touchdown at "
+                       f"{self.touchdown_time_s:.6g} s ({t_ff * 1e3:.1f} ms of free fall"
+                       f"{f' from {v0:g} m/s' if v0 else ''}) mean a drop of {h_ff:.4g} m, "
+                       f"while {h:g} m falls in {t_h * 1e3:.1f} ms; they must agree within "
+                       f"{FREE_FALL_REL:.0%} or {FREE_FALL_ABS_M * 1e3:g} mm")
+
     @property
     def corrected(self) -> dict:
         """Channels with the offsets removed."""
@@ -236,6 +387,13 @@ class DropTest:
     def duration_after_touchdown_s(self) -> float:
         return float(self.time_s[-1] - self.touchdown_time_s)
 
+    def filter_coefficients(self, col: str) -> np.ndarray:
+        """The J211 pass coefficients of column ``col`` (``_filter.IDENTITY``: no filter)."""
+        from ._filter import IDENTITY, cfc_coefficients
+
+        cfc = self.filters.get(col)
+        return IDENTITY.copy() if cfc is None else cfc_coefficients(cfc, self.sample_rate_Hz)
+
     def summary(self) -> dict:
         """Metadata and preprocessing, JSON-ready (units in the keys)."""
         return dict(
@@ -243,13 +401,46 @@ class DropTest:
             drop_height_m=self.drop_height_m, sink_speed_mps=self.sink_speed_mps,
             touchdown_speed_mps=self.touchdown_speed_mps, sample_rate_Hz=self.sample_rate_Hz,
             n_samples=int(self.time_s.size), sensor_leg=self.sensor_leg,
-            channels=list(self.channels), touchdown_time_s=self.touchdown_time_s,
+            channels=list(self.channels),
+            legs={c: leg_of(c, self.sensor_leg) for c in self.channels},
+            touchdown_time_s=self.touchdown_time_s,
             touchdown_detected_from=self.onset_channel,
+            release_time_s=self.release_time_s, free_fall_check=self.free_fall or None,
+            body_accel_kind=self.body_accel_kind,
             offsets={f"{c}": v for c, v in self.offsets.items()},
+            offset_source=self.offset_source,
             noise_std={f"{c}": v for c, v in self.noise_std.items()},
             noise_source=dict(self.noise_source),
             unit_conversions=dict(self.unit_conversions),
+            filter_cfc=dict(self.filters) or None,
+            filter_data_prefiltered=self.filter_data_prefiltered,
         )
+
+
+def _filters(spec, chans: dict, rate: float) -> dict:
+    """{column: CFC class} from the metadata's ``filter_cfc`` (one class or a table)."""
+    from ._filter import CFC_CLASSES, min_rate_Hz
+
+    if spec is None:
+        return {}
+    if isinstance(spec, dict):
+        out = {}
+        for col, cfc in spec.items():
+            if col not in chans:
+                raise _err(f"filter_cfc.{col}", cfc, "names no column of the record (after unit "
+                           "conversion); columns: " + ", ".join(chans))
+            out[col] = cfc
+    else:
+        out = {c: spec for c in chans}
+    for col, cfc in out.items():
+        if isinstance(cfc, bool) or cfc not in CFC_CLASSES:
+            raise _err("filter_cfc", cfc, "must be one of the SAE J211 channel frequency "
+                       "classes " + ", ".join(str(c) for c in CFC_CLASSES))
+        if rate <= min_rate_Hz(cfc):
+            raise _err("filter_cfc", cfc, f"needs a sample rate above {min_rate_Hz(cfc):g} Hz "
+                       f"(2 x 2.0775 x CFC, the J211 filter design's limit); the record has "
+                       f"{rate:g} Hz")
+    return {c: int(v) for c, v in out.items()}
 
 
 def _highpass_noise(y: np.ndarray) -> float:
@@ -277,6 +468,15 @@ def _as_trace(name, vals) -> np.ndarray:
 
 
 def _check_column_name(col: str) -> None:
+    m = LEG_COLUMN.match(col)
+    if m:  # a leg's channel: the channel's rules, and the body's acceleration has no leg
+        base = m.group(2)
+        if base.startswith("body_accel") or base.startswith("time"):
+            raise _err(f"column {col!r}", col, f"{base.rpartition('_')[0] or base} takes no "
+                       "leg prefix (it is the body's); legs carry normal_force, buffer_force "
+                       "and stroke")
+        _check_column_name(base)
+        return
     if col in CHANNELS or col == TIME or col in CONVERSIONS:
         return
     base, _, unit = col.rpartition("_")
@@ -288,7 +488,9 @@ def _check_column_name(col: str) -> None:
                        f"{name} channel must be in {_UNIT_WORDS[want]}, named {right!r} "
                        f"(or one of the converted units: "
                        f"{', '.join(c for c in CONVERSIONS if c.startswith(name))})")
-    raise _err(f"column {col!r}", col, "unknown column; known: " + ", ".join([TIME, *CHANNELS]))
+    raise _err(f"column {col!r}", col, "unknown column; known: " + ", ".join(
+        [TIME, *CHANNELS]) + " (per leg: leg<i>_normal_force_N, leg<i>_buffer_force_N, "
+        "leg<i>_stroke_m)")
 
 
 def _check_time(t: np.ndarray, rate) -> None:
@@ -447,13 +649,17 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
             touchdown_speed_mps=table.get("touchdown_speed_mps"),
             sensor_leg=table.get("sensor_leg", 0), vehicle=vehicle, vehicle_config=cfg,
             name=meta_path.stem, synthetic=table.get("synthetic", False),
-            description=table.get("description", ""), source=where)
+            description=table.get("description", ""), source=where,
+            touchdown_time_s=table.get("touchdown_time_s"),
+            release_time_s=table.get("release_time_s"),
+            body_accel_kind=table.get("body_accel_kind"), filter_cfc=table.get("filter_cfc"),
+            filter_data_prefiltered=table.get("filter_data_prefiltered", False))
         drop.unit_conversions = {**time_conv, **drop.unit_conversions}
         return drop
     except jl.ConfigError as err:
         if err.field.startswith(where):
             raise
-        if err.field in META_KEYS:  # a metadata value (alone or against the time column)
+        if err.field.split(".")[0] in META_KEYS:  # a metadata value (alone or with the time)
             raise _err(f"{meta_path.name}: drop_test.{err.field}", err.value,
                        err.rule) from None
         raise _err(f"{where}: {err.field}", err.value, err.rule) from None

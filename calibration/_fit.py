@@ -46,7 +46,7 @@ import numpy as np
 
 import jaxland as jl
 
-from ._data import CHANNELS, DropTest
+from ._data import CHANNELS, DropTest, base_channel
 from ._optim import lbfgs, levenberg_marquardt
 from ._parameters import (
     DEFAULT_PARAMS,
@@ -318,7 +318,7 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     return dict(sigma2=sigma2, dof=dof, cov=cov_p, se=se, corr=corr,
                 col_rel=col[:n_z] / max(float(col.max()), 1e-300), zero=zero[:n_z] | bad_p,
                 t_se=t_se, cov_hac=cov_h, se_hac=np.sqrt(np.diag(cov_h)), hac_lag=hac["L"],
-                rho1=rho1, misfit=misfit(sigma2, rho1),
+                rho1=rho1, misfit=misfit(sigma2, rho1, problem.noise_lag1),
                 where=misfit_location(problem, r_all.reshape(shape)))
 
 
@@ -553,7 +553,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         std_errors_hac=unc["se_hac"], covariance_hac=unc["cov_hac"],
         diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
             "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
-            worst_window=unc["where"], trust="std_error_hac" if unc["misfit"] else "std_error",
+            worst_window=unc["where"],
+            # a CFC filter correlates the noise itself: the classical errors never hold then
+            trust="std_error_hac" if unc["misfit"] or final.filtered else "std_error",
+            filtered_noise_lag1_autocorr=final.noise_lag1,
             noise_free_record=bool(unc.get("noise_free", False))),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,
@@ -567,4 +570,6 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       pre_touchdown_s=PRE_S, fit_touchdown=fit_touchdown,
                       channels=list(final.channels), max_iter=max_iter,
                       model="quarter (jaxland.landing), from touchdown",
-                      channel_map={c: CHANNELS[c][1] for c in final.channels}))
+                      channel_map={c: CHANNELS[base_channel(c)][1] for c in final.channels},
+                      filter_cfc={d.name: dict(d.filters) for d in drops if d.filters} or None,
+                      filter_margin_s=final.margin_s))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._data import CHANNELS
+from ._data import LEG_COLUMN, base_channel
 from ._report import atomic_savefig
 
 __all__ = ["plot_fit", "plot_prediction"]
@@ -15,6 +15,13 @@ _LABEL = {"normal_force_N": ("normal force [kN]", 1e-3),
           "buffer_force_N": ("buffer (strut) force [kN]", 1e-3),
           "stroke_m": ("stroke [mm]", 1e3),
           "body_accel_mps2": ("body acceleration [m/s^2]", 1.0)}
+
+
+def _label(col: str) -> tuple[str, float]:
+    """Axis label and scale of a data column (a leg's column names its leg)."""
+    label, scale = _LABEL[base_channel(col)]
+    m = LEG_COLUMN.match(col)
+    return (f"leg {m.group(1)}: {label}" if m else label), scale
 
 
 def _figure(**kw):
@@ -34,7 +41,7 @@ def plot_fit(result, out_dir: Path) -> list[Path]:
         axs = np.atleast_2d(fig.subplots(len(chans), 2, sharex=True, squeeze=False))
         for j, c in enumerate(chans):
             t_ms = tr["time_s"][c] * 1e3
-            label, scale = _LABEL[c]
+            label, scale = _label(c)
             ax, axr = axs[j]
             ax.plot(t_ms, tr["data"][c] * scale, ".", ms=2, color="0.5", label="data")
             ax.plot(t_ms, tr["model"][c] * scale, "-", lw=1.2, color="C3", label="fit")
@@ -94,15 +101,15 @@ def plot_prediction(pred, path: Path) -> Path:
     """Data vs prediction over the whole record, per channel, with the compared metrics."""
     d = pred.drop
     data = d.corrected
-    chans = [c for c in CHANNELS if c in data]
+    chans = list(data)
     fig = _figure(figsize=(11, 2.3 * len(chans) + 0.8))
     axs = np.atleast_1d(fig.subplots(len(chans), 1, sharex=True, squeeze=False)[:, 0])
     t_rel = d.time_s - pred.touchdown_time_s
     for ax, c in zip(axs, chans):
-        label, scale = _LABEL[c]
+        label, scale = _label(c)
         ax.plot(t_rel * 1e3, data[c] * scale, ".", ms=1.5, color="0.5", label="data")
         keep = pred.model_time_s <= t_rel[-1]
-        ax.plot(pred.model_time_s[keep] * 1e3, pred.model[c][keep] * scale, "-", lw=1,
+        ax.plot(pred.model_time_s[keep] * 1e3, pred.model[base_channel(c)][keep] * scale, "-", lw=1,
                 color="C3", label="prediction")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)

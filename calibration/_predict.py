@@ -10,6 +10,9 @@ same time span):
 * ``max_stroke_m``: largest stroke;
 * ``final_stroke_m``: mean stroke over the last ``FINAL_SPAN_S`` of the record.
 
+Each leg's series gets its own metrics (``leg2_max_stroke_m``). A series with a CFC filter in
+the metadata is compared filtered alike: the model at the sample times, filtered as the data.
+
 Relative error = (model - data) / |data|. The paper's own experiment was matched to 9.9 % and
 19.72 % on peaks and 0.28 % on the steady stroke. The data's peaks include its noise (a few
 noise standard deviations) and any artefact the model does not have (a crush peak).
@@ -25,7 +28,8 @@ import numpy as np
 
 import jaxland as jl
 
-from ._data import CHANNELS, DropTest
+from ._data import CHANNELS, DropTest, base_channel
+from ._filter import filtfilt_np
 
 __all__ = ["Prediction", "predict", "PAPER_ERRORS"]
 
@@ -96,14 +100,19 @@ def predict(vehicle: jl.Vehicle, drop: DropTest, *, touchdown_time_s: float | No
     in_rec = tm <= t_rel[-1]
     metrics = {}
     for name, (chan, how) in METRICS.items():
-        if chan not in data:
-            continue
-        y, m = data[chan], model[chan][in_rec]
-        if how == "max":
-            dv, mv = float(np.max(y)), float(np.max(m))
-        else:
-            t_from = t_rel[-1] - FINAL_SPAN_S
-            dv = float(np.mean(y[t_rel >= t_from]))
-            mv = float(np.mean(m[tm[in_rec] >= t_from]))
-        metrics[name] = dict(data=dv, model=mv, rel_error=(mv - dv) / abs(dv))
+        for col in (c for c in data if base_channel(c) == chan):
+            y, m, t_m = data[col], model[chan][in_rec], tm[in_rec]
+            if col in drop.filters:  # J211 alike on both: the model at the samples, filtered
+                coeffs = drop.filter_coefficients(col)
+                m, t_m = filtfilt_np(np.interp(t_rel, tm, model[chan]), coeffs), t_rel
+                if not drop.filter_data_prefiltered:
+                    y = filtfilt_np(y, coeffs)
+            if how == "max":
+                dv, mv = float(np.max(y)), float(np.max(m))
+            else:
+                t_from = t_rel[-1] - FINAL_SPAN_S
+                dv = float(np.mean(y[t_rel >= t_from]))
+                mv = float(np.mean(m[t_m >= t_from]))
+            key = (col[: -len(chan)] if col != chan else "") + name  # leg2_max_stroke_m
+            metrics[key] = dict(data=dv, model=mv, rel_error=(mv - dv) / abs(dv))
     return Prediction(drop, metrics, tm, model, t0)

@@ -7,7 +7,12 @@ For drop d, channel c and sample i inside the fit window,
 where ``m_c`` is the quarter model's trajectory (``jaxland.landing``, started at touchdown with
 the drop's touchdown speed, sampled every ``save_dt`` and linearly interpolated to the sample
 times), ``y`` the offset-corrected data, ``sigma_dc`` the channel's noise estimate and ``t0_d``
-the drop's touchdown time on the record's axis. Before touchdown (t < t0) the model holds its
+the drop's touchdown time on the record's axis. A drop whose metadata names an SAE J211 CFC
+filter has ``m_c`` and ``y`` both filtered (``_filter``; the model in JAX, so the Jacobian
+runs through the filter; data the lab filtered already are not filtered twice), over a margin
+beyond the window that keeps the backward pass's start out of it, and ``sigma_dc`` is the
+filtered noise's std. Several legs' series of one channel are each compared with the same
+quarter-model trace (a symmetric vertical drop). Before touchdown (t < t0) the model holds its
 touchdown values (no force, no stroke, body acceleration -g), so the few samples before the
 onset pin ``t0``.
 
@@ -32,7 +37,8 @@ import numpy as np
 import jaxland as jl
 from jaxland import FIXED_STEP_METHODS
 
-from ._data import CHANNELS, DropTest
+from ._data import CHANNELS, LEG_COLUMN, DropTest, base_channel
+from ._filter import IDENTITY, filtfilt_jax, filtfilt_np, noise_gain, settle_time_s, white_lag1
 from ._parameters import check_names, from_unconstrained, set_values, to_unconstrained
 
 __all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator"]
@@ -68,17 +74,18 @@ def _vehicle_key(vehicle):
     return treedef, tuple(float(x) for x in leaves)
 
 
-def _compiled(vehicle, names, solver, channels, fit_t0):
-    """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels;
-    compiled once and shared (data, speeds and windows are arguments)."""
+def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False):
+    """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels
+    (and whether a CFC filter acts); compiled once and shared (data, speeds, windows and
+    filter coefficients are arguments)."""
     key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
-           solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0)
+           solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered)
     if key in _COMPILED:
         return _COMPILED[key]
-    model_cols = tuple(CHANNELS[c][1] for c in channels)
+    model_cols = tuple(CHANNELS[base_channel(c)][1] for c in channels)
     n_z = len(names)
 
-    def residual(theta, speeds, rel_t, data, inv_sigma, mask, huber_c):
+    def residual(theta, speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs):
         z = theta[:n_z]
         veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle))
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
@@ -91,6 +98,8 @@ def _compiled(vehicle, names, solver, channels, fit_t0):
 
         ys = jnp.stack([traj[c] for c in model_cols], axis=1)  # (drops, channels, saves)
         model = jax.vmap(one)(traj["time_s"], ys, tau)  # (drops, channels, samples)
+        if filtered:  # SAE J211, as on the data (identity rows for unfiltered series)
+            model = filtfilt_jax(model, coeffs)
         r = ((model - data) * inv_sigma[:, :, None] * mask).ravel()
         # Huber: r -> sign(r) c sqrt(2|r|/c - 1) beyond c, so 0.5 r^2 becomes c|r| - c^2/2
         u = jnp.abs(r) / huber_c
@@ -156,7 +165,9 @@ class CalibrationProblem:
                                      f"({d.duration_after_touchdown_s:.4g} s)")
         self.window_s, self.pre_s = float(window_s), float(pre_s)
         self.fit_touchdown = bool(fit_touchdown)
-        present = [c for c in CHANNELS if any(c in d.channels for d in drops)]
+        present = sorted({c for d in drops for c in d.channels},
+                         key=lambda c: (list(CHANNELS).index(base_channel(c)),
+                                        LEG_COLUMN.match(c) is not None, c))
         if channels is None:
             channels = present
         channels = tuple(channels)
@@ -167,10 +178,16 @@ class CalibrationProblem:
         if not channels:
             raise jl.ConfigError("channels", "", "select at least one channel")
         self.channels = channels
+        # a CFC filter: the model is filtered over margin_s beyond the window too, so the
+        # backward pass's start leaves no trace inside the window (``_filter.settle_time_s``)
+        cfcs = [d.filters[c] for d in drops for c in channels if c in d.filters]
+        self.filtered = bool(cfcs)
+        self.margin_s = max((settle_time_s(c) for c in cfcs), default=0.0)
         # model time span: the window plus room for the touchdown shift
         method, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
                                                             smoothing_N)
-        self.solver = jl.Solver(dt=dt, t_end=self.window_s + 0.005, save_dt=save_dt,
+        self.solver = jl.Solver(dt=dt, t_end=self.window_s + self.margin_s + 0.005,
+                                save_dt=save_dt,
                                 method=method, smoothing_m=smoothing_m,
                                 smoothing_N=smoothing_N)
         self.solver.validate()
@@ -180,17 +197,29 @@ class CalibrationProblem:
         data = np.zeros((nd, nc, n))
         mask = np.zeros((nd, nc, n))
         inv_sigma = np.ones((nd, nc))
+        coeffs = np.tile(IDENTITY, (nd, nc, 1))
         for i, d in enumerate(drops):
             sel = self._in_window(d)
             m = int(np.sum(sel))
             rel_t[i, :m] = d.time_s[sel] - d.touchdown_time_s
             rel_t[i, m:] = rel_t[i, m - 1] if m else 0.0
+            inside = rel_t[i, :m] <= self.window_s + 1e-12
             corr = d.corrected
             for j, c in enumerate(channels):
                 if c in d.channels:
-                    data[i, j, :m] = corr[c][sel]
-                    mask[i, j, :m] = 1.0
-                    inv_sigma[i, j] = 1.0 / d.noise_std[c]
+                    coeffs[i, j] = d.filter_coefficients(c)
+                    y = corr[c]
+                    gain = 1.0
+                    if c in d.filters and not d.filter_data_prefiltered:
+                        y, gain = filtfilt_np(y, coeffs[i, j]), noise_gain(coeffs[i, j])
+                    data[i, j, :m] = y[sel]
+                    mask[i, j, :m] = inside
+                    inv_sigma[i, j] = 1.0 / (d.noise_std[c] * gain)
+        self.coeffs = coeffs
+        # lag-1 autocorrelation that filtered white noise has (0 unfiltered): the misfit
+        # test reads the residuals' autocorrelation against it
+        self.noise_lag1 = max((white_lag1(coeffs[i, j]) for i in range(nd)
+                               for j in range(nc)), default=0.0)
         self.speeds = np.array([d.touchdown_speed_mps for d in drops])
         self.rel_t, self.data, self.inv_sigma = rel_t, data, inv_sigma
         self.has, self.mask = mask, mask
@@ -202,7 +231,7 @@ class CalibrationProblem:
         # the fitted values are replaced inside: key the compiled code on the fixed ones only
         canonical = set_values(self.vehicle, self.names, np.full(len(self.names), 0.5))
         self._res, self._jac = _compiled(canonical, self.names, self.solver, channels,
-                                         self.fit_touchdown)
+                                         self.fit_touchdown, self.filtered)
 
     def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
@@ -228,8 +257,9 @@ class CalibrationProblem:
         return new
 
     def _in_window(self, d: DropTest) -> np.ndarray:
+        """The samples of the problem's grid: the window, and the filter's margin beyond."""
         rel = d.time_s - d.touchdown_time_s
-        return (rel >= -self.pre_s) & (rel <= self.window_s)
+        return (rel >= -self.pre_s) & (rel <= self.window_s + self.margin_s + 1e-12)
 
     # ------------------------------------------------------------------------ parameters
     def theta_from(self, vehicle: jl.Vehicle | None = None, shifts_ms=None) -> np.ndarray:
@@ -265,9 +295,15 @@ class CalibrationProblem:
 
     # ------------------------------------------------------------------------ evaluation
     def _args(self):
-        return (jnp.asarray(self.speeds), jnp.asarray(self.rel_t), jnp.asarray(self.data),
+        """The compiled functions' data arguments, on the device once per mask and loss."""
+        cached = self.__dict__.get("_args_cache")
+        if cached is not None and cached[0] is self.mask and cached[1] == self.huber_c:
+            return cached[2]
+        args = (jnp.asarray(self.speeds), jnp.asarray(self.rel_t), jnp.asarray(self.data),
                 jnp.asarray(self.inv_sigma), jnp.asarray(self.mask),
-                jnp.asarray(self.huber_c, dtype=jnp.float64))
+                jnp.asarray(self.huber_c, dtype=jnp.float64), jnp.asarray(self.coeffs))
+        self._args_cache = (self.mask, self.huber_c, args)
+        return args
 
     def residuals(self, theta) -> tuple[np.ndarray, bool]:
         """Weighted residual vector (flattened drops x channels x samples; padding is 0) and

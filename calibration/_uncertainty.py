@@ -132,13 +132,17 @@ def hac_covariance(res, jac, mask, huber_c=None) -> dict:
     return dict(cov=a_inv @ b @ a_inv, L=lag_max, rho=rho)
 
 
-def misfit(sigma2: float, rho1: float) -> list[str]:
-    """Messages (empty when none) saying how the data contradict the model."""
+def misfit(sigma2: float, rho1: float, rho1_noise: float = 0.0) -> list[str]:
+    """Messages (empty when none) saying how the data contradict the model. ``rho1_noise``:
+    the lag-1 autocorrelation the noise itself has (a CFC filter's; 0 for white noise); the
+    limit on rho1 is then ``rho1_noise + MISFIT_RHO1 (1 - rho1_noise)``."""
     out = []
     if sigma2 > MISFIT_SIGMA2:
         out.append(f"residual variance factor {sigma2:.3g} > {MISFIT_SIGMA2:g}: the residuals "
                    "are larger than the stated noise")
-    if rho1 > MISFIT_RHO1:
-        out.append(f"lag-1 residual autocorrelation {rho1:.2f} > {MISFIT_RHO1:g}: the residuals "
-                   "are smooth, not noise (missing physics or filtered data)")
+    limit = rho1_noise + MISFIT_RHO1 * (1.0 - rho1_noise)
+    if rho1 > limit:
+        out.append(f"lag-1 residual autocorrelation {rho1:.2f} > {limit:.3g}: the residuals "
+                   "are smooth, not noise (missing physics or filtered data)"
+                   + (f"; filtered noise alone has {rho1_noise:.2f}" if rho1_noise else ""))
     return out

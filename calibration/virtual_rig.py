@@ -46,6 +46,7 @@ import numpy as np
 import jaxland as jl
 
 from ._data import CHANNELS, DropTest
+from ._filter import cfc_coefficients, filtfilt_np
 from ._parameters import get_values, set_values
 from ._report import atomic_write_text
 
@@ -116,12 +117,21 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
            pre_trigger_s: float = 0.05, sample_rate_Hz: float = SAMPLE_RATE_HZ,
            noise: dict | None = NOISE, stroke_offset_m: float = STROKE_OFFSET_M,
            crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0,
-           lowpass_Hz: float | None = None, peak_shape: str = "bump", jitter_s: float = 0.0):
+           lowpass_Hz: float | None = None, peak_shape: str = "bump", jitter_s: float = 0.0,
+           legs=None, time_from_release: bool = False, specific_force: bool = False,
+           cfc: int | None = None):
     """Run the rig: ``(time_s, {channel: samples}, info)``. ``noise=None``, ``stroke_offset_m=0``
     and ``crush_peak=0`` give the clean record (the model itself, sampled). ``lowpass_Hz``:
     filter every channel (before the noise, as a sensor's conditioning would) at this corner
     frequency [Hz] (None: no filter). ``peak_shape``: one of ``PEAK_SHAPES``. ``jitter_s``:
-    std of the sampling-time error [s] (0: none)."""
+    std of the sampling-time error [s] (0: none). ``legs``: instrument these legs (a tuple of
+    indices): the force and stroke channels are written per leg (``leg2_stroke_m``), each
+    with its own noise and a stroke offset growing with the leg index (the drop is symmetric:
+    every leg follows the same quarter model). ``time_from_release``: the time axis counts from
+    release (the record still starts ``pre_trigger_s`` before touchdown: mid-fall; 0 puts its
+    first sample at touchdown). ``specific_force``: the body channel is an accelerometer's
+    specific force (0 in free fall). ``cfc``: the lab's SAE J211 filter of that class on every
+    channel, after the noise (the record is delivered filtered)."""
     if not (np.isfinite(jitter_s) and 0.0 <= jitter_s < 0.25 / sample_rate_Hz):
         raise jl.ConfigError("jitter_s", jitter_s, f"must be in [0, {0.25 / sample_rate_Hz:g})"
                              " s (a quarter of the sampling interval)")
@@ -146,7 +156,7 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
     if i0 < 0 or idx[-1] >= tr["time_s"].size:
         raise jl.ConfigError("pre_trigger_s", pre_trigger_s, "the record must lie within the "
                              "simulated drop (pre-trigger shorter than the fall)")
-    time_s = np.arange(n) / sample_rate_Hz
+    time_s = np.arange(n) / sample_rate_Hz + (i0 * _SIM_DT if time_from_release else 0.0)
     rng = np.random.default_rng(seed)
     if jitter_s > 0.0:  # sampled at jittered instants of the fine trajectory (linear interp.)
         t_fine = tr["time_s"]
@@ -161,18 +171,27 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
     p1 = np.minimum(sample(tr["plastic_set_m"]), float(hc.x_L2 - hc.x_L1))
     peak = 1.0 + crush_peak * _crush_shape(p1, peak_shape)
     out = {}
-    for c in channels:
+    series = [(c, None) for c in channels if legs is None or c == "body_accel_mps2"]
+    if legs is not None:
+        series += [(c, int(i)) for i in legs for c in channels if c != "body_accel_mps2"]
+    for c, leg in series:
         y = np.array(sample(tr[CHANNELS[c][1]]), dtype=float)
         if c in ("normal_force_N", "buffer_force_N"):
             y = y * peak
         if c == "stroke_m":
-            y = y + stroke_offset_m
+            y = y + stroke_offset_m * (1.0 + 0.5 * (leg or 0))
+        if c == "body_accel_mps2" and specific_force:
+            y = y + float(vehicle.g)
         if lowpass_Hz is not None:
             y = butterworth2(y, lowpass_Hz, sample_rate_Hz)
         if noise:
             y = y + rng.normal(0.0, noise[c], size=n)
-        out[c] = y
-    info = dict(touchdown_time_in_record_s=float(t_td - i0 * _SIM_DT),
+        if cfc is not None:
+            y = filtfilt_np(y, cfc_coefficients(cfc, sample_rate_Hz))
+        out[c if leg is None else f"leg{leg}_{c}"] = y
+    info = dict(touchdown_time_in_record_s=float(t_td - i0 * _SIM_DT) + (
+                    i0 * _SIM_DT if time_from_release else 0.0),
+                release_time_in_record_s=0.0 if time_from_release else float(-i0 * _SIM_DT),
                 touchdown_time_from_release_s=float(t_td),
                 touchdown_speed_mps=float(res.outcomes["touchdown_speed_mps"]),
                 max_stroke_m=float(res.outcomes["max_stroke_m"]),
@@ -187,14 +206,21 @@ def drop_test(drop_height_m: float, *, vehicle: jl.Vehicle | None = None,
               nominal: jl.Vehicle | None = None, name: str | None = None, **kwargs) -> DropTest:
     """A validated, preprocessed in-memory ``DropTest`` from the rig (truth ``vehicle``,
     default ``truth_vehicle()``; the drop carries ``nominal``, default the paper vehicle, as its
-    vehicle configuration, as a metadata file would)."""
+    vehicle configuration, as a metadata file would). ``touchdown_time_s`` and
+    ``release_time_s`` go to the metadata; the rest to ``record`` (a ``cfc`` there also sets
+    the metadata's filter, as prefiltered; ``specific_force`` its accelerometer kind)."""
     vehicle = truth_vehicle() if vehicle is None else vehicle
+    meta = {k: kwargs.pop(k) for k in ("touchdown_time_s", "release_time_s") if k in kwargs}
     t, ch, info = record(vehicle, drop_height_m, **kwargs)
+    if kwargs.get("cfc") is not None:  # the lab delivered the record filtered
+        meta.update(filter_cfc=kwargs["cfc"], filter_data_prefiltered=True)
+    if kwargs.get("specific_force"):
+        meta.update(body_accel_kind="specific_force")
     return DropTest.from_arrays(
         t, ch, sample_rate_Hz=kwargs.get("sample_rate_Hz", SAMPLE_RATE_HZ),
         drop_height_m=drop_height_m, vehicle=jl.paper_vehicle() if nominal is None else nominal,
         name=name or f"drop_h{drop_height_m:.2f}m", synthetic=True,
-        description="SYNTHETIC (calibration.virtual_rig)")
+        description="SYNTHETIC (calibration.virtual_rig)", **meta)
 
 
 def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False, seed=0,
