@@ -198,3 +198,21 @@ def test_default_step_is_chosen_from_the_physics():
     res = jl.simulate(jl.Scene(drop_height=0.02), stiff, t_end=0.1)
     assert res.outcomes["dt_s"] == dt and res.outcomes["energy_closure_rel"] < 1e-2
     assert _simulate.default_step(stiff, "verlet") > dt  # implicit damping: a larger step
+
+
+def test_verlet_is_second_order_on_the_paper_drop():
+    """Verlet keeps its second order on a landing: on the paper drop's first impact (from
+    touchdown, 0.2 s) as dt halves from 4e-5 s to 5e-6 s, the max stroke's successive
+    changes and the ledger's worst residual shrink at order >= 1.8 (measured: 2.0 and 1.9;
+    with the body held still in the implicit strut damping, about 1.1 and 1.0)."""
+    dts = np.array([4e-5, 2e-5, 1e-5, 5e-6])
+    scene = jl.Scene.from_touchdown_speed(float(SCENE.touchdown_speed(float(VEH.g))))
+    runs = [_run("verlet", float(dt), scene=scene, t_end=0.2) for dt in dts]
+    stroke = np.array([float(s["max_stroke_m"]) for s in runs])
+    ledger = np.array([float(s["energy_closure_max_J"]) for s in runs])
+
+    def order(d, y):
+        return np.polyfit(np.log(d), np.log(np.abs(y)), 1)[0]
+
+    assert order(dts[:-1], np.diff(stroke)) >= 1.8, np.diff(stroke)
+    assert order(dts, ledger) >= 1.8, ledger

@@ -89,7 +89,7 @@ class TangentialOut(eqx.Module):
 
 
 def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground,
-                       smooth: float = 0.0) -> TangentialOut:
+                       smooth: float = 0.0, force_prev=None) -> TangentialOut:
     """Tangential force [N] on the foot at tangent-plane position ``foot_t = (x, y)`` [m], given
     the previous anchor ``(x, y)`` [m] and the current normal force [N]. ``smooth`` [m]
     (static, opt-in): the stick/slip switch is rounded over this much spring stretch beyond the
@@ -99,6 +99,11 @@ def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground,
     Tangent-plane vectors are (x, y) pairs of arrays rather than arrays of shape (2,): written on
     components, the law fuses with the rest of a step (a (2,)-vector form with its norm
     reduction made the whole landing ~4x slower on CPU).
+
+    ``force_prev`` [N]: the spring force's magnitude after the previous evaluation's return
+    map. Given, the slip energy is the trapezoid (force_prev + force) / 2 x slip, which is what
+    a trapezoidal (Verlet) step's work less the spring's energy change leaves, so the ledger
+    closes at second order; without it, the force after the slip times the slip (first order).
     """
     ux = foot_t[0] - anchor_prev[0]
     uy = foot_t[1] - anchor_prev[1]
@@ -120,5 +125,6 @@ def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground,
         slipping=slipping & in_contact,
         slip=slip,
         elastic_energy=0.5 * ground.k_tan * (ux * ux + uy * uy),
-        slip_energy=ground.k_tan * n * scale * slip,
+        slip_energy=(ground.k_tan * n * scale * slip if force_prev is None
+                     else 0.5 * (force_prev + ground.k_tan * n * scale) * slip),
     )

@@ -10,7 +10,8 @@ Implicit damping (for the stabilised integrators): the damping coefficient c = D
 the 1 kg foot sets the explicit step limit 2 m2 / c. ``strut_force(..., kick_per_mass=a,
 free_rate=w)`` instead evaluates the damping at the stroke rate the foot will have after a
 velocity kick of length ``kick`` (``a = kick / m2``): with ``w`` the stroke rate after the kick
-from every other force (body velocity held, it is 280 times heavier), the rate v' solves
+from every other force (a first-order step holds the body still, it is 280 times heavier; a
+second-order one adds the kick of the strut's body attachment), the rate v' solves
 v' = w - a F_bd(v'); F_bd is piecewise linear and monotone in v', so v' = w / (1 + a c) unless
 the floor binds. The power returned is F_bd v', the work the damping does over the kick.
 

@@ -84,8 +84,16 @@ class Oscillator(eqx.Module):
 
 
 class AbstractModel(eqx.Module):
-    """A landing model (see the module docstring for the contract)."""
+    """A landing model (see the module docstring for the contract).
 
+    ``second_order`` (static; ``Verlet`` runs the model with it on): the evaluation keeps a
+    step's second order where a first-order step does not need it. The implicit strut
+    damping's free stroke rate then includes the kick of the strut's body attachment (the
+    body's acceleration from the forces with the damping explicit), and the slip energy is a
+    trapezoid of the tangential force before and after the slip (carried in the state's
+    ``t_force``). Off (the default), a first-order method's code is unchanged."""
+
+    second_order: bool = eqx.field(static=True, default=False)
     name: ClassVar[str]
     COLUMNS: ClassVar[tuple[str, ...]]  # trajectory columns in CSV order, units in the names
     RATE_CHANNELS: ClassVar[tuple[str, ...]]  # dissipation channels integrated from a power

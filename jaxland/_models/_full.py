@@ -62,6 +62,9 @@ class Vehicle3DState(eqx.Module):
     diss_rate: jnp.ndarray  # (2,) J
     diss_slip: jnp.ndarray  # J
     slip_distance: jnp.ndarray  # (n,) m
+    # (n,) N, tangential spring force after the last return map: the slip energy's trapezoid
+    # when the model is second order (``AbstractModel``)
+    t_force: jnp.ndarray | None = None
 
 
 # ------------------------------------------------------------------------------- rotations
@@ -215,7 +218,7 @@ class FullModel(AbstractModel):
             t=jnp.zeros(()), q=(p, quat, feet), v=(v, w_b, v_feet),
             x_max=jnp.zeros(n), d_max=jnp.zeros(n), anchor=(feet @ t1, feet @ t2),
             diss_rate=jnp.zeros(len(RATE_CHANNELS)), diss_slip=jnp.zeros(()),
-            slip_distance=jnp.zeros(n),
+            slip_distance=jnp.zeros(n), t_force=jnp.zeros(n),
         )
 
     def prepare(self, vehicle: Vehicle, scene: Scene,
@@ -283,7 +286,9 @@ class FullModel(AbstractModel):
 
         n_g, t1, t2 = derived.ground
         nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr, derived.k_r, sm)
-        tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr, sm)
+        second = self.second_order and s.t_force is not None
+        tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr, sm,
+                                s.t_force if second else None)
         f_ground = (nc.force[:, None] * n_g[None, :] + tc.force[0][:, None] * t1[None, :]
                     + tc.force[1][:, None] * t2[None, :])
 
@@ -293,8 +298,18 @@ class FullModel(AbstractModel):
         else:  # implicit damping: the stroke rate after the kick from the other foot forces
             other_u = jnp.sum(u * (aux_force_vecs + f_ground), axis=-1) - m2 * g * u[:, 2]
             a = kick / m2
-            st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u,
-                             sn, sm)
+            free = v_b - a * other_u
+            if self.second_order:  # and the kick of the attachment P (body forces with the
+                # damping explicit; the quarter model's note): u . (a_b + w_dot x r_P)
+                st_ex = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn,
+                                    smooth_m=sm)
+                f_ex = st_ex.force[:, None] * u
+                a_b = (-jnp.sum(f_ex + aux_force_vecs, axis=0) - m * g * gz) / m
+                t_ex = Rm.T @ (jnp.sum(jnp.cross(rP, -f_ex), axis=0) + aux_torques)
+                w_dot_ex = Rm @ ((t_ex - jnp.cross(w_b, inertia * w_b)) / inertia)
+                a_P = a_b[None, :] + jnp.cross(jnp.broadcast_to(w_dot_ex, rP.shape), rP)
+                free = free + kick * jnp.sum(u * a_P, axis=-1)
+            st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, free, sn, sm)
         f_strut = st.force[:, None] * u
         f_feet = f_strut + aux_force_vecs + f_ground - m2 * g * gz[None, :]
         f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
@@ -308,6 +323,8 @@ class FullModel(AbstractModel):
             (hco.x_max, nc.d_max, tc.anchor, s.diss_slip + jnp.sum(tc.slip_energy),
              s.slip_distance + tc.slip),
         )
+        if second:
+            new = eqx.tree_at(lambda x: x.t_force, new, safe_hypot(tc.force[0], tc.force[1]))
         kinetic = 0.5 * (m * jnp.sum(vb * vb) + jnp.sum(inertia * w_b * w_b)
                          + m2 * jnp.sum(vf * vf))
         potential = g * (m * p[2] + m2 * jnp.sum(feet[:, 2]))

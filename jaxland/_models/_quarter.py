@@ -66,6 +66,9 @@ class QuarterState(eqx.Module):
     diss_rate: jnp.ndarray  # (2,) J, accumulated RATE_CHANNELS
     diss_slip: jnp.ndarray  # J, accumulated friction slip dissipation
     slip_distance: jnp.ndarray  # m, accumulated slip path of the foot
+    # N, tangential spring force after the last return map: the slip energy's trapezoid when
+    # the model is second order (``AbstractModel``); None in the ODE form
+    t_force: jnp.ndarray | None = None
 
 
 class QuarterDerived(eqx.Module):
@@ -121,6 +124,7 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
         return QuarterState(
             t=zero, q=q, v=v, x_max=zero, d_max=zero, anchor=foot[0],
             diss_rate=jnp.zeros(len(RATE_CHANNELS)), diss_slip=zero, slip_distance=zero,
+            t_force=zero,
         )
 
     def evaluate(self, vehicle: Vehicle, s: QuarterState, scene: Scene | None = None,
@@ -159,7 +163,9 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
         # Ground: normal with pit memory, tangential stick/slip (3-D law, lateral axis unused here).
         nc = normal_contact(-z_f, -vz_f, s.d_max, gr, derived.k_r, sm)
         zero = jnp.zeros_like(r_f)
-        tc = tangential_contact((r_f, zero), (s.anchor, zero), nc.force, gr, sm)
+        second = self.second_order and s.t_force is not None
+        tc = tangential_contact((r_f, zero), (s.anchor, zero), nc.force, gr, sm,
+                                s.t_force if second else None)
 
         m_q, m_f, g = derived.m_quarter, vehicle.m_foot, vehicle.g
         if kick is None:
@@ -168,8 +174,15 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
             other_u = (u_r * (ax.force * a_r + tc.force[0])
                        + u_z * (ax.force * a_z + nc.force - m_f * g))
             a = kick / m_f
-            st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, v_b - a * other_u,
-                             sn, sm)
+            free = v_b - a * other_u
+            if self.second_order:  # and from the body's kick, its forces with explicit damping:
+                # held still, the body's ~4 g deceleration in the crush is an O(dt) error in
+                # the damping's rate, which makes a second-order step first order
+                st_ex = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn,
+                                    smooth_m=sm)
+                a_body = (-(st_ex.force * u_z + ax.force * a_z) - m_q * g) / m_q
+                free = free + kick * u_z * a_body
+            st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, free, sn, sm)
         f_foot_r = st.force * u_r + ax.force * a_r + tc.force[0]
         f_foot_z = st.force * u_z + ax.force * a_z + nc.force - m_f * g
         f_body = -(st.force * u_z + ax.force * a_z) - m_q * g
@@ -181,6 +194,8 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
             (hco.x_max, nc.d_max, tc.anchor[0], s.diss_slip + tc.slip_energy,
              s.slip_distance + tc.slip),
         )
+        if second:
+            new = eqx.tree_at(lambda x: x.t_force, new, jnp.abs(tc.force[0]))
 
         contact = nc.force > 0.0
         buffering = hco.force > BUFFERING_THRESHOLD_N

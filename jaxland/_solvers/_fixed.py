@@ -11,6 +11,7 @@ Taking the strut damping implicitly leaves only the (small) ground damping in c.
 from __future__ import annotations
 
 import abc
+import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
@@ -96,6 +97,11 @@ class Verlet(AbstractFixedStep):
 
     def record_kick(self, dt):
         return 0.5 * dt
+
+    def integrate(self, model, vehicle, scene, solver):
+        """With the model's ``second_order`` evaluation (``AbstractModel``)."""
+        return super().integrate(dataclasses.replace(model, second_order=True), vehicle, scene,
+                                 solver)
 
     def step(self, model, vehicle, s, scene, derived, dt):
         h = 0.5 * dt
