@@ -135,6 +135,10 @@ class Solver(eqx.Module):
     # floor). 0 (default) = the hard switches.
     smoothing_m: float = eqx.field(static=True, default=0.0)
     smoothing_N: float = eqx.field(static=True, default=0.0)
+    # stop once no outcome can change any more (jaxland._solvers._settle); only for a run
+    # without a trajectory (save_dt = t_end) of a fixed-step method. The summary then gains
+    # settled_time_s; t_end_s is the time reached. Off by default: simulate runs to t_end.
+    early_stop: bool = eqx.field(static=True, default=False)
 
     def __post_init__(self):
         if self.save_dt is None and _finite_positive(self.dt):
@@ -187,6 +191,15 @@ class Solver(eqx.Module):
                               f" at most {SAVES_MAX:.0e}: raise save_dt")
         if self.n_steps > 5e8:
             raise ConfigError("solver.dt", self.dt, "t_end/dt must be <= 5e8 steps")
+        if self.early_stop:
+            from ._names import FIXED_STEP_METHODS
+
+            if self.method.name not in FIXED_STEP_METHODS:
+                raise ConfigError("solver.early_stop", True, "needs a fixed-step method ("
+                                  + ", ".join(FIXED_STEP_METHODS) + ")")
+            if self.n_saves != 1:
+                raise ConfigError("solver.early_stop", True, "needs a run without a trajectory"
+                                  f" (save_dt = t_end = {self.t_end} s)")
         return self
 
 

@@ -14,6 +14,7 @@ from jaxtyping import Array
 
 from .._models import AbstractModel, Evaluation
 from ._base import Result
+from ._settle import check_steps, mass_diagonal, settled
 
 N_EVENTS = 256  # capacity of the contact on/off log (later transitions are counted, not stored)
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
@@ -162,13 +163,50 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
 
     kick_save = integrator.record_kick(dt)
 
+    def save_point(s):
+        return record(model, s, model.evaluate(veh, s, scene, derived, kick_save), st.energy0)
+
     def save_block(carry, _):
-        ev = model.evaluate(veh, carry[0], scene, derived, kick_save)
-        out = record(model, carry[0], ev, st.energy0)
+        out = save_point(carry[0])
         carry, _ = jax.lax.scan(body, carry, None, length=solver.save_every, unroll=UNROLL)
         return carry, out
 
     carry0 = (st.state0, Track.start(st.peaks0))
+    if solver.early_stop:
+        traj = jax.tree.map(lambda x: x[None], save_point(st.state0))
+        return traj, _run_until_settled(model, st, scene, solver, body, carry0)
     (s_end, track), traj = jax.lax.scan(save_block, carry0,
                                         jnp.arange(solver.n_saves, dtype=jnp.float64))
     return traj, summary(model, s_end, track, st, scene)
+
+
+def _run_until_settled(model, st: Setup, scene, solver, body, carry0) -> dict:
+    """The summary of a run without a trajectory (save_dt = t_end) stopped once the landing
+    has settled (``_settle``): the steps run in blocks of ``check_steps``, in a ``while_loop``
+    that ends at t_end or after the first block at whose end the landing is settled. Under
+    ``vmap`` the batch runs until its last member has settled, the settled ones held still.
+    The summary gains ``settled_time_s`` (NaN: ran to t_end unsettled); ``t_end_s`` is the time
+    reached. A ``while_loop`` has no reverse-mode derivative: ``grad`` needs early_stop off."""
+    block = check_steps(solver.dt)
+    n_blocks, first = divmod(solver.n_steps, block)
+    carry = carry0
+    if first:  # the odd steps first: a landing does not settle that early
+        carry, _ = jax.lax.scan(body, carry, None, length=first, unroll=UNROLL)
+    m_diag = mass_diagonal(model, st.vehicle, st.state0, scene, st.derived)
+
+    def cond(c):
+        return (c[1] < n_blocks) & ~c[2]
+
+    def step_block(c):
+        carry, k, _ = c
+        carry, _ = jax.lax.scan(body, carry, None, length=block, unroll=UNROLL)
+        s, track = carry
+        done = settled(model, st.vehicle, st.derived, scene, s, track.peaks,
+                       track.n_events > 0, track.tip_time < 0.0, m_diag)
+        return carry, k + 1, done
+
+    (s_end, track), _, done = jax.lax.while_loop(
+        cond, step_block, (carry, jnp.zeros((), jnp.int32), jnp.zeros((), bool)))
+    out = summary(model, s_end, track, st, scene)
+    out["settled_time_s"] = jnp.where(done, s_end.t, jnp.nan)
+    return out
