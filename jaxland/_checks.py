@@ -58,7 +58,8 @@ class Choice:
 
     def __call__(self, name: str, val):
         if val not in self.choices:
-            raise ConfigError(name, val, f"must be one of {', '.join(self.choices)}")
+            raise ConfigError(name, val, "must be one of " + ", ".join(
+                str(c).lower() if isinstance(c, bool) else str(c) for c in self.choices))
         return val
 
 
