@@ -10,7 +10,7 @@ import pytest
 import jaxland as jl
 
 DEG = np.pi / 180.0
-# the Monte Carlo outcomes (per leg where the model has legs), exactly as without early stop
+# the Monte Carlo outcomes (per leg where the model has legs), as without early stop
 OUTCOMES = ("max_stroke_m", "peak_strut_force_N", "peak_normal_force_N",
             "peak_honeycomb_force_N", "slip_distance_m", "peak_body_accel_mps2", "result",
             "tipped", "bottomed", "peak_margin_deficit_m", "peak_tilt_deg")
@@ -33,9 +33,9 @@ def _check(full, early, t_end, n_settled):
     np.testing.assert_array_equal(early["t_end_s"][settled], early["settled_time_s"][settled])
     assert np.all(early["t_end_s"][settled] < t_end)
     np.testing.assert_allclose(early["t_end_s"][~settled], t_end, rtol=1e-9)
-    for k in OUTCOMES:
+    for k in OUTCOMES:  # the same up to how XLA compiles either program
         if k in full:
-            np.testing.assert_array_equal(early[k], full[k], err_msg=k)
+            np.testing.assert_allclose(early[k], full[k], rtol=1e-9, atol=0, err_msg=k)
     # the ledger closure is judged up to the settle time: the same verdict, and the same
     # value to the energy the ringing still dissipates
     closed = full["ledger_error_rel"] <= jl.CLOSURE_LIMIT

@@ -20,9 +20,10 @@ from .._files import atomic_write_csv, flat_columns, staged
 from .._models import MODELS
 from .._params import Vehicle
 from .._progress import ProgressLine
+from .._scene import Scene
 from .._simulate import landings
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
-from ._sample import sample_scenes
+from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import MonteCarloSpec, envelope
 from ._stats import percentiles, sensitivity, wilson_interval
 
@@ -47,9 +48,20 @@ def _per_sample(vehicle, solver, model, scenes):
         result=s["result"],
         tipped_over=s["tipped"],
     )
+    if "settled_time_s" in s:
+        out["settled_time_s"] = s["settled_time_s"]
     if model == "full":
         out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]
         out["peak_tilt_deg"] = s["peak_tilt_deg"]
+    return out
+
+
+def _chunk(spec, vehicle, solver, model, inputs, count):
+    """One chunk's outcomes per sample from its drawn inputs, with the envelope check."""
+    scenes = Scene.batch(**scene_fields(spec, inputs, count, vehicle.n_legs))
+    out = _per_sample(vehicle, solver, model, scenes)
+    out["inside_envelope"] = (_inside_envelope(inputs, spec) if inputs
+                              else jnp.ones(count, bool))
     return out
 
 
@@ -109,8 +121,8 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     ``progress``: a progress line on stderr (a string: the line's label)."""
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     model = spec.resolved_model()
-    solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
-                    method=spec.method).validate()
+    solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end, method=spec.method,
+                    early_stop=spec.early_stop).validate()
     devices = list(jax.local_devices() if devices is None else devices)
     n_dev = len(devices)
     chunk = min(spec.n, 512 if model == "quarter" else 64) if chunk is None else int(chunk)
@@ -129,25 +141,35 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     # inputs depend only on (seed, index), so the gathered result is the one-process result.
     n_proc, rank = jax.process_count(), jax.process_index()
     starts = list(range(0, spec.n, chunk))[rank::n_proc]
-    run = jax.jit(lambda sc: _per_sample(vehicle, solver, model, sc))
+    check_fixed(spec, vehicle.n_legs)
+    # One compiled program per chunk: the scenes from the drawn inputs, the landings, the
+    # outcomes per sample and the envelope check; the host only copies the results out.
+    run = jax.jit(lambda ins: _chunk(spec, vehicle, solver, model, ins, chunk))
     outputs: dict = {}
     inputs: dict = {}
     label = progress if isinstance(progress, str) else "montecarlo"
     line = ProgressLine(f"{label}:", quiet=not progress or rank != 0, in_place=True)
     t0 = time.perf_counter()
     done = 0
-    for start in starts:
+
+    def dispatch(start):  # no wait for the device: returns the chunk's arrays being computed
+        ins = draw(spec, jnp.arange(start, start + chunk), vehicle.n_legs)  # padded chunk
+        ins = jax.device_put(ins, batch_sharding)
+        return start, ins, run(ins)
+
+    pending = [dispatch(starts[0])] if starts else []
+    for k in range(len(starts)):
+        if k + 1 < len(starts):  # enqueue the next chunk before waiting for this one
+            pending.append(dispatch(starts[k + 1]))
+        start, ins, res = pending.pop(0)
         count = min(chunk, spec.n - start)
-        scenes, ins = sample_scenes(spec, start, chunk, vehicle.n_legs)  # padded chunk
-        scenes = jax.tree.map(
-            lambda x: jax.device_put(x, batch_sharding) if np.ndim(x) >= 1 else x, scenes)
-        res = jax.device_get(run(scenes))
+        res, ins = jax.device_get((res, ins))
         for group, new in ((outputs, res), (inputs, ins)):
-            for k, v in new.items():
+            for key, v in new.items():
                 v = np.asarray(v)[:count]
-                if k not in group:
-                    group[k] = np.zeros((spec.n, *v.shape[1:]), v.dtype)
-                group[k][start:start + count] = v
+                if key not in group:
+                    group[key] = np.zeros((spec.n, *v.shape[1:]), v.dtype)
+                group[key][start:start + count] = v
         done += count
         line(f"{done}/{spec.n} landings ({model} model, {n_dev} device"
              f"{'s' if n_dev > 1 else ''}{_of_processes(n_proc)}, "
@@ -163,7 +185,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
         _retry(spec, vehicle, model, outputs, line)
     bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
     failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
-    failure[~_inside_envelope(inputs, spec)] = int(Result.OUTSIDE_ENVELOPE)
+    failure[~outputs.pop("inside_envelope")] = int(Result.OUTSIDE_ENVELOPE)
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
@@ -202,8 +224,8 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
         else:
             dt = dt / 4.0
         try:
-            solver = Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end,
-                            method=method).validate()
+            solver = Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method,
+                            early_stop=spec.early_stop).validate()
         except ConfigError:  # t_end is no whole multiple of that step: the failures stand
             break
         line(f"retry {attempt + 1}: {failed.size} failed sample(s) with {method} at "
@@ -231,16 +253,15 @@ def _gather(outputs: dict, inputs: dict, n: int, chunk: int, n_proc: int):
     return jax.tree.map(lambda x: x[owner, np.arange(n)], both)
 
 
-def _inside_envelope(inputs: dict, spec: MonteCarloSpec) -> np.ndarray:
+def _inside_envelope(inputs: dict, spec: MonteCarloSpec):
     """Per sample: every dispersed input within the scene envelope (unbounded distributions can
     draw outside it; such samples are recorded as failures, Result.OUTSIDE_ENVELOPE, not as
-    landings)."""
-    ok = np.ones(spec.n, bool)
+    landings). Inside the compiled chunk."""
+    ok = True
     for key, arr in inputs.items():
         lo, hi = envelope(key)
-        arr = np.asarray(arr, dtype=float)
-        inside = np.isfinite(arr) & (arr >= lo) & (arr <= hi)
-        ok &= inside if inside.ndim == 1 else inside.all(axis=1)
+        inside = jnp.isfinite(arr) & (arr >= lo) & (arr <= hi)
+        ok = ok & (inside if inside.ndim == 1 else jnp.all(inside, axis=1))
     return ok
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import zlib
 
 import jax
@@ -17,38 +18,59 @@ def sample_scenes(spec: MonteCarloSpec, start: int, count: int, n_legs: int = 4,
                   indices=None):
     """Scenes ``start .. start + count - 1`` of the spec (or the samples ``indices``), as a
     ``Scene.batch``, with the sampled inputs (TOML units; per-leg inputs as (count, n_legs))."""
+    check_fixed(spec, n_legs)
+    idx = jnp.arange(start, start + count) if indices is None else jnp.asarray(indices)
+    count = int(idx.shape[0])
+    inputs = {k: np.asarray(v) for k, v in draw(spec, idx, n_legs).items()}
+    return Scene.batch(**scene_fields(spec, inputs, count, n_legs)), inputs
+
+
+def check_fixed(spec: MonteCarloSpec, n_legs: int) -> None:
+    """Refuse a fixed per-leg input with the wrong number of legs."""
     for key, val in spec.fixed.items():
         if DISPERSIBLE[key].component == "legs" and np.ndim(val) == 1 and len(val) != n_legs:
             raise ConfigError(f"fixed.{key}", val, f"must have one entry per leg ({n_legs})")
-    names = sorted(spec.dispersion)
-    root = jax.random.key(spec.seed)
-    idx = jnp.arange(start, start + count) if indices is None else jnp.asarray(indices)
-    count = int(idx.shape[0])
+
+
+def draw(spec: MonteCarloSpec, idx, n_legs: int = 4) -> dict:
+    """The dispersed inputs of the samples ``idx`` (TOML units, device arrays; no wait for the
+    device): one compiled program for any chunk, so a sample's bits do not depend on the
+    chunk that drew it."""
+    dists = tuple(sorted(spec.dispersion.items()))
+    return _draw(dists, spec.seed, idx, n_legs) if dists else {}
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _draw(dists: tuple, seed, idx, n_legs: int) -> dict:
+    root = jax.random.key(seed)
 
     def one(i):
         k = jax.random.fold_in(root, i)
         out = {}
-        for name in names:
+        for name, dist in dists:
             shape = (n_legs,) if DISPERSIBLE[name].component == "legs" else ()
             key = jax.random.fold_in(k, zlib.crc32(name.encode()) & 0x7FFFFFFF)
-            out[name] = spec.dispersion[name].sample(key, shape)
+            out[name] = dist.sample(key, shape)
         return out
 
-    inputs = {k: np.asarray(v) for k, v in jax.vmap(one)(idx).items()} if names else {}
+    return jax.vmap(one)(idx)
+
+
+def scene_fields(spec: MonteCarloSpec, inputs: dict, count: int, n_legs: int) -> dict:
+    """The ``Scene.batch`` fields [SI] of ``count`` samples with these dispersed ``inputs`` and
+    the spec's fixed inputs (numpy or traced arrays alike)."""
     fields: dict = {}
     com = None
     for name, value in [*inputs.items(), *spec.fixed.items()]:
         target, to_si, comp = DISPERSIBLE[name]
-        val = np.broadcast_to(np.asarray(value, dtype=float) * to_si,
-                              (count, n_legs) if comp == "legs" else (count,))
+        val = jnp.broadcast_to(jnp.asarray(value, dtype=jnp.float64) * to_si,
+                               (count, n_legs) if comp == "legs" else (count,))
         if target == "com_offset":
-            com = np.zeros((count, 3)) if com is None else com
-            com[:, comp] = val
+            com = (jnp.zeros((count, 3)) if com is None else com).at[:, comp].set(val)
         else:
             fields[target] = val
     if com is not None:
         fields["com_offset"] = com
     if not fields:
-        fields["drop_height"] = np.full(count, 0.2)
-    scenes = Scene.batch(**{k: jnp.asarray(v) for k, v in fields.items()})
-    return scenes, inputs
+        fields["drop_height"] = jnp.full(count, 0.2)
+    return fields

@@ -147,6 +147,10 @@ class MonteCarloSpec:
     method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
     # rerun samples that fail numerically once (with implicit strut damping; run._retry)
     retry: bool = spec_field(True, toml="retry", check=Choice((True, False)))
+    # stop each landing once no outcome can change any more (Solver.early_stop; docs/
+    # montecarlo.md): pays with a t_end_s beyond the settle time (quarter ~2-3 s); off by
+    # default, as 1 s landings do not settle provably and the check costs compile time
+    early_stop: bool = spec_field(False, toml="early_stop", check=Choice((True, False)))
 
     def __post_init__(self):
         for key in [*self.dispersion, *self.fixed]:
