@@ -50,37 +50,44 @@ def setup():
     return scene, ref, loss
 
 
+@pytest.fixture(scope="module")
+def trace_grad():
+    """grad of the trace loss in theta, (theta, scene, ref) -> (6,): compiled once, shared by
+    the tests below (the scene and the reference are arguments, not constants)."""
+    return jax.jit(jax.grad(_trace_loss))
+
+
 def _fd(loss, i, h):
     e = jnp.zeros(6).at[i].set(h)
     return (float(loss(e)) - float(loss(-e))) / (2 * h)
 
 
-def test_grad_and_jacfwd_match_central_differences(setup):
+def test_grad_and_jacfwd_match_central_differences(setup, trace_grad):
     """D_b, k_b1, F1, F2: AD = central FD to 1e-4 (h = 1e-6, measured agreement <= 3e-5)."""
     scene, ref, loss = setup
     th0 = jnp.zeros(6)
-    g_rev = jax.jit(jax.grad(lambda th: _trace_loss(th, scene, ref)))(th0)
-    g_fwd = jax.jit(jax.jacfwd(lambda th: _trace_loss(th, scene, ref)))(th0)
+    g_rev = trace_grad(th0, scene, ref)
+    g_fwd = jax.jit(jax.jacfwd(_trace_loss))(th0, scene, ref)
     np.testing.assert_allclose(g_rev, g_fwd, rtol=1e-9)
     for i, name in enumerate(NAMES[:4]):
         fd = _fd(loss, i, 1e-6)
         assert abs(float(g_rev[i]) - fd) <= 1e-4 * abs(fd), (name, float(g_rev[i]), fd)
 
 
-def test_k_and_gamma_are_exact_but_kinked(setup):
+def test_k_and_gamma_are_exact_but_kinked(setup, trace_grad):
     """k and gamma: even in the first impact the discrete map has kinks ~1e-6 apart in relative
     parameter (contact and stick/slip switches landing on step boundaries), so FD secants at
     h = 1e-5 miss the AD slope by ~1 %; they converge to it as h shrinks (<= 2e-4 at h = 1e-7).
     AD is the exact derivative of the local smooth piece; smoothing is the integrators issue."""
     scene, ref, loss = setup
-    g = jax.jit(jax.grad(lambda th: _trace_loss(th, scene, ref)))(jnp.zeros(6))
+    g = trace_grad(jnp.zeros(6), scene, ref)
     for i in (4, 5):
         errs = [abs(_fd(loss, i, h) - float(g[i])) / abs(float(g[i])) for h in (1e-5, 1e-7)]
         assert errs[1] < 1e-3, (NAMES[i], errs)
         assert errs[1] < errs[0], (NAMES[i], errs)
 
 
-def test_vmap_of_grad_equals_grad_per_scene_and_grad_of_vmap(setup):
+def test_vmap_of_grad_equals_grad_per_scene_and_grad_of_vmap(setup, trace_grad):
     _, ref, _ = setup
     speeds = jnp.array([1.6, 2.0, 2.4])
     scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
@@ -89,7 +96,7 @@ def test_vmap_of_grad_equals_grad_per_scene_and_grad_of_vmap(setup):
     axes = jl.batch_axes(scenes)
     batched = jax.jit(jax.vmap(gfun, in_axes=(None, axes, None)))(th0, scenes, ref)
     for i, v in enumerate(speeds):
-        one = jax.jit(gfun)(th0, jl.Scene.from_touchdown_speed(v), ref)
+        one = trace_grad(th0, jl.Scene.from_touchdown_speed(v), ref)
         np.testing.assert_allclose(batched[i], one, rtol=1e-10)
     summed = jax.jit(jax.grad(lambda th: jnp.sum(
         jax.vmap(_trace_loss, in_axes=(None, axes, None))(th, scenes, ref))))(th0)
