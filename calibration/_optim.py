@@ -29,8 +29,11 @@ MAX_STEP = 0.7  # largest change of any unconstrained coordinate per step (facto
 
 
 def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9,
-                        progress=None, stage="", t_origin=None):
+                        progress=None, stage="", t_origin=None, free=None):
+    """``free``: a boolean mask of the coordinates that move (default all); the others keep
+    their values (their Jacobian columns are computed but not used)."""
     theta = np.asarray(theta0, dtype=float).copy()
+    free = np.ones(theta.size, bool) if free is None else np.asarray(free, bool)
     r, jac, failed = problem.residuals_and_jacobian(theta)
     if failed or not np.all(np.isfinite(r)):
         raise jl.SimulationError("the landing at the start point failed numerically (non-finite "
@@ -41,8 +44,9 @@ def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9,
     t_start = time.perf_counter() if t_origin is None else t_origin
     n_jac, n_fwd = 1, 0
     for it in range(1, max_iter + 1):
-        a = jac.T @ jac
-        g = jac.T @ r
+        jf = jac[:, free]
+        a = jf.T @ jf
+        g = jf.T @ r
         d = np.diag(a).copy()
         d = np.maximum(d, 1e-12 * max(float(d.max()), 1e-300))
         scale = np.sqrt(d)
@@ -60,7 +64,8 @@ def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9,
             big = float(np.max(np.abs(step)))
             if big > MAX_STEP:
                 step *= MAX_STEP / big
-            trial = theta + step
+            trial = theta.copy()
+            trial[free] += step
             r_new, failed = problem.residuals(trial)
             n_fwd += 1
             new_cost = 0.5 * float(r_new @ r_new) if np.all(np.isfinite(r_new)) else math.inf

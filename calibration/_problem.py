@@ -273,8 +273,11 @@ class CalibrationProblem:
 
     def values(self, theta) -> np.ndarray:
         """Physical values of the fitted parameters [SI] at ``theta``."""
-        z = jnp.asarray(theta[: self.n_z])
-        return np.asarray(from_unconstrained(z, self.names, self.vehicle))
+        key = ("values", _vehicle_key(self.vehicle), self.names)
+        if key not in _COMPILED:  # jitted: the optimisers call it every iteration
+            names, vehicle = self.names, self.vehicle
+            _COMPILED[key] = jax.jit(lambda z: from_unconstrained(z, names, vehicle))
+        return np.asarray(_COMPILED[key](jnp.asarray(theta[: self.n_z], dtype=jnp.float64)))
 
     def vehicle_at(self, theta) -> jl.Vehicle:
         """The vehicle with the fitted parameters at ``theta`` (validated)."""
@@ -304,6 +307,21 @@ class CalibrationProblem:
                 jnp.asarray(self.huber_c, dtype=jnp.float64), jnp.asarray(self.coeffs))
         self._args_cache = (self.mask, self.huber_c, args)
         return args
+
+    def compile(self, theta) -> None:
+        """Compile (or find compiled) both functions for this problem's shapes: the residual's
+        in a second thread while the Jacobian's compiles here (XLA compiles without the
+        interpreter lock: on two cores the residual's compilation then costs no wall time)."""
+        import threading
+
+        th = jnp.asarray(theta, dtype=jnp.float64)
+        args = self._args()
+        side = threading.Thread(target=lambda: self._res(th, *args)[0].block_until_ready())
+        side.start()
+        try:
+            self._jac(th, *args)[0].block_until_ready()
+        finally:
+            side.join()
 
     def residuals(self, theta) -> tuple[np.ndarray, bool]:
         """Weighted residual vector (flattened drops x channels x samples; padding is 0) and
