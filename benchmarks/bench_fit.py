@@ -6,6 +6,7 @@ central finite differences of the calibration loss.
     .venv/bin/python benchmarks/bench_fit.py [--with-lbfgs] [--variants euler,verlet_smooth]
                                              [--out benchmarks/results]
     .venv/bin/python benchmarks/bench_fit.py --coverage 20 [--quick]
+    .venv/bin/python benchmarks/bench_fit.py --fit-time [--quick]
 
 ``--coverage N`` measures, over N noise seeds, how often the reported 95 % intervals (value
 +/- 1.96 standard errors, the classical and the HAC one) contain the truth, on rig data the
@@ -17,6 +18,10 @@ bias keeps them off the truth). It stores its result under "coverage" in bench_f
 (the rest of the file kept); ``--quick`` (3 seeds) writes out/bench_fit_quick.json instead and
 never touches the committed results. ``--peak-model`` (``peak_model_study``) fits the
 crush-peak model to rig records whose peak shape differs from the law's, into "peak_model".
+``--fit-time`` times cold fits (``FIT_TIME_CASES``: the default fit, the crush-peak model on
+rig records, a joint fit, the lab-format record), each in a fresh process so that the
+compilation counts, with the optimiser's work and the load average of the shared machine,
+into "fit_time".
 
 Variants (``VARIANTS``): ``euler`` (symplectic Euler, hard switches) and ``verlet_smooth``
 (velocity Verlet with 1e-6 m / 10 N switch smoothing, the gradient-quality study's fitting
@@ -264,6 +269,83 @@ def peak_model_study(quick: bool = False) -> dict:
     return out
 
 
+FIT_TIME_CASES = {
+    "default 6 parameters, bundled 0.2 m drop": dict(data="bundled", heights=(0.2,)),
+    "with the crush peak (8 parameters), rig 0.2 m, exp peak": dict(
+        data="rig", heights=(0.2,), peak=True, rig=dict(peak_shape="exp", seed=200)),
+    "with the crush peak (8 parameters), rig 0.2 m, folds peak": dict(
+        data="rig", heights=(0.2,), peak=True, rig=dict(peak_shape="folds", seed=200)),
+    "with the crush peak, joint 0.15 + 0.30 m (bump peak)": dict(
+        data="rig", heights=(0.15, 0.3), peak=True, rig=dict(seed=300)),
+    "lab record: 4 legs, CFC 600, from release (bundled)": dict(data="lab", heights=(0.2,)),
+}
+
+
+def one_fit(case: str) -> dict:
+    """One cold fit of ``FIT_TIME_CASES[case]`` in this (fresh) process: wall time with
+    compilation, the optimiser's work (Jacobians, forward runs, iterations, starts) and the
+    recovery of the truth (value / truth - 1 and z against the HAC standard error)."""
+    from calibration import _problem
+
+    spec = FIT_TIME_CASES[case]
+    names = cal.DEFAULT_PARAMS + (("peak1", "L_peak1") if spec.get("peak") else ())
+    if spec["data"] == "bundled":
+        drops = [cal.load_drop_test(DATA / f"drop_h{h:.2f}m.toml") for h in spec["heights"]]
+    elif spec["data"] == "lab":
+        drops = [cal.load_drop_test(DATA / "drop_h0.20m_lab.toml")]
+    else:
+        drops = [vr.drop_test(h, **spec["rig"]) for h in spec["heights"]]
+    count = dict(jacobians=0, forward=0)
+    jac0, res0 = (_problem.CalibrationProblem.residuals_and_jacobian,
+                  _problem.CalibrationProblem.residuals)
+
+    def jac(self, th):
+        count["jacobians"] += 1
+        return jac0(self, th)
+
+    def res(self, th):
+        count["forward"] += 1
+        return res0(self, th)
+
+    _problem.CalibrationProblem.residuals_and_jacobian = jac
+    _problem.CalibrationProblem.residuals = res
+    load = os.getloadavg()[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cal.MisfitWarning)
+        r, wall = _fit(drops, params=names)
+    truth = vr.truth_vehicle()
+    p_true = get_values(truth, cal.DEFAULT_PARAMS)
+    n = len(cal.DEFAULT_PARAMS)
+    return dict(case=case, wall_s=wall, load_average_1min_at_start=load, **count,
+                iterations=sum(s["iterations"] for s in r.stages),
+                starts_tried=r.settings["multistart"]["n_starts_tried"],
+                stages=[{k: s[k] for k in ("stage", "iterations", "status", "wall_s")}
+                        for s in r.stages],
+                values=dict(zip(r.names, r.values.tolist())),
+                rel_error=dict(zip(cal.DEFAULT_PARAMS, (r.values[:n] / p_true - 1).tolist())),
+                z_hac=dict(zip(cal.DEFAULT_PARAMS, ((r.values[:n] - p_true)
+                                                    / r.std_errors_hac[:n]).tolist())))
+
+
+def fit_time(quick: bool = False) -> dict:
+    """Every ``FIT_TIME_CASES`` fit cold, each in a fresh process (so the compilation counts),
+    one after the other."""
+    import subprocess
+
+    cases = list(FIT_TIME_CASES)[:2] if quick else list(FIT_TIME_CASES)
+    out = dict(target_s=TARGETS["fit_s"], cpus=os.cpu_count(), runs=[])
+    for case in cases:
+        proc = subprocess.run([sys.executable, __file__, "--one-fit", case], check=True,
+                              capture_output=True, text=True)
+        run = json.loads(proc.stdout.strip().splitlines()[-1])
+        out["runs"].append(run)
+        load = run["load_average_1min_at_start"]
+        print(f"[fit time] {case}: {run['wall_s']:.1f} s (load {load:.1f}), "
+              f"{run['jacobians']} Jacobians, {run['forward']} forward runs, "
+              + ", ".join(f"{k} {v:+.2%}" for k, v in run["rel_error"].items()), flush=True)
+    return out
+
+
 def main_coverage(args) -> int:
     if args.coverage_summary:  # recompute the summaries from the stored runs (no fits)
         path = Path(args.out) / "bench_fit.json"
@@ -276,9 +358,11 @@ def main_coverage(args) -> int:
         atomic_write_text(path, json.dumps(data, indent=2) + "\n")
         print(f"rewrote the coverage summaries of {path}")
         return 0
-    key = "peak_model" if args.peak_model else "coverage"
+    key = "peak_model" if args.peak_model else "fit_time" if args.fit_time else "coverage"
     if args.peak_model:
         result = peak_model_study(args.quick)
+    elif args.fit_time:
+        result = fit_time(args.quick)
     else:
         result = coverage(3 if args.quick else args.coverage)
     if args.quick:  # never overwrite the committed results
@@ -315,8 +399,16 @@ def main(argv=None) -> int:
     ap.add_argument("--peak-model", action="store_true",
                     help="only the crush-peak model study (into bench_fit.json's "
                          "'peak_model'): rig peak shapes unlike the law's, prediction, joint fit")
+    ap.add_argument("--fit-time", action="store_true",
+                    help="only the cold fit times (FIT_TIME_CASES, each in a fresh process; into"
+                         " bench_fit.json's 'fit_time')")
+    ap.add_argument("--one-fit", metavar="CASE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.coverage or args.quick or args.coverage_summary or args.peak_model:
+    if args.one_fit:
+        print(json.dumps(one_fit(args.one_fit)))
+        return 0
+    if args.coverage or args.quick or args.coverage_summary or args.peak_model or \
+            args.fit_time:
         return main_coverage(args)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"
@@ -435,6 +527,11 @@ def main(argv=None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     from calibration._report import atomic_write_text
 
+    old = out_dir / "bench_fit.json"  # the other studies' results are kept
+    if old.exists():
+        for key, val in json.loads(old.read_text()).items():
+            if key in ("coverage", "peak_model", "fit_time"):
+                out.setdefault(key, val)
     atomic_write_text(out_dir / "bench_fit.json", json.dumps(out, indent=2) + "\n")
     _plot(out, out_dir / "bench_fit.png")
     print(f"wrote {out_dir}/bench_fit.json and bench_fit.png")

@@ -28,9 +28,11 @@ what a real rig records, with what a real rig adds:
 * optionally, **another unloading law** in the truth itself: ``truth_vehicle(unload_ratio=)``
   (the secondary stage unloads along unload_ratio k_b3, ``Honeycomb.unload_ratio``).
 
-``python -m calibration.virtual_rig [--out data/synthetic]`` writes the bundled set: one CSV +
-metadata TOML per drop height (``HEIGHTS_M``), ``truth_vehicle.toml`` (the truth, loadable by
-``jaxland simulate --config``), all labelled SYNTHETIC. ``--clean`` writes noise- and
+``python -m calibration.virtual_rig --lab [--out data/synthetic]`` writes the bundled set: one
+CSV + metadata TOML per drop height (``HEIGHTS_M``, with ``BUNDLED_ARTEFACTS`` on top of the
+noise, offset and crush peak), the lab-format record ``drop_h0.20m_lab``
+(``write_lab_drop_test``), ``truth_vehicle.toml`` (the truth, loadable by ``jaxland simulate
+--config``), all labelled SYNTHETIC. ``--clean`` writes noise- and
 artefact-free variants instead. Everything is seeded and reproducible.
 """
 
@@ -51,7 +53,8 @@ from ._parameters import get_values, set_values
 from ._report import atomic_write_text
 
 __all__ = ["TRUTH_SCALE", "NOISE", "STROKE_OFFSET_M", "CRUSH_PEAK", "CRUSH_PEAK_LENGTH_M",
-           "HEIGHTS_M", "truth_vehicle", "record", "drop_test", "write_drop_test", "main"]
+           "HEIGHTS_M", "BUNDLED_ARTEFACTS", "LAB", "truth_vehicle", "record", "drop_test",
+           "write_drop_test", "write_lab_drop_test", "main"]
 
 # truth = paper vehicle x scale (ground stiffer and lossier-less, less damping, softer primary
 # elastic stage, stronger primary and weaker secondary honeycomb)
@@ -62,6 +65,12 @@ STROKE_OFFSET_M = 1.5e-3
 CRUSH_PEAK = 0.20
 CRUSH_PEAK_LENGTH_M = 4e-4
 HEIGHTS_M = (0.15, 0.20, 0.30)
+# what the bundled drops carry beyond noise, the stroke offset and the crush peak: a jittery
+# sampling clock and a sensor conditioning low-pass
+BUNDLED_ARTEFACTS = {"jitter_s": 2e-6, "lowpass_Hz": 2000.0}
+# the bundled lab-format record (``write_lab_drop_test``)
+LAB = {"legs": (0, 1, 2, 3), "time_from_release": True, "specific_force": True, "cfc": 600,
+       "peak_shape": "exp", "pre_trigger_s": 0.08, "jitter_s": 2e-6}
 SAMPLE_RATE_HZ = 5000.0
 _SIM_DT = 1e-5
 
@@ -224,13 +233,16 @@ def drop_test(drop_height_m: float, *, vehicle: jl.Vehicle | None = None,
 
 
 def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False, seed=0,
-                    vehicle_config="nominal_vehicle.toml", duration_s=1.2):
+                    vehicle_config="nominal_vehicle.toml", duration_s=1.2,
+                    artefacts=BUNDLED_ARTEFACTS):
     """Write ``drop_hX.XXm.csv`` and ``.toml`` (metadata) into ``out_dir``; return their paths.
-    ``vehicle_config`` is written into the metadata (the nominal vehicle the fit starts from)."""
+    ``vehicle_config`` is written into the metadata (the nominal vehicle the fit starts from).
+    ``artefacts``: further ``record`` options beyond noise, offset and crush peak (default
+    ``BUNDLED_ARTEFACTS``: sampling jitter and a sensor low-pass)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     vehicle = truth_vehicle() if vehicle is None else vehicle
-    kw = dict(noise=None, stroke_offset_m=0.0, crush_peak=0.0) if clean else {}
+    kw = dict(noise=None, stroke_offset_m=0.0, crush_peak=0.0) if clean else dict(artefacts)
     t, ch, info = record(vehicle, drop_height_m, duration_s=duration_s, seed=seed, **kw)
     stem = f"drop_h{drop_height_m:.2f}m{'_clean' if clean else ''}"
     banner = (f"SYNTHETIC drop test, not measured: calibration.virtual_rig, truth "
@@ -255,6 +267,7 @@ def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False,
         f"stroke_offset_m = {0.0 if clean else STROKE_OFFSET_M:g}",
         f"crush_peak_rel = {0.0 if clean else CRUSH_PEAK:g}",
         f"crush_peak_length_m = {CRUSH_PEAK_LENGTH_M:g}",
+        *(f"{k} = {v:g}" for k, v in ({} if clean else artefacts).items()),
         f"touchdown_time_in_record_s = {info['touchdown_time_in_record_s']:.6f}",
         f"touchdown_speed_mps = {info['touchdown_speed_mps']:.9g}",
         f"true_max_stroke_m = {info['max_stroke_m']:.9g}",
@@ -265,6 +278,74 @@ def write_drop_test(out_dir, drop_height_m: float, *, vehicle=None, clean=False,
     ]
     csv_path, meta_path = out_dir / f"{stem}.csv", out_dir / f"{stem}.toml"
     jl.atomic_write_csv(csv_path, {"time_s": t, **ch}, digits=7, comments=[banner])
+    atomic_write_text(meta_path, "\n".join(meta) + "\n")
+    return csv_path, meta_path
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return f"{v:g}"
+
+
+def write_lab_drop_test(out_dir, drop_height_m: float = 0.2, *, vehicle=None, seed=0,
+                        vehicle_config="nominal_vehicle.toml", duration_s=0.6):
+    """``drop_hX.XXm_lab.{csv,toml}``: a record as a lab writes it (``LAB``): four
+    instrumented legs, lab units (ms, kN, mm, g), the body channel an accelerometer's
+    specific force, the time axis from release with the record starting mid-fall, the whole
+    record delivered CFC 600 filtered; and a crush peak of another shape (``exp``). Its
+    metadata says so (``release_time_s``, ``body_accel_kind``, ``filter_cfc``,
+    ``filter_data_prefiltered``), and its drop height is checked against the free fall."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    vehicle = truth_vehicle() if vehicle is None else vehicle
+    t, ch, info = record(vehicle, drop_height_m, duration_s=duration_s, seed=seed, **LAB)
+    cols = {"time_ms": t * 1e3}
+    units = {"normal_force_N": ("normal_force_kN", 1e-3), "buffer_force_N":
+             ("buffer_force_kN", 1e-3), "stroke_m": ("stroke_mm", 1e3)}
+    for c, y in ch.items():
+        if c == "body_accel_mps2":
+            cols["body_accel_g"] = y / 9.80665
+            continue
+        leg, base = c.split("_", 1)
+        name, factor = units[base]
+        cols[f"{leg}_{name}"] = y * factor
+    stem = f"drop_h{drop_height_m:.2f}m_lab"
+    banner = (f"SYNTHETIC drop test, not measured: calibration.virtual_rig (lab format), truth "
+              f"truth_vehicle.toml, drop height {drop_height_m} m, seed {seed}")
+    meta = [
+        f"# {banner}",
+        "# Generated by `python -m calibration.virtual_rig --lab`; see data/README.md.",
+        "[drop_test]",
+        f'data_file = "{stem}.csv"',
+        "synthetic = true",
+        f'description = "{banner}"',
+        f"drop_height_m = {drop_height_m}",
+        f"sample_rate_Hz = {SAMPLE_RATE_HZ}",
+        f'vehicle_config = "{vehicle_config}"',
+        "release_time_s = 0.0",
+        'body_accel_kind = "specific_force"',
+        f"filter_cfc = {LAB['cfc']}",
+        "filter_data_prefiltered = true",
+        "",
+        "[synthetic_rig]  # what the rig did (informational; the loader does not read it)",
+        f"seed = {seed}",
+        "noise_std = { " + ", ".join(f"{k} = {v:g}" for k, v in NOISE.items()) + " }",
+        f"stroke_offset_m = {STROKE_OFFSET_M:g}  # x (1 + 0.5 leg index)",
+        f"crush_peak_rel = {CRUSH_PEAK:g}",
+        f"crush_peak_length_m = {CRUSH_PEAK_LENGTH_M:g}",
+        *(f"{k} = {_toml_value(v)}" for k, v in LAB.items()),
+        f"touchdown_time_in_record_s = {info['touchdown_time_in_record_s']:.6f}",
+        f"touchdown_speed_mps = {info['touchdown_speed_mps']:.9g}",
+        f"true_max_stroke_m = {info['max_stroke_m']:.9g}",
+        f"true_final_stroke_m = {info['final_stroke_m']:.9g}",
+    ]
+    csv_path, meta_path = out_dir / f"{stem}.csv", out_dir / f"{stem}.toml"
+    jl.atomic_write_csv(csv_path, cols, digits=7, comments=[banner])
     atomic_write_text(meta_path, "\n".join(meta) + "\n")
     return csv_path, meta_path
 
@@ -302,6 +383,9 @@ def main(argv=None) -> int:
                    help="drop heights [m]")
     p.add_argument("--clean", action="store_true", help="no noise, offset or crush peak")
     p.add_argument("--duration", type=float, default=1.2, help="record length [s]")
+    p.add_argument("--lab", action="store_true",
+                   help="also write the lab-format record drop_h0.20m_lab (legs, lab units, "
+                        "release time, CFC 600)")
     args = p.parse_args(argv)
     try:
         write_truth(args.out)
@@ -309,6 +393,9 @@ def main(argv=None) -> int:
         for i, h in enumerate(args.heights):
             paths = write_drop_test(args.out, h, clean=args.clean, seed=100 + i,
                                     duration_s=args.duration)
+            print(f"wrote {paths[0]} and {paths[1].name}")
+        if args.lab:
+            paths = write_lab_drop_test(args.out, 0.2, seed=200)
             print(f"wrote {paths[0]} and {paths[1].name}")
     except jl.JaxlandError as err:
         print(f"virtual_rig: error: {err}", file=sys.stderr)
