@@ -12,6 +12,8 @@ to 1e-4 relative for k, gamma, chi, D_b, k_b1, F1 and F2 in a scene where the fo
 unsmoothed one, bit for bit (tests/test_reference_trajectory.py, against stored numbers).
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -51,11 +53,19 @@ def _scene(name):
     return veh, jl.Scene.from_touchdown_speed(v_td), t_end
 
 
-def _problem(name, **solver_kw):
+@functools.cache
+def _reference(name):
+    """The scene's reference trace (hard-switch Euler at the TRUTH parameters), computed once
+    per scene for all the tests that fit to it."""
     veh, scene, t_end = _scene(name)
     ref_solver = jl.Solver(dt=1e-5, t_end=t_end, save_dt=SAVE_DT)
-    ref, s_ref = jax.jit(lambda th: jl.landing(_at(veh, th), scene, ref_solver, "quarter"))(
+    return jax.jit(lambda th: jl.landing(_at(veh, th), scene, ref_solver, "quarter"))(
         jnp.asarray(TRUTH))
+
+
+def _problem(name, **solver_kw):
+    veh, scene, t_end = _scene(name)
+    ref, s_ref = _reference(name)
     solver = jl.Solver(**dict(dict(t_end=t_end, save_dt=SAVE_DT), **solver_kw))
     scales = {c: float(jnp.max(jnp.abs(ref[c]))) for c in ("stroke_m", "normal_force_N")}
 
