@@ -283,8 +283,10 @@ FIT_TIME_CASES = {
 
 def one_fit(case: str) -> dict:
     """One cold fit of ``FIT_TIME_CASES[case]`` in this (fresh) process: wall time with
-    compilation, the optimiser's work (Jacobians, forward runs, iterations, starts) and the
-    recovery of the truth (value / truth - 1 and z against the HAC standard error)."""
+    compilation, the process's CPU time (all threads: on a shared machine the wall time grows
+    with the other jobs, the CPU time much less), the optimiser's work (Jacobians, forward
+    runs, iterations, starts) and the recovery of the truth (value / truth - 1 and z against
+    the HAC standard error)."""
     from calibration import _problem
 
     spec = FIT_TIME_CASES[case]
@@ -310,13 +312,15 @@ def one_fit(case: str) -> dict:
     _problem.CalibrationProblem.residuals_and_jacobian = jac
     _problem.CalibrationProblem.residuals = res
     load = os.getloadavg()[0]
+    cpu0 = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cal.MisfitWarning)
         r, wall = _fit(drops, params=names)
+    cpu = time.process_time() - cpu0  # all of the process's threads
     truth = vr.truth_vehicle()
     p_true = get_values(truth, cal.DEFAULT_PARAMS)
     n = len(cal.DEFAULT_PARAMS)
-    return dict(case=case, wall_s=wall, load_average_1min_at_start=load, **count,
+    return dict(case=case, wall_s=wall, cpu_s=cpu, load_average_1min_at_start=load, **count,
                 iterations=sum(s["iterations"] for s in r.stages),
                 starts_tried=r.settings["multistart"]["n_starts_tried"],
                 stages=[{k: s[k] for k in ("stage", "iterations", "status", "wall_s")}
@@ -340,7 +344,8 @@ def fit_time(quick: bool = False) -> dict:
         run = json.loads(proc.stdout.strip().splitlines()[-1])
         out["runs"].append(run)
         load = run["load_average_1min_at_start"]
-        print(f"[fit time] {case}: {run['wall_s']:.1f} s (load {load:.1f}), "
+        print(f"[fit time] {case}: {run['wall_s']:.1f} s (load {load:.1f}; CPU "
+              f"{run['cpu_s']:.1f} s), "
               f"{run['jacobians']} Jacobians, {run['forward']} forward runs, "
               + ", ".join(f"{k} {v:+.2%}" for k, v in run["rel_error"].items()), flush=True)
     return out
