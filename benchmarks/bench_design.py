@@ -88,6 +88,35 @@ def forward_vs_reverse() -> dict:
                 max_rel_difference=float(np.max(np.abs(g_j - g_r)) / np.max(np.abs(g_j))))
 
 
+STEPS = (("euler", 1e-5), ("euler_implicit", 2e-5), ("euler_implicit", 4e-5),
+         ("verlet", 4e-5), ("verlet", 8e-5))
+
+
+def design_step() -> dict:
+    """The design landings' integrator and step for the paper-gear spec (full model, 24 scenes,
+    0.25 s): its measures (objective, gear mass, constraints) at the baseline and one forward
+    evaluation's time, against euler at 1e-5 s (the verification's setting), side by side."""
+    import tomllib
+
+    base = tomllib.loads((ROOT / "examples/design_paper_gear.toml").read_text())
+    rows, ref = [], None
+    for method, dt in STEPS:
+        d = copy.deepcopy(base)
+        d["design"].update(method=method, dt_s=dt)
+        prob = DesignProblem(design_spec_from_dict(d))
+        z = jnp.asarray(prob.z0)
+        fwd = jax.jit(lambda z, prob=prob: prob._measures(z)[0])
+        t = _time(fwd, z, repeat=2)
+        vec = np.asarray(fwd(z))
+        ref = vec if ref is None else ref
+        rows.append(dict(method=method, dt_s=dt, forward_s=t, measures=vec.tolist(),
+                         objective_rel_diff=float(abs(vec[0] / ref[0] - 1.0)),
+                         constraint_diff_g=float(np.max(np.abs(vec[2:] - ref[2:])))))
+    return dict(case="examples/design_paper_gear.toml at its baseline: measures = [objective "
+                     "m/s^2, gear mass kg, g_stroke, g_stability] (g in units of the "
+                     "constraint scale: 10 mm, 0.1 m)", reference="euler, dt 1e-5 s", runs=rows)
+
+
 def convergence() -> dict:
     """Iterations and wall time of the augmented-Lagrangian loop on ``CONVERGENCE`` for each
     inner-step setting in ``OPTIMISERS`` (one compiled problem shared, compiled beforehand):
@@ -168,24 +197,29 @@ def table(report: dict) -> dict:
                 total_wall_s=v.get("total_wall_s"))
 
 
+STUDIES = dict(gradient_modes=forward_vs_reverse, convergence=convergence,
+               smooth_max=smooth_max_bias, design_step=design_step)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--report", default=str(ROOT / "out/design-paper/design_report.json"))
     p.add_argument("--out", default=str(ROOT / "benchmarks/results/design.json"))
+    p.add_argument("--only", choices=tuple(STUDIES),
+                   help="run one study and keep the others' stored results")
     args = p.parse_args(argv)
-    result = dict(
-        machine=dict(cpus=os.cpu_count(), platform=platform.platform(), jax=jax.__version__,
-                     backend=jax.default_backend()),
-        gradient_modes=forward_vs_reverse(),
-        convergence=convergence(),
-        smooth_max=smooth_max_bias(),
-    )
+    out = Path(args.out)
+    result = json.loads(out.read_text()) if args.only and out.exists() else {}
+    result["machine"] = dict(cpus=os.cpu_count(), platform=platform.platform(),
+                             jax=jax.__version__, backend=jax.default_backend())
+    for name, study in STUDIES.items():
+        if args.only in (None, name):
+            result[name] = study()
     rep = Path(args.report)
     if rep.exists():
         result["paper_gear_design"] = table(json.loads(rep.read_text()))
         result["paper_gear_design"]["command"] = (
             "jaxland design examples/design_paper_gear.toml --out out/design-paper")
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(result, indent=2, default=float) + "\n")

@@ -397,6 +397,17 @@ def design_verification() -> str:
                    f"{v['t_end_s']:g} s)", "before (paper gear)", "after (design)"], rows)
 
 
+def design_step() -> str:
+    d = _load("design.json")["design_step"]
+    rows = [[r["method"], f"{r['dt_s']:g}", f"{r['forward_s']:.3g}",
+             f"{r['objective_rel_diff']:.2g}", f"{r['constraint_diff_g']:.2g}"]
+            for r in d["runs"]]
+    return _table(["method", "dt [s]", "one forward evaluation [s]",
+                   f"objective: relative difference from {d['reference']}",
+                   "constraints: largest difference in g (units of the constraint's scale: "
+                   "10 mm stroke, 0.1 m margin)"], rows)
+
+
 def design_variables() -> str:
     d = _load("design.json")["paper_gear_design"]
     rows = [[x["name"], f"[{x['low']:.4g}, {x['high']:.4g}] ({x['scale']})", f"{x['start']:.4g}",
@@ -418,6 +429,7 @@ TABLES = {
     "calibration-coverage": calibration_coverage,
     "design-verification": design_verification,
     "design-variables": design_variables,
+    "design-step": design_step,
 }
 
 
