@@ -168,6 +168,15 @@ def test_model_selection_finds_the_peak_where_there_is_one(comparisons):
     # the peak model fits the crush onset better, and what it found is a peak
     assert c["peak"]["chi2"] < c["no_peak"]["chi2"]
     assert c["peak"]["values"]["peak1"] > 1.05
+    # the multistart stages hold the peak's fit coordinates at their start (its value moves
+    # only with its bounds, which depend on k, k_b1, F1 and F2); the long stages free them
+    res = c["_results"]["peak"]
+    i = res.names.index("peak1")
+    multistart = tuple(st["stage"] for st in res.stages if "start" in st)  # the 10 ms stage
+    for j in (i, res.names.index("L_peak1")):
+        short = [h["theta"][j] for h in res.history if h["stage"].startswith(multistart)]
+        assert len(short) > 1 and all(z == short[0] for z in short)
+        assert res.theta[j] != pytest.approx(short[0], rel=1e-6)
 
 
 def test_model_selection_refuses_the_peak_where_there_is_none(comparisons):
