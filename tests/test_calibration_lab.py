@@ -290,3 +290,29 @@ def test_the_cli_refuses_a_contradicting_drop_height_with_exit_2_and_one_line(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "d.toml: drop_test.drop_height_m = 0.25" in err[0], err
     assert "contradicts the record's free fall" in err[0]
+
+
+def test_the_bundled_lab_record_loads_with_every_conversion_logged():
+    """data/synthetic/drop_h0.20m_lab: four legs in kN and mm, time in ms, the body channel in
+    g of specific force, a time axis from release, delivered CFC 600 filtered (SYNTHETIC)."""
+    import tomllib
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "drop_h0.20m_lab.toml"
+    meta = tomllib.loads(path.read_text())
+    assert path.with_suffix(".csv").read_text().startswith("# SYNTHETIC")
+    d = cal.load_drop_test(path)
+    assert d.synthetic and d.filters["leg3_stroke_m"] == 600 and d.filter_data_prefiltered
+    assert {leg for leg in d.summary()["legs"].values()} == {0, 1, 2, 3}
+    assert d.unit_conversions["time_ms"] == "time_ms -> time_s (x 0.001)"
+    assert d.unit_conversions["leg2_buffer_force_kN"].endswith("leg2_buffer_force_N (x 1000)")
+    t_true = meta["synthetic_rig"]["touchdown_time_in_record_s"]
+    assert abs(d.touchdown_time_s - t_true) < 3e-4  # the zero-phase filter's smeared onset
+    assert d.free_fall["implied_drop_height_m"] == pytest.approx(0.2, rel=0.01)
+    for i in range(4):
+        assert d.offsets[f"leg{i}_stroke_m"] == pytest.approx(
+            vr.STROKE_OFFSET_M * (1 + 0.5 * i), abs=2e-5)
+    # specific force in g -> kinematic: -g in free fall after the (zero) offset
+    pre = d.time_s < d.touchdown_time_s - 0.01
+    assert np.mean(d.corrected["body_accel_mps2"][pre]) == pytest.approx(-float(TRUTH.g),
+                                                                         abs=0.05)
