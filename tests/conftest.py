@@ -1,9 +1,29 @@
 """Strict JAX test configuration (as diffrax/equinox do) and shared compiled functions."""
 
+import atexit
+import os
+import shutil
+import tempfile
+
 import jax
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+# One persistent compilation cache per test session: a fresh temporary folder (removed at exit),
+# also used by the Python processes the tests start (the CLI, the README examples, benchmark
+# scripts), which compile landings that in-process tests compiled before them. XLA compilation is
+# most of the suite's time. Fresh each session, so every run compiles what a fresh machine does;
+# a cache folder set by the caller is used as it is.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _cache = tempfile.mkdtemp(prefix="jaxland-tests-xla-cache-")
+    atexit.register(shutil.rmtree, _cache, ignore_errors=True)
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _cache
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" in os.environ:
+    jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                      float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
 
 import jaxland  # noqa: E402,F401  (float64 on import)

@@ -12,6 +12,10 @@ import jaxland as jl
 from jaxland import QuarterModel
 from jaxland.cli import main
 
+# The README's simulate examples' length (0.5 s at the default step and save interval): their
+# compiled landings are shared with these (and test_vehicle3d's) through the compilation cache.
+T_END = "0.5"
+
 
 def test_config_prints_loadable_toml(capsys):
     assert main(["config"]) == 0
@@ -28,13 +32,13 @@ def test_console_script_entry_point():
 
 def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["simulate", "--drop-height", "0.1", "--t-end", "0.35", "--out", str(out)]) == 0
+    assert main(["simulate", "--drop-height", "0.1", "--t-end", T_END, "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "first-impact stroke" in printed and "energy ledger closure" in printed
     with (out / "trajectory.csv").open() as fh:
         rows = list(csv.reader(fh))
     assert tuple(rows[0]) == QuarterModel.COLUMNS
-    assert len(rows) == 1 + 3500
+    assert len(rows) == 1 + 5000  # t_end / save_dt (default 1e-4 s)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["drop_height_m"] == 0.1 and summary["max_stroke_m"] > 0.01
     jl.load_vehicle(out / "vehicle.toml")
@@ -76,7 +80,7 @@ def test_simulate_3d_scene_from_file_and_flags(tmp_path, capsys):
     scene = tmp_path / "scene.toml"
     scene.write_text("[scene]\nroll_deg = 3.0\nhorizontal_speed_mps = 0.5\nheading_deg = 30\n")
     out = tmp_path / "run3d"
-    assert main(["simulate", "--scene", str(scene), "--pitch-deg", "-2", "--t-end", "0.35",
+    assert main(["simulate", "--scene", str(scene), "--pitch-deg", "-2", "--t-end", T_END,
                  "--out", str(out)]) == 0
     assert "full model" in capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())

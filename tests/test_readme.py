@@ -4,7 +4,10 @@ Each line of the README's ```bash / ```sh blocks is run in a fresh shell, in a s
 sees the repository's data/ and examples/ (so outputs land in the scratch folder), with the
 project's `jaxland` and `python` first on PATH. Commands run in order, so a later example may use
 an earlier one's output (`predict` reads what `fit` wrote). Each ```python block runs in its own
-interpreter, because `import jaxland` changes global JAX state.
+interpreter, because `import jaxland` changes global JAX state. They share the test session's
+compilation cache (tests/conftest.py): a landing an earlier test compiled is read back, not
+compiled again (the sizes in the README's examples match some tests' for that reason); results
+are the same either way.
 
 Two commands are not run literally:
 - `make test` is skipped: it runs this test suite, which would recurse.
