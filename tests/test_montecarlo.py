@@ -123,8 +123,7 @@ def test_failed_samples_are_counted_and_the_rest_is_intact():
     v = res.inputs["sink_speed_mps"]
     assert v[res.failure != 0].min() > v[res.failure == 0].max()  # the hard ones failed
     for i in np.flatnonzero(res.failure == 0):
-        one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1,
-                          save_dt=0.1).outcomes
+        one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1).outcomes
         np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one["max_stroke_m"],
                                    rtol=1e-9)
 
@@ -146,7 +145,7 @@ def test_failed_samples_are_retried_with_implicit_damping():
     v = res.inputs["sink_speed_mps"]
     assert v[retried].min() > v[~retried].max()  # the hard ones
     i = int(np.flatnonzero(retried)[0])
-    one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1, save_dt=0.1)
+    one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1)
     assert one.outcomes["retried_from_dt_s"] == spec.dt
     np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one.outcomes["max_stroke_m"],
                                rtol=1e-3)
