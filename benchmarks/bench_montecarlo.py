@@ -1,10 +1,25 @@
-"""Monte Carlo throughput on this machine: quarter and full 3-D model, 1 and 2 devices.
+"""Monte Carlo on this machine: throughput (quarter and full 3-D model, 1 and 2 devices, this
+tree against an earlier one side by side) and the choice of the Monte Carlo step.
 
-    python benchmarks/bench_montecarlo.py [--quarter-n 100000] [--full-n 512]
+    python benchmarks/bench_montecarlo.py [--quarter-n 20000] [--full-n 128] [--before TREE]
+    python benchmarks/bench_montecarlo.py --step-study [--step-n 32]
+    python benchmarks/bench_montecarlo.py --quick
 
-Each configuration runs in its own process (the device count is fixed when jax starts:
-XLA_FLAGS=--xla_force_host_platform_device_count=K), with the same spec and seed; the wall time
-includes compilation. Writes benchmarks/results/bench_montecarlo.{json,png}.
+Throughput: each configuration runs in its own process (the device count is fixed when jax
+starts: XLA_FLAGS=--xla_force_host_platform_device_count=K), with the same spec and seed; the
+wall time includes compilation. ``--before TREE`` (a checkout of an earlier commit, e.g. from
+``git worktree add``) runs the same child on that tree's jaxland, one after the other with this
+tree's, so the two can be compared on a shared, noisy machine. Writes
+benchmarks/results/bench_montecarlo.{json,png}.
+
+Step study (``--step-study``): per model, the dispersed samples' outcomes (max stroke, peak
+strut, ground and honeycomb forces, per landing the worst leg) at each method and step against
+a converged reference (verlet at 2.5e-6 s, itself checked against euler at that step); the
+chosen step is the cheapest one (evaluations per simulated second) whose outcomes stay within
+1e-3 with every sample's tip-over, bottoming and result unchanged. Writes
+benchmarks/results/montecarlo_step.{json,png}.
+
+``--quick`` (tiny sizes) writes to out/bench-quick/, never into benchmarks/results/.
 """
 
 from __future__ import annotations
@@ -14,77 +29,218 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
-from _common import save_png, write_json
-
-OUT = Path(__file__).resolve().parent / "results"
+from _common import add_out_args, machine, out_dir, save_png, write_json
 
 CHILD = """
 import json, sys, time
 import jax
-from jaxland import Distribution, MonteCarloSpec, run_montecarlo
-model, n = sys.argv[1], int(sys.argv[2])
-disp = {"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
-        "mass_scale": Distribution("normal", 1.0, 0.03)}
+from jaxland import Distribution, MonteCarloSpec, run_montecarlo, load_montecarlo_spec
+model, n, method, dt = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4])
 if model == "full":
-    disp.update({"horizontal_speed_mps": Distribution("truncnormal", 0.0, 0.7, 0.0, 2.5),
-                 "heading_deg": Distribution("uniform", low=0.0, high=360.0),
-                 "roll_deg": Distribution("normal", 0.0, 2.0),
-                 "pitch_deg": Distribution("normal", 0.0, 2.0)})
-spec = MonteCarloSpec(dispersion=disp, fixed={"drop_height_m": 0.0}, n=n, seed=0, t_end=1.0)
+    spec = load_montecarlo_spec(sys.argv[5])
+    spec.n = n
+else:
+    spec = MonteCarloSpec(
+        dispersion={"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
+                    "mass_scale": Distribution("normal", 1.0, 0.03)},
+        fixed={"drop_height_m": 0.0}, n=n, seed=0, t_end=1.0)
+spec.method, spec.dt = method, dt
 t = time.perf_counter()
 r = run_montecarlo(spec, progress=False)
 wall = time.perf_counter() - t
 print(json.dumps(dict(model=r.summary["model"], n=n, devices=len(jax.devices()), wall_s=wall,
-                      landings_per_s=n / wall, n_failed=r.summary["n_failed"])))
+                      landings_per_s=n / wall, n_failed=r.summary["n_failed"],
+                      n_retried=r.summary["n_retried"], method=method, dt_s=dt)))
 """
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "montecarlo_dispersed.toml"
 
 
-def run(model: str, n: int, devices: int) -> dict:
+def run(model: str, n: int, devices: int, method="euler", dt=1e-5, tree=None) -> dict:
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
-    out = subprocess.run([sys.executable, "-c", CHILD, model, str(n)], env=env, check=True,
-                         capture_output=True, text=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    if tree is not None:
+        env["PYTHONPATH"] = str(Path(tree).resolve())
+    out = subprocess.run([sys.executable, "-c", CHILD, model, str(n), method, str(dt),
+                          str(EXAMPLE)], env=env, check=True, capture_output=True, text=True,
+                         cwd=tree or None)
+    row = json.loads(out.stdout.strip().splitlines()[-1])
+    row["tree"] = "before" if tree is not None else "this"
+    print(row, flush=True)
+    return row
+
+
+def throughput(args, out: Path) -> dict:
+    sizes = {"quarter": args.quarter_n, "full": args.full_n}
+    chosen = {}
+    step_file = out / "montecarlo_step.json"
+    if step_file.exists():
+        chosen = {m: r["chosen"] for m, r in json.loads(step_file.read_text())["models"].items()
+                  if r.get("chosen")}
+    rows, compare = [], []
+    for model, n in sizes.items():
+        for devices in (1, 2):
+            rows.append(run(model, n, devices))
+        if args.before:  # the same child on the earlier tree, then this one again
+            compare.append(run(model, n, 1, tree=args.before))
+            compare.append(run(model, n, 1))
+        if model in chosen:
+            compare.append(run(model, n, 1, chosen[model]["method"], chosen[model]["dt_s"]))
+    speed = {m: next(r["wall_s"] for r in rows if r["model"] == m and r["devices"] == 1)
+             / next(r["wall_s"] for r in rows if r["model"] == m and r["devices"] == 2)
+             for m in sizes}
+    result = dict(spec="quarter: sink speed 2.0+-0.3 m/s, mass +-3 %; full: "
+                       "examples/montecarlo_dispersed.toml; 1.0 s landings from touchdown; "
+                       "runs: euler at dt = 1e-5 s; wall time includes compilation",
+                  machine=machine(), runs=rows, speedup_2_devices=speed,
+                  side_by_side=compare, before_tree=args.before,
+                  note="a shared 2-core machine: timings are noisy; compare rows of one run")
+    write_json(out / "bench_montecarlo.json", result, indent=2)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4), layout="constrained")
+    ax = fig.subplots()
+    bars = [(f"{r['model']}\n{r['devices']} dev", r) for r in rows] + [
+        (f"{r['model']}\n{r['tree']}\n{r['method']} {r['dt_s']:g}", r) for r in compare]
+    ax.bar(range(len(bars)), [r["landings_per_s"] for _, r in bars],
+           color=["C0" if r["tree"] == "this" else "C1" for _, r in bars])
+    ax.set_xticks(range(len(bars)), [b for b, _ in bars], fontsize="x-small")
+    ax.set_yscale("log")
+    ax.set_ylabel("throughput [landings/s]")
+    ax.set_title("Monte Carlo on this CPU (orange: the earlier tree)")
+    save_png(fig, out / "bench_montecarlo.png")
+    return result
+
+
+# ---------------------------------------------------------------- the Monte Carlo step (2c)
+
+STEP_METHODS = {"euler": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5),
+                "euler_implicit": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4),
+                "verlet": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4)}
+REFERENCE = ("verlet", 2.5e-6)  # the converged reference; checked against euler at that step
+STEP_TOL = 1e-3  # largest relative error of an outcome accepted
+STEP_KEYS = ("max_stroke_m", "peak_strut_force_N", "peak_normal_force_N",
+             "peak_honeycomb_force_N")
+
+
+def _spec(model: str, n: int):
+    import jaxland as jl
+
+    if model == "full":
+        spec = jl.load_montecarlo_spec(Path(__file__).resolve().parents[1] / "examples"
+                                       / "montecarlo_dispersed.toml")
+        spec.n = n
+        return spec
+    return jl.MonteCarloSpec(dispersion=quarter_dispersion(), fixed={"drop_height_m": 0.0},
+                             n=n, seed=0, t_end=1.0)
+
+
+def quarter_dispersion():
+    import jaxland as jl
+
+    return {"sink_speed_mps": jl.Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
+            "mass_scale": jl.Distribution("normal", 1.0, 0.03)}
+
+
+def _outcomes(model, spec, method, dt):
+    import jax
+    import numpy as np
+
+    import jaxland as jl
+
+    scenes, _ = jl.sample_scenes(spec, 0, spec.n)
+    solver = jl.Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method).validate()
+    v = jl.paper_vehicle()
+    t0 = time.perf_counter()
+    s = jax.device_get(jax.jit(lambda sc: jl.landings(v, sc, solver, model)[1])(scenes))
+    out = {k: np.max(np.reshape(s[k], (spec.n, -1)), axis=1) for k in STEP_KEYS}
+    out.update(result=np.asarray(s["result"]), tipped=np.asarray(s["tipped"]),
+               bottomed=np.asarray(s["bottomed"]), wall_s=time.perf_counter() - t0)
+    return out
+
+
+def step_study(models, n: int) -> dict:
+    """Per model and method, each step's largest relative error of the outcomes against the
+    converged reference over ``n`` dispersed samples, and whether every sample keeps its
+    classification (tip-over, bottoming) and result; the chosen step: the largest one within
+    ``STEP_TOL`` with every classification kept."""
+    import numpy as np
+
+    report = dict(tolerance=STEP_TOL, reference=dict(method=REFERENCE[0], dt_s=REFERENCE[1]),
+                  outcomes=list(STEP_KEYS), models={})
+    for model in models:
+        spec = _spec(model, n)
+        ref = _outcomes(model, spec, *REFERENCE)
+        rows = []
+
+        def compare(method, dt, ref=ref, spec=spec, model=model):
+            got = _outcomes(model, spec, method, dt)
+            err = {k: float(np.max(np.abs(got[k] - ref[k]) / np.abs(ref[k]))) for k in STEP_KEYS}
+            same = bool(np.array_equal(got["tipped"], ref["tipped"])
+                        and np.array_equal(got["bottomed"], ref["bottomed"])
+                        and np.array_equal(got["result"], ref["result"]))
+            row = dict(method=method, dt_s=dt, max_rel_error=err, worst=max(err.values()),
+                       classification_kept=same, n_failed=int(np.sum(got["result"] != 0)),
+                       wall_s=got["wall_s"])
+            print(model, row, flush=True)
+            return row
+
+        check = compare("euler", REFERENCE[1])  # the reference against another method
+        for method, dts in STEP_METHODS.items():
+            rows += [compare(method, dt) for dt in dts]
+        for r in rows:  # force evaluations per simulated second (verlet: two per step)
+            r["evaluations_per_s"] = (2.0 if r["method"] == "verlet" else 1.0) / r["dt_s"]
+        ok = [r for r in rows if r["worst"] <= STEP_TOL and r["classification_kept"]]
+        best = min(ok, key=lambda r: (r["evaluations_per_s"], -r["dt_s"])) if ok else None
+        report["models"][model] = dict(
+            n=n, spec="examples/montecarlo_dispersed.toml" if model == "full" else
+            "sink speed 2.0+-0.3 m/s, mass +-3 %", t_end_s=spec.t_end,
+            reference_check=check, rows=rows, chosen=best,
+            n_tipped=int(np.sum(ref["tipped"])), n_bottomed=int(np.sum(ref["bottomed"])))
+    return report
+
+
+def plot_steps(report: dict, out: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 3.6), layout="constrained")
+    axes = fig.subplots(1, len(report["models"]), squeeze=False)[0]
+    for ax, (model, rep) in zip(axes, report["models"].items()):
+        for i, method in enumerate(STEP_METHODS):
+            rs = [r for r in rep["rows"] if r["method"] == method]
+            ax.loglog([r["dt_s"] for r in rs], [max(r["worst"], 1e-16) for r in rs], "o-",
+                      color=f"C{i}", label=method)
+            for r in rs:
+                if not r["classification_kept"]:
+                    ax.plot(r["dt_s"], max(r["worst"], 1e-16), "x", color="k", ms=9)
+        ax.axhline(report["tolerance"], color="grey", ls="--", lw=1)
+        ax.set_xlabel("step dt [s]")
+        ax.set_ylabel("worst relative error of the outcomes [-]")
+        ax.set_title(f"{model} (n = {rep['n']}); x: a classification changed")
+        ax.legend(fontsize="small")
+    save_png(fig, out / "montecarlo_step.png")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quarter-n", type=int, default=100_000)
-    ap.add_argument("--full-n", type=int, default=512)
+    ap.add_argument("--quarter-n", type=int, default=20_000)
+    ap.add_argument("--full-n", type=int, default=128)
+    ap.add_argument("--before", default=None, help="an earlier checkout to run side by side")
+    ap.add_argument("--step-study", action="store_true")
+    ap.add_argument("--step-n", type=int, default=32)
+    add_out_args(ap)
     args = ap.parse_args()
-    rows = []
-    for model, n in (("quarter", args.quarter_n), ("full", args.full_n)):
-        for devices in (1, 2):
-            row = run(model, n, devices)
-            print(row, flush=True)
-            rows.append(row)
-    result = dict(spec="sink speed 2.0+-0.3 m/s, mass +-3 % (quarter); plus horizontal speed, "
-                       "heading, roll, pitch (full); 1.0 s landings at dt = 1e-5 s, from "
-                       "touchdown; wall time includes compilation", runs=rows,
-                  speedup_2_devices={m: next(r["wall_s"] for r in rows if r["model"] == m and
-                                             r["devices"] == 1) /
-                                     next(r["wall_s"] for r in rows if r["model"] == m and
-                                          r["devices"] == 2) for m in ("quarter", "full")})
-    OUT.mkdir(parents=True, exist_ok=True)
-    write_json(OUT / "bench_montecarlo.json", result, indent=2)
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(6, 4), layout="constrained")
-    ax = fig.subplots()
-    for i, model in enumerate(("quarter", "full")):
-        rs = [r for r in rows if r["model"] == model]
-        ax.bar([i - 0.2, i + 0.2], [r["landings_per_s"] for r in rs], 0.35,
-               color=["C0", "C1"], label=None)
-        for r, x in zip(rs, (i - 0.2, i + 0.2)):
-            ax.text(x, r["landings_per_s"], f"{r['devices']} dev\n{r['landings_per_s']:.0f}/s",
-                    ha="center", va="bottom", fontsize="small")
-    ax.set_xticks([0, 1], [f"quarter (n={args.quarter_n})", f"full 3-D (n={args.full_n})"])
-    ax.set_yscale("log")
-    ax.set_ylabel("throughput [landings/s]")
-    ax.set_title("Monte Carlo on this CPU: 1 vs 2 devices")
-    save_png(fig, OUT / "bench_montecarlo.png")
-    print(json.dumps(result, indent=2))
+    out = out_dir(args.out, args.quick)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.quick:
+        args.quarter_n, args.full_n, args.step_n = 64, 4, 4
+    if args.step_study:
+        report = step_study(("quarter", "full"), args.step_n)
+        write_json(out / "montecarlo_step.json", report, indent=2)
+        plot_steps(report, out)
+        return
+    print(json.dumps(throughput(args, out), indent=2))
 
 
 if __name__ == "__main__":

@@ -284,6 +284,11 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         failed_samples=np.flatnonzero(failed).tolist()[:100],
         n_no_touchdown=int((failure == int(Result.NO_TOUCHDOWN)).sum()),
         n_retried=int(outputs["retried"].sum()),
+        early_stop=spec.early_stop,
+        n_settled=(int(np.isfinite(outputs["settled_time_s"]).sum())
+                   if "settled_time_s" in outputs else None),
+        settled_time_s=(percentiles(outputs["settled_time_s"][
+            np.isfinite(outputs["settled_time_s"])]) if "settled_time_s" in outputs else None),
         retry_method=("euler_implicit" if spec.method == "euler" else spec.method)
         if outputs["retried"].any() else None,
         tip_over=dict(count=k_tip, n=n_ok, probability=k_tip / max(n_ok, 1),

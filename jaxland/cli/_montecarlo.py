@@ -34,6 +34,10 @@ def cmd_montecarlo(args) -> int:
           f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
     failures = f"  {s['failures']}" if s["failures"] else ""
     print(f"  failed samples      {s['n_failed']}{failures}")
+    if s["early_stop"]:
+        settled = s["settled_time_s"]
+        print(f"  settled before t_end {s['n_settled']}"
+              + (f" (median {settled['p50']:.3g} s)" if settled else ""))
     if s["n_no_touchdown"]:
         print(f"  no touchdown        {s['n_no_touchdown']} (counted apart; raise t_end_s)")
     print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
