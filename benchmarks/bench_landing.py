@@ -1,17 +1,26 @@
 """Compile time and run time of one landing and of vmapped batches (quarter and full 3-D model),
-and the cost of gradients, written as ``bench_landing.json`` plus ``bench_landing.png``.
+the cost of gradients, and the cost per landing-step of both models side by side with the
+structure of their compiled time step, written as ``bench_landing.json`` plus
+``bench_landing.png``.
 
     python benchmarks/bench_landing.py [--quick] [--batch 1000] [--out DIR]
 
 Timings are medians of repeats after compile, measured side by side in one run (the machines
-are noisy); they are never asserted by tests. ``--quick`` (tiny sizes) writes to
-``out/bench-quick/`` unless ``--out`` says otherwise, never into ``benchmarks/results/``.
+are noisy); they are never asserted by tests. The per-landing-step comparison runs the two
+models' single landings and batches (64 and 512) interleaved, repeat by repeat, so that both
+see the same machine. ``--quick`` (tiny sizes) writes to ``out/bench-quick/`` unless ``--out``
+says otherwise, never into ``benchmarks/results/``.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
+import os
+import re
+import statistics
+import time
 from pathlib import Path
 
 import equinox as eqx
@@ -26,6 +35,87 @@ from jaxland import Scene, Solver, landing, landings
 
 def _compile_and_time(fn, args, repeats):
     return timed(fn, args, repeats)[1:]
+
+
+def loop_body_counts(hlo_text: str) -> dict:
+    """What the compiled time step is made of: in the innermost while body of an optimised
+    XLA module, the number of kernels XLA launches per step (fusions and the unfused copies
+    and library calls), the matrix products (``dot``: library calls on XLA:CPU), the
+    reductions and all operations inside the fusions (XLA duplicates cheap elementwise work
+    into every fusion that consumes it, so this counts the work done per step)."""
+    comps, cur = {}, None
+    for line in hlo_text.splitlines():
+        head = re.match(r"^(?:ENTRY )?%?([\w.\-]+) .*\{\s*$", line)
+        if head:
+            cur = head.group(1)
+            comps[cur] = []
+        elif line.startswith("}"):
+            cur = None
+        elif cur is not None:
+            comps[cur].append(line)
+
+    def ops(name):
+        c = collections.Counter()
+        for line in comps.get(name, ()):
+            m = re.search(r"= (?:\S+|\([^)]*\)) ([a-z][\w\-]*)\(", line)
+            if m:
+                c[m.group(1)] += 1
+        return c
+
+    bodies = [m.group(1) for m in re.finditer(r"while\(.*?body=%?([\w.\-]+)", hlo_text)]
+    inner = [b for b in bodies if not any(" while(" in line for line in comps.get(b, ()))]
+    if not inner:
+        return {}
+    body = inner[0]
+    top = ops(body)
+    fused = collections.Counter()
+    for line in comps[body]:
+        if " fusion(" in line and "calls=" in line:
+            fused.update(ops(re.search(r"calls=%?([\w.\-]+)", line).group(1)))
+    trivial = ("parameter", "constant", "broadcast", "bitcast", "get-tuple-element", "tuple")
+    return dict(
+        fusions=top["fusion"], copies=top["copy"], dots=top["dot"] + fused["dot"],
+        custom_calls=top["custom-call"], reduces=top["reduce"] + fused["reduce"],
+        fused_ops=sum(v for k, v in fused.items() if k not in trivial),
+        divides=fused["divide"], sqrts=fused["sqrt"])
+
+
+def per_landing_step(vehicle, solver, sizes, repeats):
+    """ns per landing-step of both models, single landing (jit) and vmapped batches, run
+    interleaved repeat by repeat; with the loop-body counts of each compiled program."""
+    runs = {}
+    for model in ("quarter", "full"):
+        for n in sizes:
+            if n == 0:
+                fn = jax.jit(lambda s, model=model: landing(vehicle, s, solver, model)[1][
+                    "max_stroke_m"])
+                args = (Scene(),)
+            else:
+                fn = jax.jit(lambda sc, model=model: landings(vehicle, sc, solver, model)[1][
+                    "max_stroke_m"])
+                args = (Scene.batch(drop_height=jnp.linspace(0.05, 0.5, n)),)
+            t0 = time.perf_counter()
+            compiled = fn.lower(*args).compile()
+            compile_s = time.perf_counter() - t0
+            jax.block_until_ready(compiled(*args))
+            runs[(model, n)] = (compiled, args, compile_s, [])
+    for _ in range(repeats):
+        for compiled, args, _, times in runs.values():
+            t0 = time.perf_counter()
+            jax.block_until_ready(compiled(*args))
+            times.append(time.perf_counter() - t0)
+    out = {}
+    for (model, n), (compiled, _, compile_s, times) in runs.items():
+        run_s = statistics.median(times)
+        out.setdefault(model, []).append(dict(
+            batch=n, compile_s=compile_s, run_s=run_s,
+            ns_per_landing_step=run_s / max(n, 1) / solver.n_steps * 1e9,
+            loop_body=loop_body_counts(compiled.as_text())))
+    ratio = {str(q["batch"]): f["ns_per_landing_step"] / q["ns_per_landing_step"]
+             for q, f in zip(out["quarter"], out["full"])}
+    return dict(t_end_s=solver.t_end, dt_s=solver.dt, n_steps=solver.n_steps,
+                note="batch 0 is one landing under jit, without vmap", repeats=repeats,
+                models=out, full_over_quarter=ratio)
 
 
 def _model_timings(vehicle, solver, model, sizes, repeats):
@@ -48,6 +138,7 @@ def _model_timings(vehicle, solver, model, sizes, repeats):
 
 def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> dict:
     """Run the benchmark and write ``bench_landing.json`` and ``bench_landing.png``."""
+    load_before = os.getloadavg()[0]
     vehicle = jl.paper_vehicle()
     t_end = 0.3 if quick else 1.2
     solver = Solver(dt=1e-5, t_end=t_end, save_dt=1e-3)
@@ -68,19 +159,26 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
     run_s = single["run_s"]
     jf_compile, jf_run = _compile_and_time(jax.jacfwd(stroke_of), (th0,), repeats)
     gr_compile, gr_run = _compile_and_time(jax.grad(stroke_of), (th0,), repeats)
+    step_solver = Solver(dt=1e-5, t_end=0.02 if quick else 0.3, save_dt=1e-3)
+    steps = per_landing_step(vehicle, step_solver, (0, 4) if quick else (0, 64, 512),
+                             2 if quick else 5)
 
     result = dict(
         scene="paper 0.2 m drop (symmetric), symplectic Euler; quarter and full 3-D model",
         dt_s=solver.dt, t_end_s=t_end, n_steps=solver.n_steps,
         machine=machine(),
+        # the 1-minute load average before and after the run: on a shared machine the timings
+        # scale with it, the side-by-side ratios much less
+        load_average_1min=[load_before, os.getloadavg()[0]],
         single=single,
         batched=batched,
         full_model=dict(single=full_single, batched=full_batched,
                         cost_ratio_single=full_single["run_s"] / run_s),
-        gradients=dict(jacfwd_6params=dict(compile_s=jf_compile, run_s=jf_run,
-                                            ratio_to_forward=jf_run / run_s),
-                       grad_6params=dict(compile_s=gr_compile, run_s=gr_run,
-                                          ratio_to_forward=gr_run / run_s)),
+        gradients=dict(jacfwd_6_params=dict(compile_s=jf_compile, run_s=jf_run,
+                                             ratio_to_forward=jf_run / run_s),
+                       grad_6_params=dict(compile_s=gr_compile, run_s=gr_run,
+                                           ratio_to_forward=gr_run / run_s)),
+        per_landing_step=steps,
         quick=quick,
     )
     write_json(out_dir / "bench_landing.json", result, indent=2)
@@ -91,8 +189,8 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
 def _plot(result: dict, path: Path) -> None:
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(10, 4), layout="constrained")
-    ax1, ax2 = fig.subplots(1, 2)
+    fig = Figure(figsize=(15, 4), layout="constrained")
+    ax1, ax2, ax3 = fig.subplots(1, 3)
     for label, res in (("quarter", result), ("full 3-D", result["full_model"])):
         b = res["batched"]
         line, = ax1.loglog([r["batch"] for r in b], [r["landings_per_s"] for r in b], "o-",
@@ -104,10 +202,11 @@ def _plot(result: dict, path: Path) -> None:
     ax1.set_title(f"{result['t_end_s']:g} s landings at dt = {result['dt_s']:g} s")
     ax1.legend()
     labels = ["forward", "jacfwd (6)", "grad (6)"]
-    runs = [result["single"]["run_s"], result["gradients"]["jacfwd_6params"]["run_s"],
-            result["gradients"]["grad_6params"]["run_s"]]
-    comps = [result["single"]["compile_s"], result["gradients"]["jacfwd_6params"]["compile_s"],
-             result["gradients"]["grad_6params"]["compile_s"]]
+    grads = result["gradients"]
+    runs = [result["single"]["run_s"], grads["jacfwd_6_params"]["run_s"],
+            grads["grad_6_params"]["run_s"]]
+    comps = [result["single"]["compile_s"], grads["jacfwd_6_params"]["compile_s"],
+             grads["grad_6_params"]["compile_s"]]
     x = np.arange(3)
     ax2.bar(x - 0.2, np.array(runs) * 1e3, 0.4, label="run [ms]")
     ax2.bar(x + 0.2, np.array(comps) * 1e3, 0.4, label="compile [ms]")
@@ -116,6 +215,17 @@ def _plot(result: dict, path: Path) -> None:
     ax2.set_ylabel("time [ms]")
     ax2.set_title("one landing: run and compile time")
     ax2.legend()
+    steps = result["per_landing_step"]
+    for k, (model, rows) in enumerate(steps["models"].items()):
+        labels = ["one" if r["batch"] == 0 else f"batch {r['batch']}" for r in rows]
+        xs = np.arange(len(rows))
+        ax3.bar(xs + (k - 0.5) * 0.4, [r["ns_per_landing_step"] for r in rows], 0.4,
+                label=f"{model} model")
+        ax3.set_xticks(xs, labels)
+    ax3.set_yscale("log")
+    ax3.set_ylabel("time per landing and step [ns]")
+    ax3.set_title(f"cost per landing-step ({steps['t_end_s']:g} s landings, side by side)")
+    ax3.legend()
     save_png(fig, path)
 
 

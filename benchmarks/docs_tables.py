@@ -276,6 +276,22 @@ def performance_landing() -> str:
     return _table(["what", "quarter model", "full 3-D model"], rows)
 
 
+def performance_steps() -> str:
+    b = _load("bench_landing.json")["per_landing_step"]
+    q, f = b["models"]["quarter"], b["models"]["full"]
+    rows = []
+    for rq, rf in zip(q, f):
+        what = "one landing (jit)" if rq["batch"] == 0 else f"vmapped batch of {rq['batch']}"
+        rows.append([what, f"{rq['ns_per_landing_step']:.0f}", f"{rf['ns_per_landing_step']:.0f}",
+                     f"{b['full_over_quarter'][str(rq['batch'])]:.1f}",
+                     "{fusions} / {dots} / {reduces} / {fused_ops}".format(**rq["loop_body"]),
+                     "{fusions} / {dots} / {reduces} / {fused_ops}".format(**rf["loop_body"])])
+    return _table(["run", "quarter [ns per landing-step]", "full 3-D [ns per landing-step]",
+                   "full / quarter [-]",
+                   "quarter step: fusions / dots / reduces / fused ops",
+                   "full step: fusions / dots / reduces / fused ops"], rows)
+
+
 def performance_montecarlo() -> str:
     b = _load("bench_montecarlo.json")
     rows = []
@@ -423,6 +439,7 @@ TABLES = {
     "integrators-stability": integrators_stability,
     "gradient-quality": gradient_quality,
     "performance-landing": performance_landing,
+    "performance-steps": performance_steps,
     "performance-montecarlo": performance_montecarlo,
     "calibration-fit": calibration_fit,
     "calibration-prediction": calibration_prediction,
