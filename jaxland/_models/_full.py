@@ -293,6 +293,12 @@ class FullModel(AbstractModel):
                     + tc.force[1][:, None] * t2[None, :])
 
         gz = jnp.array([0.0, 0.0, 1.0])
+
+        def body_rates(f_strut):  # the body's force [N] and body-frame angular acceleration
+            f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
+            torque_b = Rm.T @ (jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques)
+            return f_body, (torque_b - jnp.cross(w_b, inertia * w_b)) / inertia
+
         if kick is None:
             st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn, smooth_m=sm)
         else:  # implicit damping: the stroke rate after the kick from the other foot forces
@@ -303,19 +309,13 @@ class FullModel(AbstractModel):
                 # damping explicit; the quarter model's note): u . (a_b + w_dot x r_P)
                 st_ex = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn,
                                     smooth_m=sm)
-                f_ex = st_ex.force[:, None] * u
-                a_b = (-jnp.sum(f_ex + aux_force_vecs, axis=0) - m * g * gz) / m
-                t_ex = Rm.T @ (jnp.sum(jnp.cross(rP, -f_ex), axis=0) + aux_torques)
-                w_dot_ex = Rm @ ((t_ex - jnp.cross(w_b, inertia * w_b)) / inertia)
-                a_P = a_b[None, :] + jnp.cross(jnp.broadcast_to(w_dot_ex, rP.shape), rP)
+                f_body_ex, w_dot_ex = body_rates(st_ex.force[:, None] * u)
+                a_P = f_body_ex[None, :] / m + jnp.cross(Rm @ w_dot_ex, rP)
                 free = free + kick * jnp.sum(u * a_P, axis=-1)
             st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, free, sn, sm)
         f_strut = st.force[:, None] * u
         f_feet = f_strut + aux_force_vecs + f_ground - m2 * g * gz[None, :]
-        f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
-        torque_w = jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques
-        torque_b = Rm.T @ torque_w
-        w_dot = (torque_b - jnp.cross(w_b, inertia * w_b)) / inertia
+        f_body, w_dot = body_rates(f_strut)
         accel = (f_body / m, w_dot, f_feet / m2)
 
         new = eqx.tree_at(

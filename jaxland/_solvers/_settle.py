@@ -99,8 +99,11 @@ def conditions(model, vehicle, derived, scene, s, peaks: dict, touched, upright,
         out.update({k: jnp.atleast_1d(a) for k, a in acc.items() if k.startswith("body_a")})
         return m_diag * ravel_pytree(ev.accel)[0], out
 
-    (jf, jy), (f0, y0) = jax.jacfwd(lambda d: (static(d), static(d)), has_aux=True)(
-        jnp.zeros(n))
+    def static_twice(d):  # the values once, as output and as aux
+        out = static(d)
+        return out, out
+
+    (jf, jy), (f0, y0) = jax.jacfwd(static_twice, has_aux=True)(jnp.zeros(n))
     jf = jf.T  # jf[j] = d f / d delta_j
     jy = {k: jnp.moveaxis(x, -1, 0) for k, x in jy.items()}
     K = -0.5 * (jf + jf.T)
