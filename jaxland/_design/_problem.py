@@ -7,7 +7,6 @@ import dataclasses
 import math
 import statistics
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,9 +14,10 @@ import numpy as np
 from .._config import paper_vehicle, validate_vehicle
 from .._errors import ConfigError
 from .._models import MODELS
-from .._montecarlo import MonteCarloSpec, sample_scenes
+from .._montecarlo import MonteCarloSpec
+from .._montecarlo._sample import check_fixed, draw, scene_fields
 from .._params import Vehicle
-from .._scene import batch_axes
+from .._scene import Scene
 from .._simulate import landings
 from .._solvers import Result, Solver
 from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
@@ -31,14 +31,6 @@ from ._spec import (
     DesignSpec,
     DesignVariable,
 )
-
-
-def _join_scenes(a, b):
-    """Two scene batches of one dispersion as one batch (batched fields joined)."""
-    axes = batch_axes(a)
-    names = [n for n in a.__dataclass_fields__ if getattr(axes, n) == 0]
-    return eqx.tree_at(lambda s: [getattr(s, n) for n in names], a,
-                       [jnp.concatenate([getattr(a, n), getattr(b, n)]) for n in names])
 
 
 def risk_measure(values, measure: str, level: float = 0.9):
@@ -88,14 +80,15 @@ class DesignProblem:
         scene_spec = MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed, n=spec.n_scenes,
                                     seed=spec.scene_seed, dt=spec.dt, t_end=spec.t_end,
                                     model=self.model)
-        self.scenes, self.scene_inputs = sample_scenes(scene_spec, 0, spec.n_scenes,
-                                                       self.vehicle.n_legs)
-        for seed, idx in self.added:
-            more, ins = sample_scenes(dataclasses.replace(scene_spec, seed=seed), 0, 0,
-                                      self.vehicle.n_legs, indices=np.asarray(idx))
-            self.scenes = _join_scenes(self.scenes, more)
-            self.scene_inputs = {k: np.concatenate([v, ins[k]])
-                                 for k, v in self.scene_inputs.items()}
+        n_legs = self.vehicle.n_legs
+        check_fixed(scene_spec, n_legs)
+        draws = [draw(scene_spec, jnp.arange(spec.n_scenes), n_legs)]
+        draws += [draw(dataclasses.replace(scene_spec, seed=seed), jnp.asarray(idx), n_legs)
+                  for seed, idx in self.added]  # sample_scenes' draws, joined
+        self.scene_inputs = {k: np.concatenate([np.asarray(d[k]) for d in draws])
+                             for k in draws[0]}
+        count = spec.n_scenes + sum(len(idx) for _, idx in self.added)
+        self.scenes = Scene.batch(**scene_fields(scene_spec, self.scene_inputs, count, n_legs))
         self.scenes.validate(self.vehicle.n_legs)
         self._check_bounds()
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
