@@ -12,9 +12,9 @@ from .._errors import ConfigError
 from .._montecarlo import MonteCarloSpec, percentiles, run_montecarlo, wilson_interval
 from .._params import Vehicle
 from .._solvers import Result
-from ._optimise import DesignResult, optimise_design
-from ._problem import risk_measure
-from ._spec import DesignSpec
+from ._optimise import DesignResult, _summaries, optimise_design
+from ._problem import DesignProblem, risk_measure
+from ._spec import VARIABLES, DesignSpec
 
 
 def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
@@ -141,8 +141,6 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
     The result's ``verification`` gains ``verified`` (every constraint met, no failed sample),
     ``rounds`` (what each round added and found) and, when not verified, ``reason``: why the
     loop stopped. ``say(str)`` receives one line per round."""
-    from ._optimise import _summaries
-    from ._problem import DesignProblem
 
     rounds = spec.verify_rounds if rounds is None else int(rounds)
     if rounds < 0:
@@ -187,7 +185,8 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
             break
         trial = added + ((seed, tuple(picks)),)
         problem = DesignProblem(spec, result.baseline, added=trial)
-        z_prev = problem.to_z({k: v * _to_si(k) for k, v in result.values.items()})
+        si = {k: v * VARIABLES[k].to_si for k, v in result.values.items()}  # the last design
+        z_prev = problem.to_z(si)
         _, _, per = problem.evaluate(z_prev)
         n_base = spec.n_scenes
         hit = {c.name: int(np.sum(np.asarray(c.badness(
@@ -208,7 +207,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         start_values = result.start_values
         result = optimise_design(spec, iterations=spec.reoptimise_iterations, progress=progress,
                                  problem=problem,
-                                 start={k: v * _to_si(k) for k, v in result.values.items()})
+                                 start=si)
         for rec in result.history:
             rec["round"] = r
             rec["iteration"] += len(history)
@@ -242,8 +241,3 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         ver["total_wall_s"] = time.perf_counter() - t0  # every round and verification
     return result
 
-
-def _to_si(name: str) -> float:
-    from ._spec import VARIABLES
-
-    return VARIABLES[name].to_si
