@@ -21,8 +21,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/jaxland simulate --out out/paper-drop
 
+# The suite is mostly XLA compilation, which runs on one core: two worker processes (pytest-xdist),
+# each test file whole on one worker so that its module fixtures compile once.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # Measurements: write benchmarks/results/ (summaries, tracked) and benchmarks/results/raw/
 # (full dumps, ignored). Add --quick by hand for a smoke run; it writes out/bench-quick/.

@@ -12,8 +12,9 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 # One persistent compilation cache per test session: a fresh temporary folder (removed at exit),
-# also used by the Python processes the tests start (the CLI, the README examples, benchmark
-# scripts), which compile landings that in-process tests compiled before them. XLA compilation is
+# also used by the pytest-xdist workers (`make test` runs two) and the Python processes the tests
+# start (the CLI, the README examples, benchmark scripts), which compile landings that other
+# tests compiled before them. XLA compilation is
 # most of the suite's time. Fresh each session, so every run compiles what a fresh machine does;
 # a cache folder set by the caller is used as it is.
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
