@@ -305,6 +305,32 @@ def performance_montecarlo() -> str:
                    "2 / 1 devices [-]"], rows)
 
 
+def montecarlo_step() -> str:
+    """Per model and method, the largest step whose outcomes stay within the tolerance
+    (montecarlo_step.json)."""
+    b = _load("montecarlo_step.json")
+    tol = b["tolerance"]
+    rows = []
+    for model, rep in b["models"].items():
+        ill = sorted(set().union(*rep["sensitivity"]["ill_conditioned_samples"].values()))
+        chosen = rep["chosen"]
+        for method in dict.fromkeys(r["method"] for r in rep["rows"]):
+            rs = [r for r in rep["rows"] if r["method"] == method]
+            ok = [r for r in rs if max(r["worst"], r["ensemble_worst"]) <= tol
+                  and r["classification_kept"]]
+            best = max(ok, key=lambda r: r["dt_s"]) if ok else None
+            rows.append([
+                f"{model} ({rep['n']} samples, {len(ill)} ill-conditioned)", method,
+                f"{best['dt_s']:g}" if best else "none",
+                _g(best["worst"], 2) if best else "-",
+                _g(best["ensemble_worst"], 2) if best else "-",
+                "yes" if chosen and best and chosen["method"] == method
+                and chosen["dt_s"] == best["dt_s"] else ""])
+    return _table(["model", "method", f"largest step within {tol:g} [s]",
+                   "worst per-sample error there, well-conditioned outcomes [-]",
+                   "worst mean/median error there [-]", "chosen (cheapest)"], rows)
+
+
 # --- calibration (bench_fit.json) ---------------------------------------------------------------
 
 def calibration_fit() -> str:
@@ -337,6 +363,21 @@ def calibration_fit() -> str:
                                             for v in variants.values())],
     ]
     return _table(["", *(opts(v) for v in variants.values())], rows)
+
+
+def calibration_fit_time() -> str:
+    """Cold fits, each in a fresh process (``fit_time`` in bench_fit.json)."""
+    ft = _load("bench_fit.json")["fit_time"]
+    target = ft["target_s"]
+    rows = [[r["case"], f"{r['wall_s']:.1f}", f"{r['cpu_s']:.1f}",
+             f"{r['load_average_1min_at_start']:.1f}", str(r["jacobians"]),
+             str(r["starts_tried"]), _g(r["wall_s"] <= target),
+             f"{max(abs(v) for v in r['rel_error'].values()) * 100:.2g}"]
+            for r in ft["runs"]]
+    return _table(["fit (cold, fresh process)", "wall [s]", "CPU, all threads [s]",
+                   "load average at start [-]", "Jacobians [-]", "starts [-]",
+                   f"wall <= {target:g} s",
+                   "largest error of the 6 paper parameters, absolute [%]"], rows)
 
 
 def calibration_prediction() -> str:
@@ -441,7 +482,9 @@ TABLES = {
     "performance-landing": performance_landing,
     "performance-steps": performance_steps,
     "performance-montecarlo": performance_montecarlo,
+    "montecarlo-step": montecarlo_step,
     "calibration-fit": calibration_fit,
+    "calibration-fit-time": calibration_fit_time,
     "calibration-prediction": calibration_prediction,
     "calibration-coverage": calibration_coverage,
     "design-verification": design_verification,
