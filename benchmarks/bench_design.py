@@ -117,6 +117,47 @@ def design_step() -> dict:
                      "constraint scale: 10 mm, 0.1 m)", reference="euler, dt 1e-5 s", runs=rows)
 
 
+def conditioning() -> dict:
+    """The paper-gear spec's design scenes at the baseline: per outcome the measures read, each
+    scene's largest raw derivative along one unconstrained coordinate z over the scenes' median
+    magnitude of that outcome (forward mode), the scenes the design's guard flags, and the
+    largest entry of each row of the measures' Jacobian with the guard and without it
+    (docs/design.md, "Ill-conditioned scenes")."""
+    import tomllib
+
+    from jaxland._design import _problem  # the guard's threshold, switched off for "raw"
+
+    spec = design_spec_from_dict(tomllib.loads(
+        (ROOT / "examples/design_paper_gear.toml").read_text()))
+    prob = DesignProblem(spec)
+    z = jnp.asarray(prob.z0)
+
+    def outcomes(z):
+        per = prob._per_scene(prob.vehicle_at(z))
+        return {k: per[k] for k in prob.outcomes}
+
+    val, jac = jax.jit(lambda z: (outcomes(z), jax.jacfwd(outcomes)(z)))(z)
+    rel = {k: np.max(np.abs(np.asarray(jac[k])), axis=1) / np.median(np.abs(np.asarray(val[k])))
+           for k in val}
+    _, jac_guarded, per = prob.evaluate(z)
+    threshold = _problem.ILL_CONDITIONED
+    _problem.ILL_CONDITIONED = float("inf")  # read when the problem is traced: a fresh one
+    try:
+        _, jac_raw, _ = DesignProblem(spec).evaluate(z)
+    finally:
+        _problem.ILL_CONDITIONED = threshold
+    return dict(
+        case=f"examples/design_paper_gear.toml at its baseline ({spec.n_scenes} scenes, "
+             f"{spec.t_end:g} s, {spec.method} at {spec.dt:g} s)",
+        threshold=threshold, relative_derivative_sorted={k: sorted(v.tolist())
+                                                         for k, v in rel.items()},
+        n_ill_conditioned={k: int(np.sum(v > threshold)) for k, v in rel.items()},
+        scenes_ill_conditioned=np.flatnonzero(per["ill_conditioned"]).tolist(),
+        measures=["objective", "gear mass", *(c.name for c in spec.constraints)],
+        jacobian_row_max_abs_guarded=np.max(np.abs(jac_guarded), axis=1).tolist(),
+        jacobian_row_max_abs_raw=np.max(np.abs(jac_raw), axis=1).tolist())
+
+
 def convergence() -> dict:
     """Iterations and wall time of the augmented-Lagrangian loop on ``CONVERGENCE`` for each
     inner-step setting in ``OPTIMISERS`` (one compiled problem shared, compiled beforehand):
@@ -198,7 +239,7 @@ def table(report: dict) -> dict:
 
 
 STUDIES = dict(gradient_modes=forward_vs_reverse, convergence=convergence,
-               smooth_max=smooth_max_bias, design_step=design_step)
+               smooth_max=smooth_max_bias, design_step=design_step, conditioning=conditioning)
 
 
 def main(argv=None) -> None:

@@ -7,6 +7,8 @@ import json
 import math
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -75,6 +77,61 @@ def test_robust_gradient_matches_central_differences(robust_problem):
     # and the measures are what they say: CVaR_0.5 of 4 scenes is the mean of the worst 2
     worst2 = np.sort(per["peak_body_accel_mps2"])[-2:].mean()
     assert vec[0] == pytest.approx(worst2, rel=1e-12)
+
+
+
+def test_ill_conditioned_derivatives_are_replaced_by_the_typical_scenes():
+    """guard_ill_conditioned: values unchanged; a tangent beyond ILL_CONDITIONED x the median
+    |value| becomes the median tangent of the other scenes; well-conditioned tangents are
+    bit for bit the same; with every scene ill-conditioned the tangent is 0, not NaN."""
+    from jaxland._design._problem import ILL_CONDITIONED, guard_ill_conditioned
+
+    def f(z):
+        return jnp.stack([1.0 + 0.1 * z, 2.0 + 0.2 * z, 1.5 + 0.15 * z,
+                          1.0 + 1e-7 * jnp.sin(1e10 * z)])  # the last: 1e3 x its size
+
+    v, t = jax.jvp(lambda z: guard_ill_conditioned(f(z)), (0.0,), (1.0,))
+    assert np.array_equal(v, f(0.0))
+    assert np.array_equal(t, [0.1, 0.2, 0.15, 0.15])
+    well = lambda z: f(z)[:3]  # noqa: E731
+    assert np.array_equal(jax.jvp(lambda z: guard_ill_conditioned(well(z)), (0.0,), (1.0,))[1],
+                          jax.jvp(well, (0.0,), (1.0,))[1])
+    _, t_all = jax.jvp(lambda z: guard_ill_conditioned(
+        jnp.stack([1.0 + 1e3 * ILL_CONDITIONED * z, 1.0 - 1e3 * ILL_CONDITIONED * z])),
+        (0.0,), (1.0,))
+    assert np.array_equal(t_all, [0.0, 0.0])
+
+
+class _Injected(DesignProblem):
+    """The robust problem with the max stroke of its worst scene (the one the CVaR weights
+    most) made to wiggle 1 um on a uN scale of F1: its derivative (~1e3 m per unit z) dwarfs
+    the true response of a stroke."""
+
+    def _per_scene(self, veh):
+        per = super()._per_scene(veh)
+        wiggle = 1e-6 * jnp.sin(1e6 * veh.honeycomb.F1)
+        worst = jnp.argmax(per["max_stroke_m"])
+        return dict(per, max_stroke_m=per["max_stroke_m"].at[worst].add(wiggle))
+
+
+def test_an_ill_conditioned_design_scene_is_flagged_and_kept_out_of_the_gradient(
+        robust_problem):
+    """The design Jacobian of the stroke constraint (CVaR_0.5 over 4 scenes) with one
+    ill-conditioned scene stays of the size it has without it (the scene moves as the median
+    of the others), where the raw derivative would put ~1e5 into that row; the scene, and only
+    it, is reported ill-conditioned. Its value still counts in the measures."""
+    z0 = robust_problem.z0 + np.array([0.1, -0.2, 0.15])
+    vec, jac, per = robust_problem.evaluate(z0)
+    assert not per["ill_conditioned"].any()
+    inj = _Injected(design_spec_from_dict(copy.deepcopy(ROBUST)))
+    vec_i, jac_i, per_i = inj.evaluate(z0)
+    worst = np.argmax(per["max_stroke_m"])
+    assert np.flatnonzero(per_i["ill_conditioned"]).tolist() == [worst]
+    assert np.all(np.isfinite(jac_i))
+    np.testing.assert_allclose(vec_i, vec, rtol=0, atol=1e-4)  # the 1 um wiggle / 0.01 m scale
+    row = 2  # the stroke constraint
+    assert np.max(np.abs(jac_i[row])) < 2.0 * np.max(np.abs(jac[row]))
+    np.testing.assert_array_equal(jac_i[:row], jac[:row])  # objective and mass untouched
 
 
 def test_risk_measures_against_direct_definitions():

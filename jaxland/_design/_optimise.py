@@ -138,6 +138,8 @@ def _summaries(problem: DesignProblem, vec, per, z) -> dict:
                n_failed=int(np.sum(per["failed"])), n_tipped=int(np.sum(per["tipped"])))
     if "min_stability_margin_m" in per:
         out["min_stability_margin_m"] = float(np.min(per["min_stability_margin_m"]))
+    if "ill_conditioned" in per:  # scenes whose derivatives the gradient replaces
+        out["n_ill_conditioned_scenes"] = int(np.sum(per["ill_conditioned"]))
     out["constraints"] = {c.name: dict(g=float(vec[2 + i]), value_si=float(vec[2 + i]) * c.scale)
                           for i, c in enumerate(spec.constraints)}
     return out

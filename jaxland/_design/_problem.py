@@ -24,6 +24,7 @@ from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
 from ._spec import (
     _DEG,
     CELL_VARS,
+    CONSTRAINTS,
     FORCE_VARS,
     ORDER_GAP_M,
     ORDER_RATIO,
@@ -59,6 +60,45 @@ def risk_measure(values, measure: str, level: float = 0.9):
     return jnp.sum(w * worst)
 
 
+# A design scene's outcome is ill-conditioned in the design when its derivative along one
+# unconstrained coordinate z exceeds this many times the scenes' median magnitude of that
+# outcome: a well-posed outcome changes by a fraction of itself over a change of z that spans a
+# good part of a variable's range (measured on the paper gear's 1 s scenes: at most 12), while
+# a 3-D landing that rocks and slides after its impact amplifies any change exponentially in
+# time (1e3 to 1e10 there for the max stroke and the stability margin of about a third of the
+# scenes). Such a derivative is true but useless: it holds for changes too small to matter and
+# would swamp the gradient of every measure that scene enters.
+ILL_CONDITIONED = 100.0
+
+
+def _ill_conditioned(values, tangents):
+    """Per scene, whether ``tangents`` (d values / d z, one or more directions in the last
+    axis) exceed ``ILL_CONDITIONED`` x the median |value|."""
+    scale = jnp.median(jnp.abs(values))
+    t = tangents if tangents.ndim == values.ndim else jnp.max(jnp.abs(tangents), axis=-1)
+    return jnp.abs(t) > ILL_CONDITIONED * scale
+
+
+@jax.custom_jvp
+def guard_ill_conditioned(values):
+    """``values`` (one per scene) unchanged; in a forward-mode derivative, the tangent of an
+    ill-conditioned scene (``ILL_CONDITIONED``) is replaced by the median tangent of the
+    well-conditioned scenes (zero if there are none): that scene's outcome then counts in
+    every measure with its value, and moves with the design as a typical scene does."""
+    return values
+
+
+@guard_ill_conditioned.defjvp
+def _guard_jvp(primals, tangents):
+    (v,), (t,) = primals, tangents
+    ill = _ill_conditioned(v, t)
+    typical = jnp.nanmedian(jnp.where(ill, jnp.nan, t))
+    typical = jnp.where(jnp.all(ill), 0.0, typical)  # all ill: nanmedian is nan, not used
+    return v, jnp.where(ill, typical, t)
+
+
+
+
 class DesignProblem:
     """The compiled robust design problem: design variables <-> unconstrained ``z``, the fixed
     scenes, and ``evaluate(z)`` -> measures, their Jacobian and per-scene outcomes."""
@@ -75,6 +115,9 @@ class DesignProblem:
                              method=spec.method).validate()
         self.variables = list(spec.variables)
         self.names = spec.names
+        # the per-scene outcomes the measures read
+        self.outcomes = ("peak_body_accel_mps2",
+                         *dict.fromkeys(CONSTRAINTS[c.name].outcome for c in spec.constraints))
         self.cells = spec.cells
         mc = spec.montecarlo
         scene_spec = MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed, n=spec.n_scenes,
@@ -228,20 +271,26 @@ class DesignProblem:
         """(measures [objective measure, gear mass, g_1..g_m], per-scene outcomes)."""
         veh = self.vehicle_at(z)
         per = self._per_scene(veh)
+        guarded = dict(per, **{k: guard_ill_conditioned(per[k]) for k in self.outcomes})
         ob = self.spec.objective
-        vec = [risk_measure(per["peak_body_accel_mps2"], ob.measure, ob.level),
+        vec = [risk_measure(guarded["peak_body_accel_mps2"], ob.measure, ob.level),
                gear_mass_kg(veh, self.cells)]
         for c in self.spec.constraints:
-            bad = c.badness(per, veh.honeycomb.x_L4)
+            bad = c.badness(guarded, veh.honeycomb.x_L4)
             vec.append(risk_measure(bad, c.measure, c.level) / c.scale)
         return jnp.stack(vec), per
 
     def _measures_and_jac(self, z):
+        """Measures, their Jacobian (ill-conditioned scenes guarded: ``guard_ill_conditioned``)
+        and the per-scene outcomes, with ``ill_conditioned``: per scene, whether any outcome's
+        raw derivative (of the outcomes the measures read) is ill-conditioned."""
         def f(z):
             vec, per = self._measures(z)
-            return vec, (vec, per)
+            return (vec, {k: per[k] for k in self.outcomes}), (vec, per)
 
-        jac, (vec, per) = jax.jacfwd(f, has_aux=True)(z)
+        (jac, jac_per), (vec, per) = jax.jacfwd(f, has_aux=True)(z)
+        ill = [_ill_conditioned(per[k], t) for k, t in jac_per.items()]
+        per = dict(per, ill_conditioned=jnp.any(jnp.stack(ill), axis=0))
         return vec, jac, per
 
     def evaluate(self, z, jacobian: bool = True):

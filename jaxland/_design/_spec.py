@@ -74,14 +74,18 @@ class ConstraintInfo(NamedTuple):
     to_si: float  # its TOML -> SI factor
     scale: float  # default normalisation [SI]
     rule: str
+    outcome: str  # the per-scene outcome it reads
 
 
 CONSTRAINTS = {
     "stroke": ConstraintInfo("margin_mm", 1e-3, 0.01,
-                             "max stroke (any leg) <= x_L4 - margin: no bottoming out"),
+                             "max stroke (any leg) <= x_L4 - margin: no bottoming out",
+                             "max_stroke_m"),
     "stability": ConstraintInfo("min_margin_m", 1.0, 0.1, "minimum stability margin >= "
-                                "threshold: no tip-over (full 3-D model)"),
-    "slip": ConstraintInfo("max_slip_mm", 1e-3, 0.01, "foot slip distance (any leg) <= limit"),
+                                "threshold: no tip-over (full 3-D model)",
+                                "min_stability_margin_m"),
+    "slip": ConstraintInfo("max_slip_mm", 1e-3, 0.01, "foot slip distance (any leg) <= limit",
+                           "slip_distance_m"),
 }
 
 
@@ -126,11 +130,12 @@ class Constraint:
         """Per-scene violation (positive = violated, SI) from the per-scene outcomes ``per``
         (worst-leg ``max_stroke_m`` and ``slip_distance_m``, ``min_stability_margin_m``) and
         the design's available stroke ``x_L4`` [m]."""
+        value = per[CONSTRAINTS[self.name].outcome]
         if self.name == "stroke":
-            return per["max_stroke_m"] - (x_L4 - self.threshold)
+            return value - (x_L4 - self.threshold)
         if self.name == "stability":
-            return self.threshold - per["min_stability_margin_m"]
-        return per["slip_distance_m"] - self.threshold
+            return self.threshold - value
+        return value - self.threshold
 
 
 _COUNT = Number(integer=True, lo=1, hi=100000)
