@@ -337,7 +337,15 @@ def fit_time(quick: bool = False) -> dict:
     import subprocess
 
     cases = list(FIT_TIME_CASES)[:2] if quick else list(FIT_TIME_CASES)
-    out = dict(target_s=TARGETS["fit_s"], cpus=os.cpu_count(), runs=[])
+
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True).stdout
+
+    # the code that was timed: the commit, and the library files that differ from it
+    out = dict(target_s=TARGETS["fit_s"], cpus=os.cpu_count(), commit=git("rev-parse",
+                                                                          "HEAD").strip(),
+               modified=git("diff", "--name-only", "HEAD", "--", "jaxland", "calibration",
+                            "pyproject.toml").split(), runs=[])
     for case in cases:
         proc = subprocess.run([sys.executable, __file__, "--one-fit", case], check=True,
                               capture_output=True, text=True)
