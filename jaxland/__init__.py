@@ -6,14 +6,22 @@ import os as _os
 __version__ = "0.1.0"
 
 # XLA:CPU compiles a while loop into one native kernel only when it is "small" by the bytes its
-# buffers touch; above the default threshold every one of a step's ~20 fused kernels is
-# dispatched separately on every iteration. A landing's step is exactly that kind of loop, and
-# its parameters count against the threshold whenever they are traced (fits, design, Monte
-# Carlo): measured 6x faster landings and 3x faster batches with this option. It must be set
-# before the XLA backend starts; a user's own --xla_backend_extra_options is left alone.
-_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
-if "xla_backend_extra_options" not in _os.environ.get("XLA_FLAGS", ""):
-    _os.environ["XLA_FLAGS"] = f"{_os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
+# buffers touch and holds no scatter and no library (YNNPACK/XNNPACK) fusion; otherwise every
+# one of a step's fused kernels is dispatched separately on every iteration. A landing's step is
+# exactly that kind of loop: its parameters count against the byte threshold whenever they are
+# traced (fits, design, Monte Carlo), and a vmapped full 3-D step's small products and sums
+# become YNNPACK fusions. With these options single landings and vmapped batches of both models
+# compile their time loop into one kernel (docs/performance.md). They must be set before the XLA
+# backend starts; an option the user sets in XLA_FLAGS is left alone.
+_XLA_OPTIONS = {
+    "xla_backend_extra_options": "xla_cpu_small_while_loop_byte_threshold=100000000",
+    "xla_cpu_experimental_ynn_fusion_type": "",
+    "xla_cpu_experimental_xnn_fusion_type": "",
+    "xla_cpu_use_xnnpack": "false",
+}
+_flags = _os.environ.get("XLA_FLAGS", "")
+_os.environ["XLA_FLAGS"] = " ".join(
+    [_flags, *(f"--{k}={v}" for k, v in _XLA_OPTIONS.items() if k not in _flags)]).strip()
 
 import jax as _jax  # noqa: E402
 

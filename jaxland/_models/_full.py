@@ -117,6 +117,32 @@ def _quat_exp(half_angle_vec):
     return jnp.concatenate([jnp.cos(jnp.where(pos, n, 0.0))[None], sinc * half_angle_vec])
 
 
+# ------------------------------------------------------------------------------- products
+# The step's small products are written as component arithmetic: XLA:CPU runs a `dot` as a
+# library call, which keeps a batched time loop from compiling into one kernel (one dispatch
+# per kernel and step instead; docs/performance.md). The sums run in the order a dot takes.
+
+def _dot(a, b):
+    """a . b over the last axis (3 components), broadcasting the leading axes."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _mv(Rm, x):
+    """Rm @ x for a (3, 3) matrix and a (3,) vector."""
+    return jnp.stack([_dot(Rm[0], x), _dot(Rm[1], x), _dot(Rm[2], x)])
+
+
+def _mtv(Rm, x):
+    """Rm.T @ x for a (3, 3) matrix and a (3,) vector."""
+    return jnp.stack([_dot(Rm[:, 0], x), _dot(Rm[:, 1], x), _dot(Rm[:, 2], x)])
+
+
+def _rotate_rows(r, Rm):
+    """r @ Rm.T: each row of an (n, 3) array rotated by Rm."""
+    return jnp.stack([_dot(r, Rm[0][None, :]), _dot(r, Rm[1][None, :]),
+                      _dot(r, Rm[2][None, :])], axis=-1)
+
+
 # ------------------------------------------------------------------------------- geometry
 
 def leg_geometry(vehicle: Vehicle):
@@ -167,10 +193,10 @@ def stability_margin(com, feet, frame):
     ``ground_frame(scene)``."""
     n_g, t1, t2 = frame
     e_z = jnp.array([0.0, 0.0, 1.0])
-    c = com - (com @ n_g) / n_g[2] * e_z  # both projected along gravity onto the ground
-    f = feet - ((feet @ n_g) / n_g[2])[:, None] * e_z[None, :]
-    cx, cy = c @ t1, c @ t2
-    fx, fy = f @ t1, f @ t2
+    c = com - _dot(com, n_g) / n_g[2] * e_z  # both projected along gravity onto the ground
+    f = feet - (_dot(feet, n_g[None, :]) / n_g[2])[:, None] * e_z[None, :]
+    cx, cy = _dot(c, t1), _dot(c, t2)
+    fx, fy = _dot(f, t1[None, :]), _dot(f, t2[None, :])
     ax, ay = fx, fy
     bx, by = jnp.roll(fx, -1), jnp.roll(fy, -1)
     ex, ey = bx - ax, by - ay
@@ -256,11 +282,11 @@ class FullModel(AbstractModel):
         p, quat, feet = s.q
         vb, w_b, vf = s.v
         Rm = quat_to_matrix(quat)
-        w_w = Rm @ w_b
+        w_w = _mv(Rm, w_b)
         P_b, Ap_b, Am_b = derived.geometry
 
         def attach(r_b):
-            r = r_b @ Rm.T
+            r = _rotate_rows(r_b, Rm)
             return p[None, :] + r, vb[None, :] + jnp.cross(jnp.broadcast_to(w_w, r.shape), r), r
 
         P, vP, rP = attach(P_b)
@@ -268,7 +294,7 @@ class FullModel(AbstractModel):
         length = _norm_rows(d)
         u = d / length[:, None]
         x_b = leg.L_h0 - length
-        v_b = -jnp.sum(u * (vf - vP), axis=-1)
+        v_b = -_dot(u, vf - vP)
         hco = honeycomb(x_b, s.x_max, hc, sm)
 
         aux_force_vecs, aux_torques, aux_energy, aux_axial = 0.0, 0.0, 0.0, 0.0
@@ -285,10 +311,11 @@ class FullModel(AbstractModel):
             aux_axial = aux_axial + ax.force
 
         n_g, t1, t2 = derived.ground
-        nc = normal_contact(-(feet @ n_g), -(vf @ n_g), s.d_max, gr, derived.k_r, sm)
+        nc = normal_contact(-_dot(feet, n_g[None, :]), -_dot(vf, n_g[None, :]), s.d_max, gr,
+                            derived.k_r, sm)
         second = self.second_order and s.t_force is not None
-        tc = tangential_contact((feet @ t1, feet @ t2), s.anchor, nc.force, gr, sm,
-                                s.t_force if second else None)
+        tc = tangential_contact((_dot(feet, t1[None, :]), _dot(feet, t2[None, :])), s.anchor,
+                                nc.force, gr, sm, s.t_force if second else None)
         f_ground = (nc.force[:, None] * n_g[None, :] + tc.force[0][:, None] * t1[None, :]
                     + tc.force[1][:, None] * t2[None, :])
 
@@ -296,13 +323,13 @@ class FullModel(AbstractModel):
 
         def body_rates(f_strut):  # the body's force [N] and body-frame angular acceleration
             f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
-            torque_b = Rm.T @ (jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques)
+            torque_b = _mtv(Rm, jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques)
             return f_body, (torque_b - jnp.cross(w_b, inertia * w_b)) / inertia
 
         if kick is None:
             st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn, smooth_m=sm)
         else:  # implicit damping: the stroke rate after the kick from the other foot forces
-            other_u = jnp.sum(u * (aux_force_vecs + f_ground), axis=-1) - m2 * g * u[:, 2]
+            other_u = _dot(u, aux_force_vecs + f_ground) - m2 * g * u[:, 2]
             a = kick / m2
             free = v_b - a * other_u
             if self.second_order:  # and the kick of the attachment P (body forces with the
@@ -310,8 +337,8 @@ class FullModel(AbstractModel):
                 st_ex = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, smooth_N=sn,
                                     smooth_m=sm)
                 f_body_ex, w_dot_ex = body_rates(st_ex.force[:, None] * u)
-                a_P = f_body_ex[None, :] / m + jnp.cross(Rm @ w_dot_ex, rP)
-                free = free + kick * jnp.sum(u * a_P, axis=-1)
+                a_P = f_body_ex[None, :] / m + jnp.cross(_mv(Rm, w_dot_ex), rP)
+                free = free + kick * _dot(u, a_P)
             st = strut_force(hco.force, x_b, v_b, leg.D_b, leg.k_topout, a, free, sn, sm)
         f_strut = st.force[:, None] * u
         f_feet = f_strut + aux_force_vecs + f_ground - m2 * g * gz[None, :]

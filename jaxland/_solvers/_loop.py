@@ -10,6 +10,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax import custom_batching
 from jaxtyping import Array
 
 from .._models import AbstractModel, Evaluation
@@ -75,8 +76,7 @@ class Track(eqx.Module):
         tip_t = jnp.where(upright & touched & model.tipping(ev.record), s.t, self.tip_time)
         changed = contact != self.contact
         idx = jnp.minimum(self.n_events, N_EVENTS - 1)
-        ev_t = self.event_times.at[idx].set(
-            jnp.where(changed & (self.n_events < N_EVENTS), s.t, self.event_times[idx]))
+        ev_t = _log_write(self.event_times, idx, changed & (self.n_events < N_EVENTS), s.t)
         res_max = jnp.where(upright, jnp.maximum(self.residual_max, jnp.abs(residual)),
                             self.residual_max)
         state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x))
@@ -90,6 +90,28 @@ class Track(eqx.Module):
             failure=jnp.where(first, jnp.where(state_ok, int(Result.LEDGER),
                                                int(Result.NONFINITE)), self.failure),
             tip_time=tip_t, n_steps=self.n_steps + 1)
+
+
+@custom_batching.custom_vmap
+def _log_write_raw(log, idx, write, t):
+    return log.at[idx].set(jnp.where(write, t, log[idx]))
+
+
+@_log_write_raw.def_vmap
+def _log_write_batched(axis_size, in_batched, log, idx, write, t):
+    # A one-hot select: under vmap, .at[idx].set with a per-landing index is a scatter, and
+    # XLA:CPU compiles a while loop that holds a scatter kernel by kernel instead of into one
+    # native kernel (the batch then pays one dispatch per fused kernel and step).
+    log, idx, write, t = (x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
+                          for x, b in zip((log, idx, write, t), in_batched))
+    hit = (jnp.arange(log.shape[-1], dtype=idx.dtype)[None, :] == idx[:, None]) & write[:, None]
+    return jnp.where(hit, t[:, None], log), True
+
+
+def _log_write(log, idx, write, t):
+    """``log`` with ``t`` at ``idx`` where ``write``; the same values batched or not. The log
+    carries no derivatives."""
+    return _log_write_raw(jax.lax.stop_gradient(log), idx, write, jax.lax.stop_gradient(t))
 
 
 def advance(s_m, s, q1, v1, dt, dissipated):
