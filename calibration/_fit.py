@@ -31,6 +31,13 @@ benchmarks/results/bench_fit.json):
    autocorrelation, the worst 10 ms window and channel), and warns (``MisfitWarning``) when the
    data contradict the model: then trust ``std_error_hac``. Coverage of both over many noise
    seeds: benchmarks/bench_fit.py --coverage.
+6. **Channel spread** (``channel_spread``), only where the misfit is warned: the final stage
+   refitted from the optimum once per measured quantity left out (all legs and drops of it).
+   A model that fits gives every channel the same parameters up to the noise; one that cannot
+   represent the data makes them pull apart (a crush peak of another shape: the force
+   channels and the stroke want different k_b1), and the HAC error, the scatter about the
+   wrong model's best fit, does not see it. ``std_errors_total`` is the trusted error with the
+   largest shift of each parameter added in quadrature: the interval to quote under misfit.
 """
 
 from __future__ import annotations
@@ -103,7 +110,8 @@ class IdentifiabilityWarning(UserWarning):
 
 class MisfitWarning(UserWarning):
     """The residuals contradict the model (too large or autocorrelated): the classical standard
-    errors are too small; use the HAC ones (``FitResult.std_errors_hac``)."""
+    errors are too small; use the HAC ones widened by the channel spread
+    (``FitResult.std_errors_total``)."""
 
 
 @dataclass
@@ -125,6 +133,7 @@ class FitResult:
     sigma2: float = 1.0
     std_errors_hac: np.ndarray = None
     covariance_hac: np.ndarray = None
+    std_errors_total: np.ndarray = None
     diagnostics: dict = field(default_factory=dict)
     n_obs: int = 0
     dof: int = 0
@@ -159,6 +168,8 @@ class FitResult:
                 rel_std_error=num(self.std_errors[i] / abs(self.values[i])),
                 std_error_hac=num(self.std_errors_hac[i]) if self.std_errors_hac is not None
                 else None,
+                std_error_total=num(self.std_errors_total[i])
+                if self.std_errors_total is not None else None,
                 start=num(self.start_values[i]), identified=bool(self.identified[i]),
                 config_key=PARAMS[n][2], description=PARAMS[n][4])
         return dict(
@@ -184,7 +195,10 @@ class FitResult:
                        std_error="same unit as the value; Gauss-Newton, residual-variance "
                                  "scaled (holds for white residuals)",
                        std_error_hac="same unit as the value; HAC sandwich, Bartlett window "
-                                     "(holds under misfit: autocorrelated residuals)"),
+                                     "(holds under misfit: autocorrelated residuals)",
+                       std_error_total="same unit as the value; the trusted standard error "
+                                       "and, under misfit, the channel spread added in "
+                                       "quadrature (misfit.channel_spread)"),
         )
 
     def to_json(self, path) -> Path:
@@ -353,6 +367,32 @@ def misfit_location(problem: CalibrationProblem, res: np.ndarray, width_s: float
         if best is not None:
             out.append(best)
     return out
+
+
+def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: int = 60):
+    """How far the fitted values move when one measured quantity is left out: for each base
+    channel (every leg and drop of it), the final window refitted from ``theta`` without it
+    (Levenberg-Marquardt, same Huber threshold, same compiled functions). Returns ``(spread,
+    shifts)``: the largest absolute shift of each parameter [SI] over the channels left out,
+    and per channel the shifts (None where that refit failed). Fewer than two base channels:
+    no spread (zeros)."""
+    groups = list(dict.fromkeys(base_channel(c) for c in problem.channels))
+    values = problem.values(theta)
+    shifts = {}
+    if len(groups) < 2:
+        return np.zeros_like(values), shifts
+    for g in groups:
+        keep = [c for c in problem.channels if base_channel(c) != g]
+        sub = problem.windowed(problem.active_window_s, channels=keep).robust(huber_c)
+        try:
+            th, _, _ = levenberg_marquardt(sub, theta, max_iter=max_iter, ftol=FTOL)
+            shift = sub.values(th) - values
+            shifts[g] = shift if np.all(np.isfinite(shift)) else None
+        except (jl.SimulationError, np.linalg.LinAlgError):
+            shifts[g] = None
+    done = [v for v in shifts.values() if v is not None]
+    spread = np.max(np.abs(done), axis=0) if done else np.full_like(values, np.nan)
+    return spread, shifts
 
 
 def robust_threshold(problem: CalibrationProblem, theta, k: float) -> float:
@@ -561,7 +601,12 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             "noise)" for w in unc["where"])
         warnings.warn("the data contradict the model: " + "; ".join(unc["misfit"])
                       + f". The classical standard errors are too small: trust the HAC ones "
-                      f"(std_error_hac). Largest misfit: {worst}", MisfitWarning, stacklevel=2)
+                      f"(std_error_hac), widened by how far the values move when one channel "
+                      f"is left out (std_error_total). Largest misfit: {worst}", MisfitWarning,
+                      stacklevel=2)
+    trusted = unc["se_hac"] if unc["misfit"] or final.filtered else unc["se"]
+    spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
+                      if unc["misfit"] else (np.zeros_like(values), {}))
     fitted = final.vehicle_at(theta)
     return FitResult(
         names=names, values=values, std_errors=unc["se"], correlation=unc["corr"],
@@ -570,12 +615,15 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         touchdown_std_errors_s=unc["t_se"], residual_rms=final.channel_rms(theta),
         sigma2=unc["sigma2"], n_obs=final.n_obs, dof=unc["dof"],
         std_errors_hac=unc["se_hac"], covariance_hac=unc["cov_hac"],
+        std_errors_total=np.sqrt(trusted**2 + spread**2),
         diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
             "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
             worst_window=unc["where"],
             # a CFC filter correlates the noise itself: the classical errors never hold then
             trust="std_error_hac" if unc["misfit"] or final.filtered else "std_error",
             filtered_noise_lag1_autocorr=final.noise_lag1,
+            channel_spread={g: None if v is None else dict(zip(names, v.tolist()))
+                            for g, v in shifts.items()},
             noise_free_record=bool(unc.get("noise_free", False))),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,

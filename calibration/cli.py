@@ -152,13 +152,16 @@ def _cmd_fit(args) -> int:
     print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
-          + ("  MISFIT: trust the HAC standard errors" if diag["misfit"] else ""))
+          + ("  MISFIT: trust the HAC standard errors widened by the channel spread (total)"
+             if diag["misfit"] else ""))
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 
         flag = "" if result.identified[i] else "   NOT IDENTIFIED"
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
-              f"(HAC +/- {result.std_errors_hac[i]:.2g}) {PARAMS[n][1]}  "
+              f"(HAC +/- {result.std_errors_hac[i]:.2g}"
+              + (f", total +/- {result.std_errors_total[i]:.2g}" if diag["misfit"] else "")
+              + f") {PARAMS[n][1]}  "
               f"(start {result.start_values[i]:.6g}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
           + (", model_comparison.json" if cmp is not None else "")

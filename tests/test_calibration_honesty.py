@@ -122,6 +122,28 @@ def test_hac_errors_are_reported_and_widen_under_misfit(rig_fits):
     assert np.max(ratio_bad) > 2.0  # smooth residuals: some errors several times wider
 
 
+def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
+    """Under misfit every measured quantity is left out once and the final stage refitted:
+    the total error is the HAC error with the largest shift added in quadrature. On the rig's
+    crush-peak record the force channels and the stroke pull the parameters apart by more
+    than the HAC error (fails if the refit keeps the channel or the spread is not added); on
+    data the model represents nothing is refitted and the total is the classical error."""
+    res, _ = rig_fits["representable"]
+    assert res.diagnostics["channel_spread"] == {}
+    np.testing.assert_array_equal(res.std_errors_total, res.std_errors)
+    res, _ = rig_fits["artefact"]
+    shifts = res.diagnostics["channel_spread"]
+    assert set(shifts) == set(res.settings["channels"])
+    spread = np.max([[abs(v[n]) for n in res.names] for v in shifts.values()], axis=0)
+    np.testing.assert_allclose(res.std_errors_total,
+                               np.hypot(res.std_errors_hac, spread), rtol=1e-12)
+    ok = res.identified
+    assert np.max((spread / res.std_errors_hac)[ok]) > 1.0
+    rep = res.report()["parameters"]
+    assert all(rep[n]["std_error_total"] == pytest.approx(res.std_errors_total[i])
+               for i, n in enumerate(res.names) if ok[i])
+
+
 # ----------------------------------------------------------------- new fittable parameters
 
 def test_peak_and_unloading_parameters_round_trip_through_the_fit_coordinates():
