@@ -79,6 +79,7 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
         out[label] = dict(
             params=list(res.names), values=dict(zip(res.names, res.values.tolist())),
             std_errors_hac=dict(zip(res.names, res.std_errors_hac.tolist())),
+            std_errors_total=dict(zip(res.names, res.std_errors_total.tolist())),
             chi2=chi2, n_params=k, n_obs=n, aic=chi2 + 2 * k, bic=chi2 + k * math.log(n),
             residual_variance_factor=d["residual_variance_factor"],
             residual_lag1_autocorr=d["residual_lag1_autocorr"], misfit=d["misfit"],

@@ -395,6 +395,24 @@ def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: i
     return spread, shifts
 
 
+def _disagreement(names, shifts, se) -> str:
+    """'; the channels disagree most on P: without C it moves by X (Y standard errors)' for the
+    largest shift in units of ``se`` ('' when there is none)."""
+    best = None
+    for ch, v in shifts.items():
+        if v is None:
+            continue
+        for i, n in enumerate(names):
+            z = abs(v[i]) / se[i] if se[i] > 0 else 0.0
+            if math.isfinite(z) and (best is None or z > best[0]):
+                best = (z, n, ch, v[i])
+    if best is None:
+        return ""
+    z, n, ch, d = best
+    return (f"; the channels disagree most on {n}: without {ch} it moves by {d:+.3g} "
+            f"{PARAMS[n][1]} ({z:.2g} standard errors)")
+
+
 def robust_threshold(problem: CalibrationProblem, theta, k: float) -> float:
     """Huber threshold: ``k`` times the residuals' robust std (1.4826 MAD), at least ``k``
     (the residuals are in noise-std units, so the noise itself sets the floor)."""
@@ -594,6 +612,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     if noise_free and unc["misfit"]:
         unc["misfit"] = []
         unc["noise_free"] = True
+    trusted = unc["se_hac"] if unc["misfit"] or final.filtered else unc["se"]
+    spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
+                      if unc["misfit"] else (np.zeros_like(values), {}))
     if unc["misfit"]:
         worst = "; ".join(
             f"{w['drop']}: {w['channel']} at {w['window_s'][0] * 1e3:.0f}-"
@@ -602,11 +623,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         warnings.warn("the data contradict the model: " + "; ".join(unc["misfit"])
                       + f". The classical standard errors are too small: trust the HAC ones "
                       f"(std_error_hac), widened by how far the values move when one channel "
-                      f"is left out (std_error_total). Largest misfit: {worst}", MisfitWarning,
-                      stacklevel=2)
-    trusted = unc["se_hac"] if unc["misfit"] or final.filtered else unc["se"]
-    spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
-                      if unc["misfit"] else (np.zeros_like(values), {}))
+                      f"is left out (std_error_total){_disagreement(names, shifts, trusted)}. "
+                      f"Largest misfit: {worst}", MisfitWarning, stacklevel=2)
     fitted = final.vehicle_at(theta)
     return FitResult(
         names=names, values=values, std_errors=unc["se"], correlation=unc["corr"],

@@ -142,6 +142,11 @@ def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
     rep = res.report()["parameters"]
     assert all(rep[n]["std_error_total"] == pytest.approx(res.std_errors_total[i])
                for i, n in enumerate(res.names) if ok[i])
+    # the warning names the largest disagreement, in HAC standard errors
+    z = {(c, n): abs(v[n]) / res.std_errors_hac[i] for c, v in shifts.items()
+         for i, n in enumerate(res.names)}
+    channel, name = max(z, key=z.get)
+    assert f"disagree most on {name}: without {channel}" in str(rig_fits["artefact"][1][0].message)
 
 
 # ----------------------------------------------------------------- new fittable parameters
