@@ -80,42 +80,78 @@ def loop_body_counts(hlo_text: str) -> dict:
         divides=fused["divide"], sqrts=fused["sqrt"])
 
 
-def per_landing_step(vehicle, solver, sizes, repeats):
+def dispatches_per_step(compiled, args, n_steps: int) -> float:
+    """Kernel launches per time step of one call of ``compiled``, from a ``jax.profiler``
+    trace: XLA:CPU records one ``ThunkExecutor::Execute`` event for each sequence of kernels it
+    dispatches, so a time loop compiled into one kernel gives ~0 per step, and a loop run
+    kernel by kernel gives one per step or more (its kernels then each count as a launch)."""
+    import gzip
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        with jax.profiler.trace(tmp):
+            jax.block_until_ready(compiled(*args))
+        events = []
+        for f in Path(tmp).rglob("*.trace.json.gz"):
+            events += json.loads(gzip.decompress(f.read_bytes()))["traceEvents"]
+    return sum(1 for e in events if e.get("ph") == "X"
+               and e.get("name") == "ThunkExecutor::Execute") / n_steps
+
+
+def per_landing_step(vehicle, solver, sizes, repeats, trace_solver=None):
     """ns per landing-step of both models, single landing (jit) and vmapped batches, run
-    interleaved repeat by repeat; with the loop-body counts of each compiled program."""
+    interleaved repeat by repeat, in wall time and in the process's CPU time (all threads:
+    fairer on a shared machine); with the loop-body counts of each compiled program and its
+    kernel dispatches per step (``dispatches_per_step``, on ``trace_solver``'s shorter
+    landing when given, so that a loop run kernel by kernel leaves a small trace)."""
+    def compiled_for(model, n, solv):
+        tilt = dict(roll=0.01) if model == "full" else {}  # the full model's general path
+        if n == 0:
+            fn = jax.jit(lambda s: landing(vehicle, s, solv, model)[1]["max_stroke_m"])
+            args = (Scene(**tilt),)
+        else:
+            fn = jax.jit(lambda sc: landings(vehicle, sc, solv, model)[1]["max_stroke_m"])
+            args = (Scene.batch(drop_height=jnp.linspace(0.05, 0.5, n),
+                                **{k: jnp.full(n, v) for k, v in tilt.items()}),)
+        t0 = time.perf_counter()
+        compiled = fn.lower(*args).compile()
+        return compiled, args, time.perf_counter() - t0
+
     runs = {}
     for model in ("quarter", "full"):
         for n in sizes:
-            if n == 0:
-                fn = jax.jit(lambda s, model=model: landing(vehicle, s, solver, model)[1][
-                    "max_stroke_m"])
-                args = (Scene(),)
-            else:
-                fn = jax.jit(lambda sc, model=model: landings(vehicle, sc, solver, model)[1][
-                    "max_stroke_m"])
-                args = (Scene.batch(drop_height=jnp.linspace(0.05, 0.5, n)),)
-            t0 = time.perf_counter()
-            compiled = fn.lower(*args).compile()
-            compile_s = time.perf_counter() - t0
+            compiled, args, compile_s = compiled_for(model, n, solver)
             jax.block_until_ready(compiled(*args))
-            runs[(model, n)] = (compiled, args, compile_s, [])
+            runs[(model, n)] = (compiled, args, compile_s, [], [])
     for _ in range(repeats):
-        for compiled, args, _, times in runs.values():
-            t0 = time.perf_counter()
+        for compiled, args, _, times, cpu in runs.values():
+            t0, c0 = time.perf_counter(), time.process_time()
             jax.block_until_ready(compiled(*args))
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
     out = {}
-    for (model, n), (compiled, _, compile_s, times) in runs.items():
-        run_s = statistics.median(times)
+    for (model, n), (compiled, args, compile_s, times, cpu) in runs.items():
+        run_s, per = statistics.median(times), max(n, 1) * solver.n_steps
+        if trace_solver is None:
+            dispatches = dispatches_per_step(compiled, args, solver.n_steps)
+        else:
+            short, short_args, _ = compiled_for(model, n, trace_solver)
+            dispatches = dispatches_per_step(short, short_args, trace_solver.n_steps)
         out.setdefault(model, []).append(dict(
-            batch=n, compile_s=compile_s, run_s=run_s,
-            ns_per_landing_step=run_s / max(n, 1) / solver.n_steps * 1e9,
+            batch=n, compile_s=compile_s, run_s=run_s, cpu_s=statistics.median(cpu),
+            ns_per_landing_step=run_s / per * 1e9,
+            cpu_ns_per_landing_step=statistics.median(cpu) / per * 1e9,
+            dispatches_per_step=dispatches,
             loop_body=loop_body_counts(compiled.as_text())))
     ratio = {str(q["batch"]): f["ns_per_landing_step"] / q["ns_per_landing_step"]
              for q, f in zip(out["quarter"], out["full"])}
+    cpu_ratio = {str(q["batch"]): f["cpu_ns_per_landing_step"] / q["cpu_ns_per_landing_step"]
+                 for q, f in zip(out["quarter"], out["full"])}
     return dict(t_end_s=solver.t_end, dt_s=solver.dt, n_steps=solver.n_steps,
-                note="batch 0 is one landing under jit, without vmap", repeats=repeats,
-                models=out, full_over_quarter=ratio)
+                note="batch 0 is one landing under jit, without vmap; full-model scenes rolled "
+                     "0.01 rad",
+                repeats=repeats, models=out, full_over_quarter=ratio,
+                full_over_quarter_cpu=cpu_ratio)
 
 
 def _model_timings(vehicle, solver, model, sizes, repeats):
@@ -161,7 +197,8 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
     gr_compile, gr_run = _compile_and_time(jax.grad(stroke_of), (th0,), repeats)
     step_solver = Solver(dt=1e-5, t_end=0.02 if quick else 0.3, save_dt=1e-3)
     steps = per_landing_step(vehicle, step_solver, (0, 4) if quick else (0, 64, 512),
-                             2 if quick else 5)
+                             2 if quick else 5,
+                             None if quick else Solver(dt=1e-5, t_end=0.01, save_dt=1e-3))
 
     result = dict(
         scene="paper 0.2 m drop (symmetric), symplectic Euler; quarter and full 3-D model",

@@ -282,12 +282,15 @@ def performance_steps() -> str:
     rows = []
     for rq, rf in zip(q, f):
         what = "one landing (jit)" if rq["batch"] == 0 else f"vmapped batch of {rq['batch']}"
-        rows.append([what, f"{rq['ns_per_landing_step']:.0f}", f"{rf['ns_per_landing_step']:.0f}",
-                     f"{b['full_over_quarter'][str(rq['batch'])]:.1f}",
+        rows.append([what, f"{rq['ns_per_landing_step']:.0f} ({rq['cpu_ns_per_landing_step']:.0f})",
+                     f"{rf['ns_per_landing_step']:.0f} ({rf['cpu_ns_per_landing_step']:.0f})",
+                     f"{b['full_over_quarter_cpu'][str(rq['batch'])]:.1f}",
+                     f"{rq['dispatches_per_step']:.2g} / {rf['dispatches_per_step']:.2g}",
                      "{fusions} / {dots} / {reduces} / {fused_ops}".format(**rq["loop_body"]),
                      "{fusions} / {dots} / {reduces} / {fused_ops}".format(**rf["loop_body"])])
-    return _table(["run", "quarter [ns per landing-step]", "full 3-D [ns per landing-step]",
-                   "full / quarter [-]",
+    return _table(["run", "quarter [ns per landing-step] (CPU)",
+                   "full 3-D [ns per landing-step] (CPU)", "full / quarter, CPU [-]",
+                   "kernel dispatches per step, quarter / full [-]",
                    "quarter step: fusions / dots / reduces / fused ops",
                    "full step: fusions / dots / reduces / fused ops"], rows)
 
@@ -362,7 +365,11 @@ def calibration_fit() -> str:
         ["meets the calibration targets", *(_g(v["summary"]["meets_targets"])
                                             for v in variants.values())],
     ]
-    return _table(["", *(opts(v) for v in variants.values())], rows)
+    m = b["machine"]
+    load = (f"\nLoad average (1 minute) {m['load_average_1min_at_start']:.1f} at the start of "
+            f"the run, {m['load_average_1min_at_end']:.1f} at its end, on {m['cpus']} CPUs.\n"
+            if "load_average_1min_at_end" in m else "")
+    return _table(["", *(opts(v) for v in variants.values())], rows) + load
 
 
 def calibration_fit_time() -> str:
