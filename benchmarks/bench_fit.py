@@ -546,7 +546,8 @@ def main(argv=None) -> int:
             integrator=cal.INTEGRATOR, smoothing_m=cal.SMOOTHING[cal.INTEGRATOR][0],
             smoothing_N=cal.SMOOTHING[cal.INTEGRATOR][1]),
         machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
-                     backend=jax.default_backend()),
+                     backend=jax.default_backend(),
+                     load_average_1min_at_start=os.getloadavg()[0]),
         variants={v: dict(options=VARIANTS[v]) for v in labels})
     res_of = {}
 
@@ -637,6 +638,7 @@ def main(argv=None) -> int:
         out["variants"][v]["lbfgs_from_nominal"] = _summary(r, w, truth)
         print(f"[{v}] lbfgs: {w:.1f} s", flush=True)
 
+    out["machine"]["load_average_1min_at_end"] = os.getloadavg()[0]
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     from calibration._report import atomic_write_text
