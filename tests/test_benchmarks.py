@@ -62,3 +62,10 @@ def test_bench_landing_quick_writes_json_and_plot(tmp_path):
     assert data["quick"] and data["single"]["run_s"] > 0 and data["batched"][-1]["batch"] == 10
     assert (tmp_path / "bench_landing.png").read_bytes().startswith(b"\x89PNG")
     assert _results_status() == before
+    # Both models' time loops compile into one native kernel, single and batched: a loop run
+    # kernel by kernel (a matrix product or a scatter in the step) dispatches once per step or
+    # more, which XLA:CPU's trace counts (a count, not a timing).
+    for model, runs in data["per_landing_step"]["models"].items():
+        for r in runs:
+            assert r["dispatches_per_step"] < 0.1, (model, r["batch"], r["dispatches_per_step"])
+            assert r["loop_body"]["dots"] == 0, (model, r["batch"])
