@@ -80,6 +80,48 @@ def test_same_seed_same_results_on_two_devices(quarter_run, tmp_path):
     _assert_same_outputs(two, quarter_run.outputs)
 
 
+QUARTER_TOML = """
+[montecarlo]
+n = 12
+seed = 7
+t_end_s = 0.3
+[fixed]
+drop_height_m = 0.0
+[dispersion.sink_speed_mps]
+dist = "truncnormal"
+mean = 2.0
+std = 0.3
+low = 1.0
+high = 3.0
+[dispersion.mass_scale]
+dist = "normal"
+mean = 1.0
+std = 0.03
+"""
+
+
+def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
+    """`jaxland montecarlo` splits the CPU into one device per core (a batch's time loop is
+    one single-threaded kernel), with the one-device results; a bad count exits 2 first."""
+    spec = tmp_path / "quarter.toml"
+    spec.write_text(QUARTER_TOML)
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}  # a user's plain shell
+    cli = [sys.executable, "-m", "jaxland.cli", "montecarlo", str(spec), "--chunk", "6"]
+    bad = subprocess.run([*cli, "--devices", "0", "--out", str(tmp_path / "bad")], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2
+    assert bad.stderr.strip() == "jaxland: error: --devices = 0: must be >= 1"
+    assert not (tmp_path / "bad").exists()
+    subprocess.run([*cli, "--out", str(tmp_path / "mc")], env=env, check=True,
+                   capture_output=True, timeout=300)
+    summary = json.loads((tmp_path / "mc" / "summary.json").read_text())
+    assert summary["devices"] == len(os.sched_getaffinity(0))
+    got = np.load(tmp_path / "mc" / "samples.npz")
+    ref = {k: v for k, v in quarter_run.columns().items() if np.asarray(v).dtype.kind in "fiub"}
+    assert set(ref) <= set(got.files) and "leg0_max_stroke_m" in ref
+    _assert_same_outputs(got, ref)
+
+
 TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,
                        "friction": 2.0}, n=4, seed=0, t_end=1.5)
 

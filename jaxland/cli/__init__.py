@@ -86,6 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "listens on HOST:PORT and writes the outputs)")
     m.add_argument("--num-processes", type=int, default=1, help="processes in the run")
     m.add_argument("--process-id", type=int, default=0, help="this process, 0 .. N-1")
+    m.add_argument("--devices", type=int, default=None,
+                   help="CPU devices to shard each chunk over (default: one per core; a GPU "
+                        "run uses its GPUs)")
     m.set_defaults(func=cmd_montecarlo)
 
     # calibration (`fit`, `predict`) lives in its own package, built on jaxland's public API

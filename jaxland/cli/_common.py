@@ -1,10 +1,34 @@
-"""What every subcommand shares: output folders, value formatting."""
+"""What every subcommand shares: output folders, CPU devices, value formatting."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
+from .._errors import ConfigError
 from .._files import check_out
+
+HOST_DEVICES_FLAG = "xla_force_host_platform_device_count"
+
+
+def use_cpu_cores(devices: int | None) -> int | None:
+    """Split this process's CPU into ``devices`` JAX devices, before JAX starts its backend
+    (default: one per core this process may run on). A batch of landings compiles into one
+    single-threaded loop (docs/performance.md), so a Monte Carlo chunk sharded over several
+    CPU devices runs on as many cores. Left alone when ``XLA_FLAGS`` sets
+    ``--xla_force_host_platform_device_count`` and no count is given. Returns the count set
+    (None: left alone). Only the CPU platform is split; a GPU run uses its GPUs."""
+    import jax
+
+    if devices is not None and devices < 1:
+        raise ConfigError("--devices", devices, "must be >= 1")
+    if devices is None:
+        if HOST_DEVICES_FLAG in os.environ.get("XLA_FLAGS", ""):
+            return None
+        devices = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+    jax.config.update("jax_num_cpu_devices", devices)
+    return devices
 
 
 def out_dir(path) -> Path:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import out_dir
+from ._common import out_dir, use_cpu_cores
 
 # envelopes whose low tail is the danger (the others: the high tail)
 LOW_SIDE = ("min_stability_margin_m",)
@@ -13,6 +13,7 @@ def cmd_montecarlo(args) -> int:
     from .._montecarlo import init_distributed, load_montecarlo_spec, run_montecarlo
 
     out = out_dir(args.out)
+    use_cpu_cores(args.devices)  # before any JAX work
     if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
         init_distributed(args.coordinator, args.num_processes, args.process_id)
     spec = load_montecarlo_spec(args.spec)
