@@ -15,19 +15,27 @@ def use_cpu_cores(devices: int | None) -> int | None:
     """Split this process's CPU into ``devices`` JAX devices, before JAX starts its backend
     (default: one per core this process may run on). A batch of landings compiles into one
     single-threaded loop (docs/performance.md), so a Monte Carlo chunk sharded over several
-    CPU devices runs on as many cores. Left alone when ``XLA_FLAGS`` sets
-    ``--xla_force_host_platform_device_count`` and no count is given. Returns the count set
-    (None: left alone). Only the CPU platform is split; a GPU run uses its GPUs."""
+    CPU devices runs on as many cores. Left alone, when no count is given, if ``XLA_FLAGS``
+    sets ``--xla_force_host_platform_device_count`` or JAX already runs in this process (the
+    CLI called from Python). Returns the count set (None: left alone). Only the CPU platform
+    is split; a GPU run uses its GPUs."""
     import jax
 
-    if devices is not None and devices < 1:
+    given = devices is not None
+    if given and devices < 1:
         raise ConfigError("--devices", devices, "must be >= 1")
-    if devices is None:
+    if not given:
         if HOST_DEVICES_FLAG in os.environ.get("XLA_FLAGS", ""):
             return None
         devices = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
             os.cpu_count() or 1)
-    jax.config.update("jax_num_cpu_devices", devices)
+    try:
+        jax.config.update("jax_num_cpu_devices", devices)
+    except RuntimeError:  # the backend has started: its devices are fixed
+        if given:
+            raise ConfigError("--devices", devices, "JAX already runs in this process: set "
+                              "jax_num_cpu_devices before any JAX work") from None
+        return None
     return devices
 
 

@@ -16,7 +16,7 @@ import time
 
 from .._files import staged
 from .._progress import ProgressLine
-from ._common import out_dir
+from ._common import out_dir, use_cpu_cores
 
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE", "EXIT_UNVERIFIED"]
 
@@ -43,6 +43,7 @@ def _cmd_design(args) -> int:
     from .._design import design_verified, load_design_spec, optimise_design
 
     out = out_dir(args.out)
+    use_cpu_cores(args.devices)  # before any JAX work: the verification shards over them
     spec = load_design_spec(args.spec)
     if args.iterations is not None:
         if args.iterations < 0:
@@ -132,4 +133,7 @@ def add_subcommands(subparsers) -> None:
                                     "paper's vehicle)")
     d.add_argument("--no-plots", action="store_true", help="skip the figures")
     d.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")
+    d.add_argument("--devices", type=int, default=None,
+                   help="CPU devices the verification Monte Carlo shards over (default: one "
+                        "per core)")
     d.set_defaults(func=_cmd_design)
