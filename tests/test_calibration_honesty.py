@@ -82,11 +82,15 @@ def test_autocorrelation_is_pooled_over_series_without_crossing_them():
 
 @pytest.fixture(scope="module")
 def rig_fits():
-    """One fit on rig data the model can represent (noise only) and one on the rig's
-    crush-peak record (a peak shape the model lacks); short windows to keep it quick."""
+    """One fit on rig data the model can represent (noise only), one on the rig's crush-peak
+    record (a peak shape the model lacks) and one on a drop whose truth has a +10 % crush peak
+    in its honeycomb (every channel carries it; the model has none); short windows to keep it
+    quick."""
     kw = dict(windows=(0.01, 0.03), refine_window_s=0.06)
+    physical = set_values(vr.truth_vehicle(), ("peak1", "L_peak1"), np.array([1.1, 1e-3]))
     out = {}
-    for label, rig in (("representable", dict(crush_peak=0.0)), ("artefact", {})):
+    for label, rig in (("representable", dict(crush_peak=0.0)), ("artefact", {}),
+                       ("physical peak", dict(crush_peak=0.0, vehicle=physical))):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = cal.fit(vr.drop_test(0.2, seed=7, **rig), **kw)
@@ -106,6 +110,16 @@ def test_misfit_is_warned_about_only_when_the_data_contradict_the_model(rig_fits
     worst = res.diagnostics["worst_window"][0]
     assert worst["channel"] in ("buffer_force_N", "normal_force_N")
     assert worst["window_s"][0] < 0.01
+
+
+def test_a_physical_peak_the_model_lacks_is_warned_about(rig_fits):
+    """A +10 % crush peak in the truth's own honeycomb barely raises the variance factor; its
+    residuals are smooth (lag-1 autocorrelation about 0.28 here, against white noise's 0 +/-
+    0.03), and the classical errors would put the fitted k_b1 far beyond them. The fit must
+    warn and trust the HAC errors (fails with the misfit limit at 0.3)."""
+    res, warned = rig_fits["physical peak"]
+    assert len(warned) == 1 and res.diagnostics["trust"] == "std_error_hac"
+    assert res.diagnostics["residual_variance_factor"] < 1.3  # the variance alone: no alarm
 
 
 def test_hac_errors_are_reported_and_widen_under_misfit(rig_fits):
