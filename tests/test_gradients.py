@@ -91,7 +91,8 @@ def test_vmap_of_grad_equals_grad_per_scene_and_grad_of_vmap(setup, trace_grad):
     _, ref, _ = setup
     speeds = jnp.array([1.6, 2.0, 2.4])
     scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
-    th0 = jnp.full(6, 0.01)
+    # not weak-typed, as the other tests' theta: trace_grad is then not compiled a second time
+    th0 = jnp.full(6, 0.01, dtype=jnp.float64)
     gfun = jax.grad(_trace_loss)
     axes = jl.batch_axes(scenes)
     batched = jax.jit(jax.vmap(gfun, in_axes=(None, axes, None)))(th0, scenes, ref)
