@@ -246,8 +246,9 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--report", default=str(ROOT / "out/design-paper/design_report.json"))
     p.add_argument("--out", default=str(ROOT / "benchmarks/results/design.json"))
-    p.add_argument("--only", choices=tuple(STUDIES),
-                   help="run one study and keep the others' stored results")
+    p.add_argument("--only", choices=(*STUDIES, "report"),
+                   help="run one study and keep the others' stored results ('report': none, "
+                        "only the design run's report is read again)")
     args = p.parse_args(argv)
     out = Path(args.out)
     result = json.loads(out.read_text()) if args.only and out.exists() else {}
