@@ -617,7 +617,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       if unc["misfit"] else (np.zeros_like(values), {}))
     if unc["misfit"]:
         worst = "; ".join(
-            f"{w['drop']}: {w['channel']} at {w['window_s'][0] * 1e3:.0f}-"
+            f"{w['drop']}: {w['channel']} at {w['window_s'][0] * 1e3:.0f} to "
             f"{w['window_s'][1] * 1e3:.0f} ms after touchdown ({w['rms_noise_units']:.3g} x "
             "noise)" for w in unc["where"])
         warnings.warn("the data contradict the model: " + "; ".join(unc["misfit"])
