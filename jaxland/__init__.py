@@ -25,6 +25,22 @@ _os.environ["XLA_FLAGS"] = " ".join(
 
 import jax as _jax  # noqa: E402
 
+
+def _backend_started() -> bool:
+    try:  # a private API: where it is missing, no warning
+        from jax._src import xla_bridge
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):
+        return False
+
+
+if _backend_started():
+    import warnings as _warnings
+
+    _warnings.warn("jaxland was imported after JAX started its backend: its XLA:CPU options "
+                   "(docs/performance.md) do not apply in this process, and landings run "
+                   "slower; import jaxland before any JAX work", RuntimeWarning, stacklevel=2)
+
 _jax.config.update("jax_enable_x64", True)
 
 from . import _laws as laws
