@@ -288,8 +288,8 @@ def performance_steps() -> str:
                      f"{rq['dispatches_per_step']:.2g} / {rf['dispatches_per_step']:.2g}",
                      "{fusions} / {dots} / {reduces} / {fused_ops}".format(**rq["loop_body"]),
                      "{fusions} / {dots} / {reduces} / {fused_ops}".format(**rf["loop_body"])])
-    return _table(["run", "quarter [ns per landing-step] (CPU)",
-                   "full 3-D [ns per landing-step] (CPU)", "full / quarter, CPU [-]",
+    return _table(["run", "quarter, wall (CPU) [ns per landing-step]",
+                   "full 3-D, wall (CPU) [ns per landing-step]", "full / quarter, CPU [-]",
                    "kernel dispatches per step, quarter / full [-]",
                    "quarter step: fusions / dots / reduces / fused ops",
                    "full step: fusions / dots / reduces / fused ops"], rows)
