@@ -252,8 +252,8 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     out = Path(args.out)
     if args.only == "report" and not Path(args.report).exists():
-        raise SystemExit(f"error: --only report: no design report at {args.report} (run "
-                         "jaxland design examples/design_paper_gear.toml --out out/design-paper)")
+        p.exit(2, f"error: --only report: no design report at {args.report} (run jaxland "
+                  "design examples/design_paper_gear.toml --out out/design-paper)\n")
     result = json.loads(out.read_text()) if args.only and out.exists() else {}
     result["machine"] = dict(cpus=os.cpu_count(), platform=platform.platform(),
                              jax=jax.__version__, backend=jax.default_backend())
