@@ -409,8 +409,16 @@ def _disagreement(names, shifts, se) -> str:
     if best is None:
         return ""
     z, n, ch, d = best
-    return (f"; the channels disagree most on {n}: without {ch} it moves by {d:+.3g} "
-            f"{PARAMS[n][1]} ({z:.2g} standard errors)")
+    unit = "" if PARAMS[n][1] == "1" else f" {PARAMS[n][1]}"
+    return (f"; the channels disagree most on {n}: without {ch} it moves by {d:+.3g}{unit} "
+            f"({z:.2g} x its HAC standard error)")
+
+
+def _window_text(a: float, b: float) -> str:
+    """A window [a, b] s relative to touchdown, in words."""
+    if a < 0.0:
+        return f"from {-a * 1e3:.0f} ms before to {b * 1e3:.0f} ms after touchdown"
+    return f"{a * 1e3:.0f} to {b * 1e3:.0f} ms after touchdown"
 
 
 def robust_threshold(problem: CalibrationProblem, theta, k: float) -> float:
@@ -612,14 +620,21 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     if noise_free and unc["misfit"]:
         unc["misfit"] = []
         unc["noise_free"] = True
-    trusted = unc["se_hac"] if unc["misfit"] or final.filtered else unc["se"]
+    # a CFC filter correlates the noise itself: the classical errors never hold then
+    trust = "std_error_hac" if unc["misfit"] or final.filtered else "std_error"
+    trusted = unc["se_hac"] if trust == "std_error_hac" else unc["se"]
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
                       if unc["misfit"] else (np.zeros_like(values), {}))
+    spread_failed = [g for g, v in shifts.items() if v is None]
+    if spread_failed:
+        spread = np.nan_to_num(spread, nan=0.0)  # all failed: the total is the trusted error
+        warnings.warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
+                      "leaves out how far those channels pull the fit (channel_spread_failed "
+                      "in the report)", MisfitWarning, stacklevel=2)
     if unc["misfit"]:
         worst = "; ".join(
-            f"{w['drop']}: {w['channel']} at {w['window_s'][0] * 1e3:.0f} to "
-            f"{w['window_s'][1] * 1e3:.0f} ms after touchdown ({w['rms_noise_units']:.3g} x "
-            "noise)" for w in unc["where"])
+            f"{w['drop']}: {w['channel']} {_window_text(*w['window_s'])} "
+            f"({w['rms_noise_units']:.3g} x noise)" for w in unc["where"])
         warnings.warn("the data contradict the model: " + "; ".join(unc["misfit"])
                       + f". The classical standard errors are too small: trust the HAC ones "
                       f"(std_error_hac), widened by how far the values move when one channel "
@@ -637,11 +652,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
             "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
             worst_window=unc["where"],
-            # a CFC filter correlates the noise itself: the classical errors never hold then
-            trust="std_error_hac" if unc["misfit"] or final.filtered else "std_error",
+            trust=trust,
             filtered_noise_lag1_autocorr=final.noise_lag1,
             channel_spread={g: None if v is None else dict(zip(names, v.tolist()))
                             for g, v in shifts.items()},
+            channel_spread_failed=spread_failed,
             noise_free_record=bool(unc.get("noise_free", False))),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,

@@ -14,7 +14,7 @@ import pytest
 
 import calibration as cal
 import jaxland as jl
-from calibration import virtual_rig as vr
+from calibration import _fit as cal_fit, virtual_rig as vr
 from calibration._parameters import (
     from_unconstrained,
     get_values,
@@ -161,6 +161,24 @@ def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
          for i, n in enumerate(res.names)}
     channel, name = max(z, key=z.get)
     assert f"disagree most on {name}: without {channel}" in str(rig_fits["artefact"][1][0].message)
+
+
+def test_failed_channel_refits_are_named_and_the_total_falls_back(monkeypatch):
+    """When the refits without a channel fail, the fit says so by name, records them, and the
+    total error is the trusted (HAC) error: never NaN, never silently narrower (fails when the
+    failures are not recorded or the spread stays NaN)."""
+    def all_fail(problem, theta, *args, **kwargs):
+        groups = list(dict.fromkeys(cal_fit.base_channel(c) for c in problem.channels))
+        return np.full(len(problem.values(theta)), np.nan), dict.fromkeys(groups)
+
+    monkeypatch.setattr(cal_fit, "channel_spread", all_fail)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(vr.drop_test(0.2, seed=7), windows=(0.01, 0.03), refine_window_s=0.06)
+    failed = res.diagnostics["channel_spread_failed"]
+    assert failed and set(failed) == set(res.diagnostics["channel_spread"])
+    assert any(f"the fit without {', '.join(failed)} failed" in str(w.message) for w in caught)
+    np.testing.assert_array_equal(res.std_errors_total, res.std_errors_hac)
 
 
 # ----------------------------------------------------------------- new fittable parameters
