@@ -446,8 +446,9 @@ def fit_time(quick: bool = False) -> dict:
     # the code that was timed: the commit, and the library files that differ from it
     out = dict(target_s=TARGETS["fit_s"], cpus=os.cpu_count(), commit=git("rev-parse",
                                                                           "HEAD").strip(),
-               modified=git("diff", "--name-only", "HEAD", "--", "jaxland", "calibration",
-                            "pyproject.toml").split(), runs=[])
+               modified=[line[3:] for line in git("status", "--porcelain", "--", "jaxland",
+                                                  "calibration", "pyproject.toml").splitlines()],
+               runs=[])
     for case in cases:
         proc = subprocess.run([sys.executable, __file__, "--one-fit", case], check=True,
                               capture_output=True, text=True)

@@ -428,6 +428,8 @@ def calibration_peak_recovery_seeds() -> str:
 
     def most(r):
         sh = {c: d["k_b1"] for c, d in r["channel_shift_rel"].items() if d is not None}
+        if not sh:  # not warned of misfit, or every refit failed
+            return "-"
         c = max(sh, key=lambda k: abs(sh[k]))
         return f"{c} {sh[c] * 100:+.1f}"
 

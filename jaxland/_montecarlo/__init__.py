@@ -7,12 +7,13 @@ Reproducibility: sample i's inputs depend only on (seed, i, input name), via
 chunk size and any number of devices (and adding an input does not change the others' draws).
 
 Scale-out: the batch axis of each chunk is sharded with ``jax.sharding.NamedSharding`` over a
-1-D mesh of the process's local devices. On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_
-count=K`` (set before importing jax) makes K devices of the host's cores; on a GPU or TPU host
-the same code uses its accelerators. Across processes or machines, start every process with
-``init_distributed`` (JAX's multi-controller runtime; CPU collectives over gloo) and run the same
-program: process p runs chunks p, p + P, ... and the results are gathered with
-``multihost_utils.process_allgather``, identical to one process's.
+1-D mesh of the process's local devices. A chunk's time loop is one single-threaded kernel, so
+on a CPU the cores are used through devices: ``jax.config.update("jax_num_cpu_devices", K)``
+before any JAX work (``jaxland montecarlo`` sets one per core) makes K devices of the host's
+cores; on a GPU or TPU host the same code uses its accelerators. Across processes or
+machines, start every process with ``init_distributed`` (JAX's multi-controller runtime; CPU
+collectives over gloo) and run the same program: process p runs chunks p, p + P, ... and the
+results are gathered with ``multihost_utils.process_allgather``, identical to one process's.
 """
 
 from ._run import (
