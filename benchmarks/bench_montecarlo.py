@@ -101,6 +101,9 @@ def throughput(args, out: Path) -> dict:
                        "runs: euler at dt = 1e-5 s; wall time includes compilation",
                   machine=machine(), runs=rows, speedup_2_devices=speed,
                   side_by_side=compare, before_tree=args.before,
+                  before_commit=subprocess.run(
+                      ["git", "rev-parse", "--short", "HEAD"], cwd=args.before,
+                      capture_output=True, text=True).stdout.strip() if args.before else None,
                   note="a shared 2-core machine: timings are noisy; compare rows of one run")
     write_json(out / "bench_montecarlo.json", result, indent=2)
     from matplotlib.figure import Figure

@@ -308,6 +308,18 @@ def performance_montecarlo() -> str:
                    "2 / 1 devices [-]"], rows)
 
 
+def montecarlo_side_by_side() -> str:
+    """The runs of one bench_montecarlo session side by side: this tree and an earlier one
+    (``--before``), and the step the step study chose (bench_montecarlo.json)."""
+    b = _load("bench_montecarlo.json")
+    before = b.get("before_commit") or b["before_tree"]
+    rows = [[r["model"], "this" if r["tree"] == "this" else f"before ({before})",
+             f"{r['method']}, {r['dt_s']:g}", str(r["devices"]), str(r["n"]),
+             f"{r['wall_s']:.1f}", f"{r['landings_per_s']:.1f}"] for r in b["side_by_side"]]
+    return _table(["model", "tree", "method, dt [s]", "devices [-]", "n [-]",
+                   "wall, with compilation [s]", "throughput [landings/s]"], rows)
+
+
 def montecarlo_step() -> str:
     """Per model and method, the largest step whose outcomes stay within the tolerance
     (montecarlo_step.json)."""
@@ -362,8 +374,8 @@ def calibration_fit() -> str:
         ["AD against FD of the calibration loss, worst parameter [-]",
          *(f"{max(v['summary']['ad_fd_worst_robust_per_param'].values()):.1e}"
            for v in variants.values())],
-        ["targets met: fit under 20 s cold, every start converged", *(_g(v["summary"]["meets_targets"])
-                                            for v in variants.values())],
+        ["targets met: fit under 20 s cold, every start converged",
+         *(_g(v["summary"]["meets_targets"]) for v in variants.values())],
     ]
     m = b["machine"]
     load = (f"\nLoad average (1 minute) {m['load_average_1min_at_start']:.1f} at the start of "
@@ -549,6 +561,7 @@ TABLES = {
     "performance-landing": performance_landing,
     "performance-steps": performance_steps,
     "performance-montecarlo": performance_montecarlo,
+    "performance-montecarlo-side-by-side": montecarlo_side_by_side,
     "montecarlo-step": montecarlo_step,
     "calibration-fit": calibration_fit,
     "calibration-fit-time": calibration_fit_time,
