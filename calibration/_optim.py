@@ -135,6 +135,9 @@ def lbfgs(problem, theta0, *, max_iter=200, gtol=1e-8, ftol=1e-12, progress=None
     theta = jnp.asarray(theta0, dtype=jnp.float64)
     with jax.numpy_dtype_promotion("standard"):
         state = opt.init(theta)
+    # init leaves some counters weakly typed and the step returns them strongly typed: made
+    # strong here, the step compiles once per fit instead of twice
+    state = jax.tree.map(lambda x: jnp.asarray(x, dtype=x.dtype), state)
     history, status = [], "max_iter"
     t_start = time.perf_counter() if t_origin is None else t_origin
     prev = math.inf
