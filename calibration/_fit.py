@@ -396,8 +396,9 @@ def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: i
 
 
 def _disagreement(names, shifts, se) -> str:
-    """'; the channels disagree most on P: without C it moves by X (Y standard errors)' for the
-    largest shift in units of ``se`` ('' when there is none)."""
+    """'; the channels disagree most on P: without C it moves by X (Y x its HAC standard
+    error)' for the largest shift in units of ``se``, the HAC errors (called under misfit
+    only); '' when there is none."""
     best = None
     for ch, v in shifts.items():
         if v is None:
