@@ -151,6 +151,10 @@ class MonteCarloSpec:
     # montecarlo.md): pays with a t_end_s beyond the settle time (quarter ~2-3 s); off by
     # default, as 1 s landings do not settle provably and the check costs compile time
     early_stop: bool = spec_field(False, toml="early_stop", check=Choice((True, False)))
+    # the energy ledger and the finiteness of the state are checked every this many seconds
+    # (at least every step): a failure is found within it, and energy_closure_rel is the worst
+    # over the checks (docs/montecarlo.md). Peaks are maxima over every step regardless.
+    ledger_check: float = spec_field(5e-4, toml="ledger_check_s", check=POSITIVE)
 
     def __post_init__(self):
         for key in [*self.dispersion, *self.fixed]:

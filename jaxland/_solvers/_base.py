@@ -139,6 +139,16 @@ class Solver(eqx.Module):
     # without a trajectory (save_dt = t_end) of a fixed-step method. The summary then gains
     # settled_time_s; t_end_s is the time reached. Off by default: simulate runs to t_end.
     early_stop: bool = eqx.field(static=True, default=False)
+    # the running maxima to keep (names of the model's ``peak_values``; the verdict's and the
+    # early-stop bound's, ``_loop.ALWAYS_KEPT``, are kept too); None: all. Each kept peak is a
+    # maximum taken on every step: a Monte Carlo keeps only those it reports.
+    peaks: tuple[str, ...] | None = eqx.field(static=True, default=None,
+                                              converter=lambda x: None if x is None else
+                                              tuple(x))
+    # check the energy ledger and the state's finiteness on every ``ledger_every``-th step
+    # (fixed-step methods): the summary's ledger residual is then the worst over the checked
+    # steps, and a failure is found at the first check after it. 1 (default): every step.
+    ledger_every: int = eqx.field(static=True, default=1)
 
     def __post_init__(self):
         if self.save_dt is None and _finite_positive(self.dt):
@@ -169,6 +179,12 @@ class Solver(eqx.Module):
         if not isinstance(self.method, AbstractIntegrator):
             raise ConfigError("solver.method", self.method, "must be an integrator or its name")
         self.method.validate()
+        if (isinstance(self.ledger_every, bool) or not isinstance(self.ledger_every, int)
+                or self.ledger_every < 1):
+            raise ConfigError("solver.ledger_every", self.ledger_every,
+                              "must be an integer >= 1 (steps)")
+        if self.peaks is not None and not all(isinstance(p, str) for p in self.peaks):
+            raise ConfigError("solver.peaks", self.peaks, "must be a list of peak names")
         return self
 
     def validate(self) -> Solver:
@@ -191,12 +207,15 @@ class Solver(eqx.Module):
                               f" at most {SAVES_MAX:.0e}: raise save_dt")
         if self.n_steps > 5e8:
             raise ConfigError("solver.dt", self.dt, "t_end/dt must be <= 5e8 steps")
-        if self.early_stop:
+        if self.early_stop or self.ledger_every > 1:
             from ._names import FIXED_STEP_METHODS
 
             if self.method.name not in FIXED_STEP_METHODS:
-                raise ConfigError("solver.early_stop", True, "needs a fixed-step method ("
+                name, val = (("solver.early_stop", True) if self.early_stop else
+                             ("solver.ledger_every", self.ledger_every))
+                raise ConfigError(name, val, "needs a fixed-step method ("
                                   + ", ".join(FIXED_STEP_METHODS) + ")")
+        if self.early_stop:
             if self.n_saves != 1:
                 raise ConfigError("solver.early_stop", True, "needs a run without a trajectory"
                                   f" (save_dt = t_end = {self.t_end} s)")

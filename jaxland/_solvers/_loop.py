@@ -1,8 +1,9 @@
 """What every integrator shares: the set-up, the bookkeeping carried beside the state, the saved
 record, the end-of-landing summary, and the nested-scan driver of the fixed-step methods.
 
-The bookkeeping runs at full step resolution: running peaks, the contact on/off log, the energy
-ledger's worst residual, the first failure and the tip-over time.
+The bookkeeping runs at full step resolution: running peaks, the contact on/off log and the
+tip-over time. The energy ledger's worst residual and the failure checks (ledger blow-up,
+non-finite state) run on every ``Solver.ledger_every``-th step (default: every step).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import jax.numpy as jnp
 from jax import custom_batching
 from jaxtyping import Array
 
+from .._errors import ConfigError
 from .._models import AbstractModel, Evaluation
 from ._base import Result
 from ._settle import check_steps, mass_diagonal, settled
@@ -20,6 +22,10 @@ from ._settle import check_steps, mass_diagonal, settled
 N_EVENTS = 256  # capacity of the contact on/off log (later transitions are counted, not stored)
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
 ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
+# peaks that are always kept when ``Solver.peaks`` names a subset: the verdict judges the step
+# limit by the first two, the early-stop bound reads all four
+ALWAYS_KEPT = ("peak_normal_force_N", "peak_honeycomb_force_N", "peak_strut_force_N",
+               "peak_body_accel_mps2")
 
 
 class Setup(eqx.Module):
@@ -40,7 +46,20 @@ def setup(model: AbstractModel, vehicle, scene, solver) -> Setup:
     ev0 = model.evaluate(vehicle, s0, scene, derived)
     e0 = ev0.ledger() + jnp.sum(s0.diss_rate)
     return Setup(vehicle, derived, s0, e0, model.energy_scale(vehicle, scene),
-                 model.peak_values(ev0.record, ev0.accel))
+                 kept_peaks(model, solver, model.peak_values(ev0.record, ev0.accel)))
+
+
+def kept_peaks(model: AbstractModel, solver, values: dict) -> dict:
+    """The running maxima a landing keeps: all of the model's, or ``solver.peaks`` and
+    ``ALWAYS_KEPT`` (a Monte Carlo keeps what it reports: each peak is a maximum per step)."""
+    if solver.peaks is None:
+        return values
+    unknown = sorted(set(solver.peaks) - set(values))
+    if unknown:
+        raise ConfigError("solver.peaks", unknown[0], f"is not a peak of the {model.name} "
+                          f"model; its peaks: {', '.join(values)}")
+    names = set(solver.peaks) | set(ALWAYS_KEPT)
+    return {k: v for k, v in values.items() if k in names}
 
 
 class Track(eqx.Module):
@@ -63,33 +82,40 @@ class Track(eqx.Module):
                    jnp.zeros(()), -jnp.ones(()), jnp.zeros((), jnp.int32), -jnp.ones(()),
                    jnp.zeros((), jnp.int32))
 
-    def update(self, model: AbstractModel, s, ev: Evaluation, e0, e_scale) -> Track:
-        """With one evaluated state ``s``."""
-        residual = ev.ledger() + jnp.sum(s.diss_rate) - e0
+    def update(self, model: AbstractModel, s, ev: Evaluation, e0, e_scale,
+               check: bool = True) -> Track:
+        """With one evaluated state ``s``; ``check``: also the ledger and the failure checks
+        (static)."""
         # After a tip-over the body (which has no ground contact of its own) is not a landing
         # any more: peaks, the ledger and failure checks stop there; the tip itself counts.
         upright = self.tip_time < 0.0
-        peaks = jax.tree.map(lambda p, x: jnp.where(upright, jnp.maximum(p, x), p), self.peaks,
-                             model.peak_values(ev.record, ev.accel))
+        values = model.peak_values(ev.record, ev.accel)
+        peaks = {k: jnp.where(upright, jnp.maximum(p, values[k]), p)
+                 for k, p in self.peaks.items()}
         contact = model.contact_flag(ev.record)
         touched = (self.n_events > 0) | contact  # a foot has been on the ground
         tip_t = jnp.where(upright & touched & model.tipping(ev.record), s.t, self.tip_time)
         changed = contact != self.contact
         idx = jnp.minimum(self.n_events, N_EVENTS - 1)
         ev_t = _log_write(self.event_times, idx, changed & (self.n_events < N_EVENTS), s.t)
+        track = eqx.tree_at(
+            lambda x: (x.peaks, x.event_times, x.n_events, x.contact, x.tip_time, x.n_steps), self,
+            (peaks, ev_t, self.n_events + changed.astype(jnp.int32), contact, tip_t,
+             self.n_steps + 1))
+        if not check:
+            return track
+        residual = ev.ledger() + jnp.sum(s.diss_rate) - e0
         res_max = jnp.where(upright, jnp.maximum(self.residual_max, jnp.abs(residual)),
                             self.residual_max)
         state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x))
                                       for x in jax.tree.leaves((s.q, s.v))]))
         bad = ~state_ok | ~(jnp.abs(residual) <= ENERGY_TOLERANCE * e_scale)
         first = bad & upright & (self.failure_time < 0.0)
-        return Track(
-            peaks=peaks, event_times=ev_t, n_events=self.n_events + changed.astype(jnp.int32),
-            contact=contact, residual_max=res_max,
-            failure_time=jnp.where(first, s.t, self.failure_time),
-            failure=jnp.where(first, jnp.where(state_ok, int(Result.LEDGER),
-                                               int(Result.NONFINITE)), self.failure),
-            tip_time=tip_t, n_steps=self.n_steps + 1)
+        return eqx.tree_at(
+            lambda x: (x.residual_max, x.failure_time, x.failure), track,
+            (res_max, jnp.where(first, s.t, self.failure_time),
+             jnp.where(first, jnp.where(state_ok, int(Result.LEDGER), int(Result.NONFINITE)),
+                       self.failure)))
 
 
 @custom_batching.custom_vmap
@@ -178,10 +204,13 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
     st = setup(model, vehicle, scene, solver)
     veh, derived, dt = st.vehicle, st.derived, solver.dt
 
-    def body(carry, _):
+    def body(carry, _, check=True):
         s, track = carry
         s1, ev = integrator.step(model, veh, s, scene, derived, dt)
-        return (s1, track.update(model, s, ev, st.energy0, st.energy_scale)), None
+        return (s1, track.update(model, s, ev, st.energy0, st.energy_scale, check)), None
+
+    def steps(carry, n):
+        return run_steps(body, carry, n, solver.ledger_every)
 
     kick_save = integrator.record_kick(dt)
 
@@ -190,19 +219,36 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
 
     def save_block(carry, _):
         out = save_point(carry[0])
-        carry, _ = jax.lax.scan(body, carry, None, length=solver.save_every, unroll=UNROLL)
-        return carry, out
+        return steps(carry, solver.save_every), out
 
     carry0 = (st.state0, Track.start(st.peaks0))
     if solver.early_stop:
         traj = jax.tree.map(lambda x: x[None], save_point(st.state0))
-        return traj, _run_until_settled(model, st, scene, solver, body, carry0)
+        return traj, _run_until_settled(model, st, scene, solver, steps, carry0)
     (s_end, track), traj = jax.lax.scan(save_block, carry0,
                                         jnp.arange(solver.n_saves, dtype=jnp.float64))
     return traj, summary(model, s_end, track, st, scene)
 
 
-def _run_until_settled(model, st: Setup, scene, solver, body, carry0) -> dict:
+def run_steps(body, carry, n: int, every: int):
+    """``n`` steps of ``body(carry, _, check)`` in a scan, the ledger and failure checks on
+    every ``every``-th step (the last of each block of ``every``; a remainder checks each)."""
+    blocks, rest = divmod(n, every)
+    if rest:
+        carry, _ = jax.lax.scan(body, carry, None, length=rest, unroll=UNROLL)
+    if every == 1:
+        carry, _ = jax.lax.scan(body, carry, None, length=blocks, unroll=UNROLL)
+    elif blocks:
+        def block(c, _):
+            c, _ = jax.lax.scan(lambda c, x: body(c, x, False), c, None, length=every - 1,
+                                unroll=UNROLL)
+            return body(c, None)
+
+        carry, _ = jax.lax.scan(block, carry, None, length=blocks)
+    return carry
+
+
+def _run_until_settled(model, st: Setup, scene, solver, steps, carry0) -> dict:
     """The summary of a run without a trajectory (save_dt = t_end) stopped once the landing
     has settled (``_settle``): the steps run in blocks of ``check_steps``, in a ``while_loop``
     that ends at t_end or after the first block at whose end the landing is settled. Under
@@ -213,7 +259,7 @@ def _run_until_settled(model, st: Setup, scene, solver, body, carry0) -> dict:
     n_blocks, first = divmod(solver.n_steps, block)
     carry = carry0
     if first:  # the odd steps first: a landing does not settle that early
-        carry, _ = jax.lax.scan(body, carry, None, length=first, unroll=UNROLL)
+        carry = steps(carry, first)
     m_diag = mass_diagonal(model, st.vehicle, st.state0, scene, st.derived)
 
     def cond(c):
@@ -221,7 +267,7 @@ def _run_until_settled(model, st: Setup, scene, solver, body, carry0) -> dict:
 
     def step_block(c):
         carry, k, _ = c
-        carry, _ = jax.lax.scan(body, carry, None, length=block, unroll=UNROLL)
+        carry = steps(carry, block)
         s, track = carry
         done = settled(model, st.vehicle, st.derived, scene, s, track.peaks,
                        track.n_events > 0, track.tip_time < 0.0, m_diag)

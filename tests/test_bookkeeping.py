@@ -1,0 +1,81 @@
+"""Lean bookkeeping (``Solver.peaks``, ``Solver.ledger_every``): a landing that keeps fewer
+running maxima, or checks its ledger on every k-th step, computes the same landing. The kept
+peaks and every other outcome are those of the full bookkeeping (up to how XLA compiles either
+program); the sampled ledger residual is a maximum over fewer steps; a numerical failure is
+still found, within k steps of where the every-step check finds it."""
+
+import jax
+import numpy as np
+import pytest
+
+import jaxland as jl
+from jaxland._montecarlo._run import REPORTED_PEAKS
+
+VEH = jl.paper_vehicle()
+SCENE = jl.Scene(drop_height=0.0, sink_speed=2.4)  # reaches the secondary stage
+T_END = 0.3
+DT = 2e-5
+
+
+def _summary(dt=DT, method="euler", t_end=T_END, **kw):
+    solver = jl.Solver(dt=dt, t_end=t_end, save_dt=t_end, method=method, **kw).validate()
+    return jax.device_get(jax.jit(lambda s: jl.landing(VEH, s, solver, "quarter"))(SCENE)[1])
+
+
+@pytest.fixture(scope="module")
+def full():
+    return _summary()
+
+
+def _assert_same(got, ref, keys):
+    """Equal up to reassociation in the compiled program (measured: 2e-11 relative, on the
+    accumulated slip): 1e-9 relative; the ledger residual, a difference of energies of ~1e3 J,
+    to 1e-12 of the initial energy."""
+    e_tol = 1e-12 * float(ref["energy_initial_J"])
+    for k in keys:
+        atol = {"energy_closure_max_J": e_tol,
+                "ledger_error_rel": e_tol / float(ref["energy_dissipated_J"])}.get(k, 0.0)
+        np.testing.assert_allclose(got[k], ref[k], rtol=1e-9, atol=atol, err_msg=k)
+
+
+def test_kept_peaks_are_those_of_the_full_bookkeeping(full):
+    lean = _summary(peaks=("peak_body_accel_mps2",))
+    dropped = {k for k in full if k.startswith("peak_")} - set(lean)
+    assert dropped == {"peak_tangential_force_N", "peak_aux_force_N",
+                       "peak_buffer_velocity_mps", "peak_foot_accel_mps2",
+                       "peak_foot_accel_normal_mps2", "peak_foot_accel_tangential_mps2"}
+    assert set(lean) == set(full) - dropped
+    _assert_same(lean, full, lean)
+
+
+def test_an_unknown_peak_is_refused_by_name():
+    with pytest.raises(jl.ConfigError, match=r"solver\.peaks = 'peak_margin_deficit_m'.*quarter"):
+        _summary(peaks=REPORTED_PEAKS["full"])
+    with pytest.raises(jl.ConfigError, match=r"solver\.ledger_every"):
+        jl.Solver(ledger_every=0).validate()
+    with pytest.raises(jl.ConfigError, match=r"solver\.ledger_every = 5: needs a fixed-step"):
+        jl.Solver(ledger_every=5, method="tsit5").validate()
+
+
+def test_a_sampled_ledger_changes_only_the_residual(full):
+    """Every 7th step (15000 steps: 2142 blocks and a remainder of 6): the landing itself is
+    unchanged, the worst residual is taken over fewer steps, so it is at most the every-step
+    one, and on a smooth ledger close to it."""
+    lean = _summary(ledger_every=7)
+    sampled = ("energy_closure_max_J", "ledger_error_rel")
+    for k in sampled:
+        assert 0.8 * full[k] <= lean[k] <= full[k] * (1 + 1e-9), (k, lean[k], full[k])
+    _assert_same(lean, full, set(full) - set(sampled))
+    assert int(lean["result"]) == int(jl.Result.SUCCESSFUL)
+
+
+def test_a_sampled_ledger_still_finds_a_failure():
+    """Explicit Euler at 1.3 x its stability limit blows up: with the ledger checked every 10th
+    step the failure is found, at most 10 steps after the every-step check finds it."""
+    dt = 1.3 * float(jl.stable_step(VEH))
+    every = _summary(dt=dt, t_end=2000 * dt)
+    sampled = _summary(dt=dt, t_end=2000 * dt, ledger_every=10)
+    assert bool(every["failed"]) and bool(sampled["failed"])
+    assert int(sampled["result"]) == int(every["result"])
+    t0, t1 = float(every["failure_time_s"]), float(sampled["failure_time_s"])
+    assert t0 <= t1 <= t0 + 10 * dt + 1e-12
