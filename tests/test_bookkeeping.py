@@ -1,5 +1,6 @@
-"""Lean bookkeeping (``Solver.peaks``, ``Solver.ledger_every``): a landing that keeps fewer
-running maxima, or checks its ledger on every k-th step, computes the same landing. The kept
+"""Lean bookkeeping (``Solver.peaks``, ``Solver.ledger_every``, ``Solver.event_log``): a
+landing that keeps fewer running maxima, checks its ledger on every k-th step, or only counts
+its contact changes computes the same landing. The kept
 peaks and every other outcome are those of the full bookkeeping (up to how XLA compiles either
 program); the sampled ledger residual is a maximum over fewer steps; a numerical failure is
 still found, within k steps of where the every-step check finds it."""
@@ -79,3 +80,12 @@ def test_a_sampled_ledger_still_finds_a_failure():
     assert int(sampled["result"]) == int(every["result"])
     t0, t1 = float(every["failure_time_s"]), float(sampled["failure_time_s"])
     assert t0 <= t1 <= t0 + 10 * dt + 1e-12
+
+
+def test_a_landing_without_an_event_log_counts_the_changes(full):
+    lean = _summary(event_log=0)
+    assert lean["event_times_s"].shape == (0,) and full["event_times_s"].shape == (256,)
+    assert int(full["n_contact_changes"]) >= 2  # a touchdown, and a lift-off or more
+    _assert_same(lean, full, set(full) - {"event_times_s"})
+    with pytest.raises(jl.ConfigError, match=r"solver\.event_log = -1"):
+        jl.Solver(event_log=-1).validate()

@@ -24,7 +24,7 @@ from .._scene import Scene
 from .._simulate import landings
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
-from ._spec import MonteCarloSpec, envelope
+from ._spec import LEDGER_CHECK_S, MonteCarloSpec, envelope
 from ._stats import percentiles, sensitivity, wilson_interval
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
@@ -36,12 +36,18 @@ REPORTED_PEAKS = {
 REPORTED_PEAKS["full"] = REPORTED_PEAKS["quarter"] + ("peak_tilt_deg", "peak_margin_deficit_m")
 
 
+def ledger_check_s(spec: MonteCarloSpec, model: str) -> float:
+    """The ledger check interval [s] of a run (0: every step)."""
+    return LEDGER_CHECK_S[model] if spec.ledger_check is None else float(spec.ledger_check)
+
+
 def mc_solver(spec: MonteCarloSpec, model: str, dt: float, method: str) -> Solver:
     """The run settings of a Monte Carlo's landings: without a trajectory, the reported peaks
-    only, the ledger checked every ``spec.ledger_check`` seconds."""
+    only, no contact event times (their count decides touchdown), the ledger checked every
+    ``ledger_check_s`` seconds."""
     return Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method,
-                  early_stop=spec.early_stop, peaks=REPORTED_PEAKS[model],
-                  ledger_every=max(1, round(spec.ledger_check / dt))).validate()
+                  early_stop=spec.early_stop, peaks=REPORTED_PEAKS[model], event_log=0,
+                  ledger_every=max(1, round(ledger_check_s(spec, model) / dt))).validate()
 
 
 def _per_sample(vehicle, solver, model, scenes):
@@ -291,7 +297,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
                if r.failed and (failure == r).any()}
     return dict(
         n=spec.n, seed=spec.seed, model=model, method=spec.method, dt_s=spec.dt,
-        t_end_s=spec.t_end, ledger_check_s=spec.ledger_check,
+        t_end_s=spec.t_end, ledger_check_s=ledger_check_s(spec, model),
         devices=n_dev, processes=jax.process_count(), chunk=chunk, wall_s=wall,
         landings_per_s=spec.n / wall,
         n_failed=int(failed.sum()), failures=reasons,

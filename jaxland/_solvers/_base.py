@@ -24,6 +24,7 @@ from .._models import AbstractModel, Oscillator, Smoothing
 SAVE_DT_MIN = 1e-4  # s: the default output interval is the smallest multiple of dt above this
 T_END_MAX = 100.0  # s, longest simulated duration
 SAVES_MAX = 1_000_000  # most saved samples of one landing (a trajectory of ~40 columns)
+N_EVENTS = 256  # default capacity of the contact on/off log (later changes are counted)
 
 
 class Result(enum.IntEnum):
@@ -149,6 +150,9 @@ class Solver(eqx.Module):
     # (fixed-step methods): the summary's ledger residual is then the worst over the checked
     # steps, and a failure is found at the first check after it. 1 (default): every step.
     ledger_every: int = eqx.field(static=True, default=1)
+    # capacity of the summary's contact on/off log, event_times_s (0: only the changes are
+    # counted, n_contact_changes; a Monte Carlo reports no event times)
+    event_log: int = eqx.field(static=True, default=N_EVENTS)
 
     def __post_init__(self):
         if self.save_dt is None and _finite_positive(self.dt):
@@ -183,6 +187,9 @@ class Solver(eqx.Module):
                 or self.ledger_every < 1):
             raise ConfigError("solver.ledger_every", self.ledger_every,
                               "must be an integer >= 1 (steps)")
+        if (isinstance(self.event_log, bool) or not isinstance(self.event_log, int)
+                or self.event_log < 0):
+            raise ConfigError("solver.event_log", self.event_log, "must be an integer >= 0")
         if self.peaks is not None and not all(isinstance(p, str) for p in self.peaks):
             raise ConfigError("solver.peaks", self.peaks, "must be a list of peak names")
         return self

@@ -124,7 +124,7 @@ class Impulse(AbstractIntegrator):
                                             kind=kind)
             return carry, out
 
-        carry0 = (st.state0, Track.start(st.peaks0))
+        carry0 = (st.state0, Track.start(st.peaks0, solver.event_log))
         (s_end, track), traj = jax.lax.scan(save_block, carry0,
                                             jnp.arange(solver.n_saves, dtype=jnp.float64))
         return traj, summary(model, s_end, track, st, scene)

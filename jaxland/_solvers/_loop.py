@@ -16,10 +16,9 @@ from jaxtyping import Array
 
 from .._errors import ConfigError
 from .._models import AbstractModel, Evaluation
-from ._base import Result
+from ._base import N_EVENTS, Result
 from ._settle import check_steps, mass_diagonal, settled
 
-N_EVENTS = 256  # capacity of the contact on/off log (later transitions are counted, not stored)
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
 ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
 # peaks that are always kept when ``Solver.peaks`` names a subset: the verdict judges the step
@@ -76,9 +75,10 @@ class Track(eqx.Module):
     n_steps: Array  # int32
 
     @classmethod
-    def start(cls, peaks0: dict) -> Track:
+    def start(cls, peaks0: dict, n_events: int = N_EVENTS) -> Track:
+        """Before the first step; ``n_events``: the log's capacity (``Solver.event_log``)."""
         return cls(jax.tree.map(lambda x: jnp.full_like(x, -jnp.inf), peaks0),
-                   jnp.full((N_EVENTS,), jnp.nan), jnp.zeros((), jnp.int32), jnp.zeros((), bool),
+                   jnp.full((n_events,), jnp.nan), jnp.zeros((), jnp.int32), jnp.zeros((), bool),
                    jnp.zeros(()), -jnp.ones(()), jnp.zeros((), jnp.int32), -jnp.ones(()),
                    jnp.zeros((), jnp.int32))
 
@@ -96,8 +96,11 @@ class Track(eqx.Module):
         touched = (self.n_events > 0) | contact  # a foot has been on the ground
         tip_t = jnp.where(upright & touched & model.tipping(ev.record), s.t, self.tip_time)
         changed = contact != self.contact
-        idx = jnp.minimum(self.n_events, N_EVENTS - 1)
-        ev_t = _log_write(self.event_times, idx, changed & (self.n_events < N_EVENTS), s.t)
+        capacity = self.event_times.shape[0]
+        ev_t = self.event_times
+        if capacity:
+            idx = jnp.minimum(self.n_events, capacity - 1)
+            ev_t = _log_write(ev_t, idx, changed & (self.n_events < capacity), s.t)
         track = eqx.tree_at(
             lambda x: (x.peaks, x.event_times, x.n_events, x.contact, x.tip_time, x.n_steps), self,
             (peaks, ev_t, self.n_events + changed.astype(jnp.int32), contact, tip_t,
@@ -221,7 +224,7 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
         out = save_point(carry[0])
         return steps(carry, solver.save_every), out
 
-    carry0 = (st.state0, Track.start(st.peaks0))
+    carry0 = (st.state0, Track.start(st.peaks0, solver.event_log))
     if solver.early_stop:
         traj = jax.tree.map(lambda x: x[None], save_point(st.state0))
         return traj, _run_until_settled(model, st, scene, solver, steps, carry0)

@@ -89,7 +89,7 @@ class Tsit5(AbstractIntegrator):
             return (track.update(model, s, ev, st.energy0, st.energy_scale),
                     record(model, s, ev, st.energy0))
 
-        track, traj = jax.lax.scan(look, Track.start(st.peaks0), states)
+        track, traj = jax.lax.scan(look, Track.start(st.peaks0, solver.event_log), states)
         traj = jax.tree.map(lambda x: x[:-1], traj)  # the last state, at t1, is not saved
         s_end = jax.tree.map(lambda x: x[-1], states)
         out = summary(model, s_end, track, st, scene)
