@@ -1,5 +1,6 @@
-"""Monte Carlo on this machine: throughput (quarter and full 3-D model, 1 and 2 devices, this
-tree against an earlier one side by side) and the choice of the Monte Carlo step.
+"""Monte Carlo on this machine: throughput (quarter and full 3-D model, 1 and 2 devices, at the
+spec's default step and at the step the step study chose, this tree against an earlier one side
+by side) and the choice of the Monte Carlo step.
 
     python benchmarks/bench_montecarlo.py [--quarter-n 20000] [--full-n 128] [--before TREE]
     python benchmarks/bench_montecarlo.py --step-study [--step-n 32]
@@ -38,7 +39,7 @@ import sys
 import time
 from pathlib import Path
 
-from _common import add_out_args, machine, out_dir, save_png, write_json
+from _common import RESULTS, ROOT, add_out_args, machine, out_dir, save_png, write_json
 
 CHILD = """
 import json, sys, time
@@ -77,29 +78,48 @@ def run(model: str, n: int, devices: int, method="euler", dt=1e-5, tree=None) ->
     return row
 
 
+# the issue's throughput targets [landings/s] on this 2-core CPU, at the chosen step
+TARGETS = {"quarter": 5000.0, "full": 167.0}
+DEFAULT = ("euler", 1e-5)  # the spec's default method and step
+
+
 def throughput(args, out: Path) -> dict:
+    """In one session: each model at the spec's default step on 1 and 2 devices, at the step
+    the step study chose (montecarlo_step.json) on 1 and 2 devices, and with ``--before`` that
+    tree at the chosen step on one device, next to this tree again."""
     sizes = {"quarter": args.quarter_n, "full": args.full_n}
-    chosen = {}
     step_file = out / "montecarlo_step.json"
-    if step_file.exists():
-        chosen = {m: r["chosen"] for m, r in json.loads(step_file.read_text())["models"].items()
-                  if r.get("chosen")}
+    if not step_file.exists():
+        step_file = RESULTS / "montecarlo_step.json"
+    chosen = {m: (r["chosen"]["method"], r["chosen"]["dt_s"])
+              for m, r in json.loads(step_file.read_text())["models"].items() if r.get("chosen")}
     rows, compare = [], []
     for model, n in sizes.items():
         for devices in (1, 2):
-            rows.append(run(model, n, devices))
-        if args.before:  # the same child on the earlier tree, then this one again
-            compare.append(run(model, n, 1, tree=args.before))
-            compare.append(run(model, n, 1))
+            rows.append(run(model, n, devices, *DEFAULT))
         if model in chosen:
-            compare.append(run(model, n, 1, chosen[model]["method"], chosen[model]["dt_s"]))
-    speed = {m: next(r["wall_s"] for r in rows if r["model"] == m and r["devices"] == 1)
-             / next(r["wall_s"] for r in rows if r["model"] == m and r["devices"] == 2)
-             for m in sizes}
+            for devices in (1, 2):
+                rows.append(run(model, n, devices, *chosen[model]))
+            if args.before:  # the earlier tree, then this one again, one device each
+                compare.append(run(model, n, 1, *chosen[model], tree=args.before))
+                compare.append(run(model, n, 1, *chosen[model]))
+    load = os.getloadavg()[0]
+
+    def rate(model, devices, setting):
+        return next((r["landings_per_s"] for r in rows if r["model"] == model
+                     and r["devices"] == devices and (r["method"], r["dt_s"]) == setting), None)
+
+    speed = {m: rate(m, 2, DEFAULT) / rate(m, 1, DEFAULT) for m in sizes}
+    targets = {m: dict(target_landings_per_s=TARGETS[m], setting=list(chosen[m]),
+                       landings_per_s=rate(m, 2, chosen[m]),
+                       met=bool(rate(m, 2, chosen[m]) >= TARGETS[m]))
+               for m in sizes if m in chosen}
     result = dict(spec="quarter: sink speed 2.0+-0.3 m/s, mass +-3 %; full: "
                        "examples/montecarlo_dispersed.toml; 1.0 s landings from touchdown; "
-                       "runs: euler at dt = 1e-5 s; wall time includes compilation",
-                  machine=machine(), runs=rows, speedup_2_devices=speed,
+                       "wall time includes compilation",
+                  machine=machine(), load_average_1min_at_end=load, runs=rows,
+                  speedup_2_devices=speed, targets=targets, chosen_step_file=str(
+                      step_file.relative_to(ROOT) if ROOT in step_file.parents else step_file),
                   side_by_side=compare, before_tree=args.before,
                   before_commit=subprocess.run(
                       ["git", "rev-parse", "--short", "HEAD"], cwd=args.before,
@@ -108,23 +128,27 @@ def throughput(args, out: Path) -> dict:
     write_json(out / "bench_montecarlo.json", result, indent=2)
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(7, 4), layout="constrained")
+    fig = Figure(figsize=(8, 4), layout="constrained")
     ax = fig.subplots()
-    bars = [(f"{r['model']}\n{r['devices']} dev", r) for r in rows] + [
-        (f"{r['model']}\n{r['tree']}\n{r['method']} {r['dt_s']:g}", r) for r in compare]
+    bars = [(f"{r['model']}\n{r['method']} {r['dt_s']:g}\n{r['devices']} dev", r)
+            for r in rows] + [(f"{r['model']}\n{r['tree']}\n{r['method']} {r['dt_s']:g}", r)
+                              for r in compare]
     ax.bar(range(len(bars)), [r["landings_per_s"] for _, r in bars],
            color=["C0" if r["tree"] == "this" else "C1" for _, r in bars])
+    for i, m in enumerate(TARGETS):
+        ax.axhline(TARGETS[m], color=f"C{i + 2}", ls="--", lw=1, label=f"{m} target")
     ax.set_xticks(range(len(bars)), [b for b, _ in bars], fontsize="x-small")
     ax.set_yscale("log")
-    ax.set_ylabel("throughput [landings/s]")
+    ax.set_ylabel("throughput, with compilation [landings/s]")
     ax.set_title("Monte Carlo on this CPU (orange: the earlier tree)")
+    ax.legend(fontsize="small")
     save_png(fig, out / "bench_montecarlo.png")
     return result
 
 
 # ---------------------------------------------------------------- the Monte Carlo step (2c)
 
-STEP_METHODS = {"euler": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5),
+STEP_METHODS = {"euler": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 8e-5, 1e-4, 1.25e-4),
                 "euler_implicit": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4),
                 "verlet": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4)}
 REFERENCE = ("verlet", 2.5e-6)  # the converged reference; checked against euler at that step
