@@ -296,16 +296,30 @@ def performance_steps() -> str:
 
 
 def performance_montecarlo() -> str:
+    """Per model and setting (the spec's default, the step study's choice), throughput on 1 and
+    2 devices, and the issue's target at the chosen step (bench_montecarlo.json)."""
     b = _load("bench_montecarlo.json")
     rows = []
     for model in dict.fromkeys(r["model"] for r in b["runs"]):
-        runs = {r["devices"]: r for r in b["runs"] if r["model"] == model}
-        n = next(iter(runs.values()))["n"]
-        cells = [f"{runs[d]['landings_per_s']:.1f}" if d in runs else "-" for d in (1, 2)]
-        rows.append([f"{model} (n = {n})", *cells,
-                     f"{b['speedup_2_devices'].get(model, float('nan')):.2f}"])
-    return _table(["model", "1 device [landings/s]", "2 devices [landings/s]",
-                   "2 / 1 devices [-]"], rows)
+        target = b["targets"].get(model)
+        for setting in dict.fromkeys((r["method"], r["dt_s"]) for r in b["runs"]
+                                     if r["model"] == model):
+            runs = {r["devices"]: r for r in b["runs"]
+                    if r["model"] == model and (r["method"], r["dt_s"]) == setting}
+            one = next(iter(runs.values()))
+            cells = [f"{runs[d]['landings_per_s']:.1f}" if d in runs else "-" for d in (1, 2)]
+            ratio = (f"{runs[2]['landings_per_s'] / runs[1]['landings_per_s']:.2f}"
+                     if 1 in runs and 2 in runs else "-")
+            is_chosen = target is not None and list(setting) == target["setting"]
+            goal = (f">= {target['target_landings_per_s']:g}: "
+                    f"{'met' if target['met'] else 'not met'}" if is_chosen else "")
+            retried = sum(r["n_retried"] for r in runs.values())
+            rows.append([model, f"{setting[0]}, {setting[1]:g}"
+                         + (" (chosen)" if is_chosen else " (default)"), str(one["n"]),
+                         *cells, ratio, str(retried), goal])
+    return _table(["model", "method, dt [s]", "n [-]", "1 device [landings/s]",
+                   "2 devices [landings/s]", "2 / 1 devices [-]", "samples retried [-]",
+                   "target, 2 devices [landings/s]"], rows)
 
 
 def montecarlo_side_by_side() -> str:
