@@ -194,7 +194,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
         done += count
         line(f"{done}/{spec.n} landings ({model} model, {n_dev} device"
              f"{'s' if n_dev > 1 else ''}{_of_processes(n_proc)}, "
-             f"{done / (time.perf_counter() - t0):.0f}/s)")
+             f"{done / (time.perf_counter() - t0):.3g}/s)")
     line.close()
     wall = time.perf_counter() - t0
     if n_proc > 1:
