@@ -4,6 +4,8 @@
                                               #   (+ raw/baselines_raw.json with the traces)
     python benchmarks/baselines.py --check    # quick verification only; exit 1 on mismatch
     python benchmarks/baselines.py --quick    # fewer runs (smoke test) -> out/bench-quick/
+    python benchmarks/baselines.py --side-by-side  # one landing against the numba loop
+                                              #   -> benchmarks/results/numba_side_by_side.json
 
 Needs the optional ``bench`` extra (``pip install -e ".[bench]"``: numba and scipy). Without it
 this module still imports (``NUMBA_AVAILABLE`` is False and the kernels are plain Python); the
@@ -457,11 +459,59 @@ def run_benchmark(out_path=OUT, quick=False) -> dict:
     return result
 
 
+# jaxland's bookkeeping settings timed against the numba loop (``side_by_side``)
+SIDE_BY_SIDE = {
+    "simulate's (every peak, ledger every step, 1 ms trajectory)": dict(save_dt=SAVE_DT),
+    "about the numba loop's work (4 peaks, ledger every step, 1 ms trajectory)":
+        dict(save_dt=SAVE_DT, peaks=()),
+    "a Monte Carlo's (its peaks, ledger every 5e-4 s, no trajectory or event log)":
+        dict(save_dt=T_END, peaks=("peak_body_accel_mps2",), ledger_every=50, event_log=0),
+}
+
+
+def side_by_side(repeats: int = 7, dt: float = 1e-5) -> dict:
+    """One quarter landing (the paper drop, euler at ``dt``) in jaxland under jit with each
+    bookkeeping of ``SIDE_BY_SIDE``, and in the numba loop of the same scheme, interleaved
+    repeat by repeat in this process (CPU time, median): how far the compiled JAX loop is
+    from a hand-written compiled loop."""
+    _require()
+    import jax
+
+    import jaxland as jl
+
+    vehicle, scene = jl.paper_vehicle(), jl.Scene()
+    args = euler_prepare(vehicle, scene, dt, T_END)
+    euler_run_kernel(*args)  # compile
+    fns = {}
+    for name, kw in SIDE_BY_SIDE.items():
+        solver = jl.Solver(dt=dt, t_end=T_END, **kw).validate()
+        fn = jax.jit(lambda s, solver=solver: jl.landing(vehicle, s, solver, "quarter"))
+        jax.block_until_ready(fn(scene))
+        fns[name] = lambda fn=fn: jax.block_until_ready(fn(scene))
+    times = {"numba": [], **{k: [] for k in fns}}
+    for _ in range(repeats):
+        for name, fn in (("numba", lambda: euler_run_kernel(*args)), *fns.items()):
+            c0 = time.process_time()
+            fn()
+            times[name].append(time.process_time() - c0)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    return dict(scene="paper drop, quarter model", method="euler", dt_s=dt, t_end_s=T_END,
+                repeats=repeats, timing="CPU time per landing, median of interleaved repeats",
+                machine=dict(platform=platform.platform(), cpu_count=os.cpu_count(),
+                             load_average_1min=os.getloadavg()[0]),
+                numba_ms=med["numba"] * 1e3,
+                jaxland=[dict(bookkeeping=k, ms=med[k] * 1e3, ratio_to_numba=med[k] / med["numba"])
+                         for k in fns])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--check", action="store_true",
                     help="verify numba vs jaxland and scipy vs fine Euler; exit 1 on mismatch")
     ap.add_argument("--quick", action="store_true", help="fewer settings (smoke test)")
+    ap.add_argument("--side-by-side", action="store_true",
+                    help="one landing in jaxland (three bookkeepings) against the numba loop "
+                         "-> numba_side_by_side.json beside the output")
     ap.add_argument("--out", default=None,
                     help=f"JSON output path (default {OUT.relative_to(OUT.parents[2])}, or "
                          "out/bench-quick/baselines.json with --quick)")
@@ -478,6 +528,13 @@ def main(argv=None) -> int:
 
     out = Path(args.out) if args.out else None
     folder = out_dir(str(out.parent) if out else None, args.quick)  # refuses --quick in results
+    if args.side_by_side:
+        from _common import write_json
+
+        res = side_by_side(3 if args.quick else 7)
+        write_json(folder / "numba_side_by_side.json", res, indent=2)
+        print(json.dumps(res, indent=2))
+        return 0
     run_benchmark(folder / (out.name if out else OUT.name), quick=args.quick)
     return 0
 

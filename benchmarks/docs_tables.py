@@ -322,6 +322,17 @@ def performance_montecarlo() -> str:
                    "target, 2 devices [landings/s]"], rows)
 
 
+def numba_side_by_side() -> str:
+    """One quarter landing in jaxland with each bookkeeping against the numba loop of the same
+    scheme (numba_side_by_side.json)."""
+    b = _load("numba_side_by_side.json")
+    rows = [["numba loop (benchmarks/_baseline_port.py)", f"{b['numba_ms']:.2f}", "1"]]
+    rows += [[f"jaxland, {r['bookkeeping']}", f"{r['ms']:.2f}", f"{r['ratio_to_numba']:.2f}"]
+             for r in b["jaxland"]]
+    return _table([f"one landing ({b['method']}, dt = {b['dt_s']:g} s, {b['t_end_s']:g} s)",
+                   "CPU [ms]", "/ numba [-]"], rows)
+
+
 def montecarlo_side_by_side() -> str:
     """The runs of one bench_montecarlo session side by side: this tree and an earlier one
     (``--before``), and the step the step study chose (bench_montecarlo.json)."""
@@ -573,6 +584,7 @@ TABLES = {
     "integrators-stability": integrators_stability,
     "gradient-quality": gradient_quality,
     "performance-landing": performance_landing,
+    "numba-side-by-side": numba_side_by_side,
     "performance-steps": performance_steps,
     "performance-montecarlo": performance_montecarlo,
     "performance-montecarlo-side-by-side": montecarlo_side_by_side,
