@@ -4,6 +4,7 @@ by side) and the choice of the Monte Carlo step.
 
     python benchmarks/bench_montecarlo.py [--quarter-n 20000] [--full-n 128] [--before TREE]
     python benchmarks/bench_montecarlo.py --step-study [--step-n 32]
+    python benchmarks/bench_montecarlo.py --cache
     python benchmarks/bench_montecarlo.py --quick
 
 Throughput: each configuration runs in its own process (the device count is fixed when jax
@@ -143,6 +144,48 @@ def throughput(args, out: Path) -> dict:
     ax.set_title("Monte Carlo on this CPU (orange: the earlier tree)")
     ax.legend(fontsize="small")
     save_png(fig, out / "bench_montecarlo.png")
+    return result
+
+
+# ---------------------------------------------------------------- the CLI's compilation cache
+
+DESIGN_EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "design_paper_gear.toml"
+CACHE_RUNS = {  # what a user runs twice, as CLI arguments (short: the compile share shows)
+    "montecarlo, 3-D example, n = 64":
+        ["montecarlo", str(EXAMPLE), "--n", "64"],
+    "design, paper gear, 2 iterations, verification n = 32":
+        ["design", str(DESIGN_EXAMPLE), "--iterations", "2", "--verify-n", "32"],
+}
+
+
+def cli_cache(out: Path, quick: bool) -> dict:
+    """Each command of ``CACHE_RUNS`` twice in fresh processes sharing one empty compilation
+    cache folder (``JAXLAND_CACHE_DIR``): the first run compiles and stores, the second reads
+    the compiled programs back. Writes cli_cache.json."""
+    import tempfile
+
+    rows = []
+    runs = dict(list(CACHE_RUNS.items())[:1]) if quick else CACHE_RUNS
+    for argv in runs.values():
+        argv = [a if a != "64" or not quick else "8" for a in argv]
+        with tempfile.TemporaryDirectory(prefix="jaxland-cache-bench-") as tmp:
+            env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+            env["JAXLAND_CACHE_DIR"] = str(Path(tmp) / "xla")
+            walls = []
+            for i in range(2):
+                t0 = time.perf_counter()
+                subprocess.run([sys.executable, "-m", "jaxland.cli", *argv, "--out",
+                                str(Path(tmp) / f"out{i}")], env=env, check=True,
+                               capture_output=True, text=True)
+                walls.append(time.perf_counter() - t0)
+        rows.append(dict(command="jaxland " + " ".join(
+            a.replace(str(EXAMPLE.parents[1]) + "/", "") for a in argv),
+            first_s=walls[0], second_s=walls[1]))
+        print(rows[-1], flush=True)
+    result = dict(machine=machine(), load_average_1min_at_end=os.getloadavg()[0], rows=rows,
+                  note="wall time of the whole command (process start, import, compile or "
+                       "cache read, run, outputs); one empty cache folder per command")
+    write_json(out / "cli_cache.json", result, indent=2)
     return result
 
 
@@ -293,12 +336,17 @@ def main() -> None:
     ap.add_argument("--before", default=None, help="an earlier checkout to run side by side")
     ap.add_argument("--step-study", action="store_true")
     ap.add_argument("--step-n", type=int, default=32)
+    ap.add_argument("--cache", action="store_true",
+                    help="the CLI run twice with one compilation cache (cli_cache.json)")
     add_out_args(ap)
     args = ap.parse_args()
     out = out_dir(args.out, args.quick)
     out.mkdir(parents=True, exist_ok=True)
     if args.quick:
         args.quarter_n, args.full_n, args.step_n = 64, 4, 4
+    if args.cache:
+        print(json.dumps(cli_cache(out, args.quick), indent=2))
+        return
     if args.step_study:
         report = step_study(("quarter", "full"), args.step_n)
         write_json(out / "montecarlo_step.json", report, indent=2)

@@ -333,6 +333,14 @@ def numba_side_by_side() -> str:
                    "CPU [ms]", "/ numba [-]"], rows)
 
 
+def cli_cache() -> str:
+    """Commands run twice with one compilation cache (cli_cache.json)."""
+    b = _load("cli_cache.json")
+    rows = [[f"`{r['command']}`", f"{r['first_s']:.1f}", f"{r['second_s']:.1f}"]
+            for r in b["rows"]]
+    return _table(["command", "first run, compiles [s]", "second run, cache read [s]"], rows)
+
+
 def montecarlo_side_by_side() -> str:
     """The runs of one bench_montecarlo session side by side: this tree and an earlier one
     (``--before``), and the step the step study chose (bench_montecarlo.json)."""
@@ -585,6 +593,7 @@ TABLES = {
     "gradient-quality": gradient_quality,
     "performance-landing": performance_landing,
     "numba-side-by-side": numba_side_by_side,
+    "cli-cache": cli_cache,
     "performance-steps": performance_steps,
     "performance-montecarlo": performance_montecarlo,
     "performance-montecarlo-side-by-side": montecarlo_side_by_side,

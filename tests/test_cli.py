@@ -94,3 +94,25 @@ def test_simulate_3d_scene_from_file_and_flags(tmp_path, capsys):
     assert main(["simulate", "--roll-deg", "3", "--model", "quarter", "--out",
                  str(tmp_path / "x")]) == 2
     assert "needs model='full'" in capsys.readouterr().err
+
+
+def test_compiled_programs_are_kept_between_runs(tmp_path):
+    """The command keeps JAX's compiled programs on disk (``$XDG_CACHE_HOME/jaxland/xla`` by
+    default) so that the next run of the same shapes skips compiling; ``JAXLAND_CACHE_DIR=``
+    turns it off. (The test session's own cache, ``JAX_COMPILATION_CACHE_DIR``, is taken away
+    from these two runs.)"""
+    import os
+
+    def run(name, **env_set):
+        env = {k: v for k, v in os.environ.items()
+               if k not in ("JAX_COMPILATION_CACHE_DIR", "JAXLAND_CACHE_DIR")}
+        env.update(JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+                   XDG_CACHE_HOME=str(tmp_path / name), **env_set)
+        subprocess.run([sys.executable, "-m", "jaxland.cli", "simulate", "--t-end", "0.01",
+                        "--no-plots", "--out", str(tmp_path / name / "out")], env=env,
+                       check=True, capture_output=True)
+        return tmp_path / name / "jaxland" / "xla"
+
+    kept = run("on")
+    assert kept.is_dir() and any(kept.iterdir())
+    assert not run("off", JAXLAND_CACHE_DIR="").exists()

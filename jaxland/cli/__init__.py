@@ -3,7 +3,8 @@
 of the installed package.)
 
 Exit codes: 0 success, 2 invalid input (the message names field, value and rule), 3 numerical
-failure of the integration.
+failure of the integration. Compiled programs are kept on disk between runs
+(``_common.use_compilation_cache``).
 """
 
 from __future__ import annotations
@@ -105,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from ._common import use_compilation_cache
+
+    use_compilation_cache()
     try:
         return args.func(args)
     except ConfigError as err:

@@ -39,6 +39,30 @@ def use_cpu_cores(devices: int | None) -> int | None:
     return devices
 
 
+CACHE_ENV = "JAXLAND_CACHE_DIR"
+
+
+def use_compilation_cache() -> str | None:
+    """Keep compiled programs on disk between runs of the command (JAX's persistent compilation
+    cache), so that a second ``jaxland design`` or ``montecarlo`` of the same shapes skips its
+    compilation: in ``$JAXLAND_CACHE_DIR``, default ``$XDG_CACHE_HOME/jaxland/xla`` (else
+    ``~/.cache/jaxland/xla``); ``JAXLAND_CACHE_DIR=`` (empty) turns it off, and a
+    ``JAX_COMPILATION_CACHE_DIR`` you set is JAX's own and left alone. Returns the folder
+    used (None: none set here)."""
+    if "JAX_COMPILATION_CACHE_DIR" in os.environ:
+        return None
+    folder = os.environ.get(CACHE_ENV)
+    if folder is None:
+        base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        folder = str(Path(base) / "jaxland" / "xla")
+    if not folder:
+        return None
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", folder)
+    return folder
+
+
 def out_dir(path) -> Path:
     """The output folder ``--out``, checked before any work (``jaxland._files.check_out``)."""
     return check_out(path)
