@@ -11,15 +11,10 @@ __version__ = "0.1.0"
 # exactly that kind of loop: its parameters count against the byte threshold whenever they are
 # traced (fits, design, Monte Carlo), and a vmapped full 3-D step's small products and sums
 # become YNNPACK fusions. With these options single landings and vmapped batches of both models
-# compile their time loop into one kernel (docs/performance.md). XLA:CPU's multi-output fusion
-# (off by default) lets one kernel compute a value for all of its consumers: without it every
-# consumer kernel recomputes the elementwise work it reads, 2.7x the step's operations in a
-# batched full 3-D step, and a batched step costs 1.6-1.8x (3-D) and 3x (quarter) as much.
-# They must be set before the XLA backend starts; an option the user sets in XLA_FLAGS is left
-# alone.
+# compile their time loop into one kernel (docs/performance.md). They must be set before the XLA
+# backend starts; an option the user sets in XLA_FLAGS is left alone.
 _XLA_OPTIONS = {
-    "xla_backend_extra_options": ("xla_cpu_small_while_loop_byte_threshold=100000000,"
-                                  "xla_cpu_use_multi_output_fusion"),
+    "xla_backend_extra_options": "xla_cpu_small_while_loop_byte_threshold=100000000",
     "xla_cpu_experimental_ynn_fusion_type": "",
     "xla_cpu_experimental_xnn_fusion_type": "",
     "xla_cpu_use_xnnpack": "false",

@@ -16,7 +16,7 @@ def test_options_are_set_and_a_late_import_is_warned():
     first = _python("import os, jaxland, jax; jax.numpy.ones(1); print(os.environ['XLA_FLAGS'])")
     assert first.returncode == 0, first.stderr  # imported first: no warning
     for option in ("xla_cpu_small_while_loop_byte_threshold=100000000",
-                   "xla_cpu_use_multi_output_fusion", "--xla_cpu_use_xnnpack=false"):
+                   "--xla_cpu_use_xnnpack=false"):
         assert option in first.stdout
     late = _python("import jax; jax.numpy.ones(1); import jaxland")
     assert late.returncode != 0 and "imported after JAX started its backend" in late.stderr
