@@ -44,6 +44,8 @@ from _common import RESULTS, ROOT, add_out_args, machine, out_dir, save_png, wri
 
 CHILD = """
 import json, sys, time
+import jaxland
+getattr(jaxland, "use_batch_fusion", lambda: None)()  # as jaxland montecarlo does
 import jax
 from jaxland import Distribution, MonteCarloSpec, run_montecarlo, load_montecarlo_spec
 model, n, method, dt = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4])

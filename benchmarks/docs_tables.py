@@ -333,6 +333,16 @@ def numba_side_by_side() -> str:
                    "CPU [ms]", "/ numba [-]"], rows)
 
 
+def fusion() -> str:
+    """XLA:CPU multi-output fusion off and on, per kind of work (fusion.json)."""
+    b = _load("fusion.json")
+    rows = [[r["case"], r["what"], f"{r['ns_per_landing_step']['off']:.4g}",
+             f"{r['ns_per_landing_step']['on']:.4g}", f"{r['on_over_off']:.2f}"]
+            for r in b["rows"]]
+    return _table(["work", "what it stands for", "off [ns CPU per landing-step]",
+                   "on [ns CPU per landing-step]", "on / off [-]"], rows)
+
+
 def cli_cache() -> str:
     """Commands run twice with one compilation cache (cli_cache.json)."""
     b = _load("cli_cache.json")
@@ -594,6 +604,7 @@ TABLES = {
     "performance-landing": performance_landing,
     "numba-side-by-side": numba_side_by_side,
     "cli-cache": cli_cache,
+    "fusion": fusion,
     "performance-steps": performance_steps,
     "performance-montecarlo": performance_montecarlo,
     "performance-montecarlo-side-by-side": montecarlo_side_by_side,

@@ -34,6 +34,35 @@ def _backend_started() -> bool:
         return False
 
 
+_BATCH_FUSION = "xla_cpu_use_multi_output_fusion"
+
+
+def use_batch_fusion() -> bool:
+    """Turn on XLA:CPU's multi-output fusion in this process, for batches of landings without a
+    trajectory (Monte Carlo, design; ``jaxland montecarlo`` and ``jaxland design`` call it).
+    Without it, every kernel that reads a value recomputes the elementwise work behind it; with
+    it, one kernel computes the value for all of them. A vmapped step then costs less than half
+    (quarter) or about 0.6x (3-D model), but a landing that saves a trajectory costs up to 3x
+    more, and a fit about 8x (docs/performance.md), so it is not on by default. Call it right
+    after ``import jaxland``, before any JAX work: the option is read when XLA's backend starts.
+    Returns whether it is on (False: the backend had started without it)."""
+    flags = _os.environ.get("XLA_FLAGS", "")
+    if _BATCH_FUSION in flags:
+        return True
+    if _backend_started():
+        return False
+    key = "--xla_backend_extra_options="
+    words = flags.split()
+    for i, word in enumerate(words):
+        if word.startswith(key):
+            words[i] = word + ("," if word != key else "") + _BATCH_FUSION
+            break
+    else:
+        words.append(key + _BATCH_FUSION)
+    _os.environ["XLA_FLAGS"] = " ".join(words)
+    return True
+
+
 if _backend_started():
     import warnings as _warnings
 

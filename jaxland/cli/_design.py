@@ -14,6 +14,7 @@ from __future__ import annotations
 import sys
 import time
 
+from .. import use_batch_fusion
 from .._files import staged
 from .._progress import ProgressLine
 from ._common import out_dir, use_cpu_cores
@@ -44,6 +45,7 @@ def _cmd_design(args) -> int:
 
     out = out_dir(args.out)
     use_cpu_cores(args.devices)  # before any JAX work: the verification shards over them
+    use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     spec = load_design_spec(args.spec)
     if args.iterations is not None:
         if args.iterations < 0:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .. import use_batch_fusion
 from ._common import out_dir, use_cpu_cores
 
 # envelopes whose low tail is the danger (the others: the high tail)
@@ -14,6 +15,7 @@ def cmd_montecarlo(args) -> int:
 
     out = out_dir(args.out)
     use_cpu_cores(args.devices)  # before any JAX work
+    use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
         init_distributed(args.coordinator, args.num_processes, args.process_id)
     spec = load_montecarlo_spec(args.spec)
