@@ -70,8 +70,9 @@ def check_integrator(integrator, smoothing_m, smoothing_N) -> tuple[str, float, 
 
 
 def _vehicle_key(vehicle):
-    leaves, treedef = jax.tree.flatten(vehicle)
-    return treedef, tuple(float(x) for x in leaves)
+    leaves, treedef = jax.tree.flatten(vehicle)  # scalars, and tables (Honeycomb.excess1)
+    return treedef, tuple(float(x) if np.ndim(x) == 0 else tuple(np.ravel(x).tolist())
+                          for x in leaves)
 
 
 def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False):

@@ -67,8 +67,8 @@ def _paper_dict() -> dict:
             x_L2_mm=57.60,
             k_b3_N_per_m=round((f2 - f1) / (_PAPER_DX_L3_MM * 1e-3), -3), F2_N=round(f2, 1),
             x_L4_mm=183.23, k_bottom_N_per_m=1e8, peak_ratio1=1.0, peak_length1_mm=2.0,
-            peak_ratio2=1.0, peak_length2_mm=2.0, excess1=[], excess_length1_mm=10.0,
-            unload_ratio=1.0, bonded=False),
+            peak_rise1_mm=0.0, peak_ratio2=1.0, peak_length2_mm=2.0, excess1=[],
+            excess_length1_mm=10.0, unload_ratio=1.0, bonded=False),
         "ground": dict(k_N_per_m=2e6, gamma=0.5, chi_s_per_m=2e-4, mu=0.5, k_tan_N_per_m=7e4),
     }
 
@@ -280,10 +280,22 @@ def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
     x1, x3 = F1 / k1, x2 + (F2 - F1) / k3
     stages = (("1", r1, L1, F1, k1, x1, x2, "x_L2", "F2_N", F2),
               ("2", r2, L2, F2, k3, x3, x4, "x_L4", None, None))
+    rise = concrete(hc.peak_rise1) if hc.peak_rise1 is not None else None
+    if hc.peak_rise1 is not None and rise is None:  # a tracer: not checked
+        return
     for i, r, length, F, k_el, start, end, end_name, above, F_above in stages:
         on = r > 1
         a = (r - 1) * F
-        done = start + a / k_el + length  # stroke where the peak has decayed to the plateau
+        up = a / k_el  # crush (stroke) of the rise to the peak: elastic, or the rise length
+        if i == "1" and rise is not None:
+            up = rise
+            if np.any(on & ~(a / rise < k1)):
+                raise ConfigError("honeycomb.peak_rise1_mm", float(np.min(rise)) * 1e3,
+                                  f"the peak builds up at (r1 - 1) F1 / rise = "
+                                  f"{float(np.max(a / rise)):.4g} N/m, which must be < k_b1 = "
+                                  f"{float(np.min(k1)):.6g} N/m (a faster rise is elastic, not "
+                                  "crushing): a longer rise")
+        done = start + up + length  # stroke where the peak has decayed to the plateau
         if np.any(on & ~(done < end)):
             raise ConfigError(f"honeycomb.peak_length{i}_mm", float(np.max(length)) * 1e3,
                               f"the peak must end before {end_name}: its rise to r F and decay "
@@ -302,6 +314,9 @@ def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
                               f"{float(np.min(k)) * 0.5:.4g} N/m (ground.k_N_per_m): a longer "
                               "decay or a smaller ratio, or the foot snaps through")
     if hc.excess1 is not None:
+        if hc.peak_rise1 is not None:
+            raise ConfigError("honeycomb.excess1", "[...]", "give either peak_rise1_mm or "
+                              "excess1, not both (each sets the primary's crush peak)")
         _check_excess_table(hc, k, F1, F2, k1, x1, x2)
     if np.any(~(rho * k3 <= np.maximum(k1, k3))):
         raise ConfigError("honeycomb.unload_ratio", float(np.max(rho)),

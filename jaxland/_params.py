@@ -132,6 +132,13 @@ class Honeycomb(eqx.Module):
         "fold 2H ~ 2.9 mm of Table 1's primary cells (Wierzbicki 1983); fit it from a drop "
         "record. Unused while peak_ratio1 = 1",
         "> 0", toml="peak_length1_mm", to_si=1e-3, default=2e-3)
+    peak_rise1: jnp.ndarray = _param(
+        "m", "crush over which the primary peak builds up: with it, the elastic rise ends at F1 "
+        "and the strength rises linearly from F1 to peak_ratio1 F1 over this much crush, then "
+        "falls over peak_length1_mm (0: off, the elastic rise goes to the peak itself)",
+        "our extension (issue 12): a peak that builds up while the first folds form; fit it "
+        "from a drop record. Default off. Unused while peak_ratio1 = 1",
+        "> 0", toml="peak_rise1_mm", to_si=1e-3, off=0.0)
     peak_ratio2: jnp.ndarray = _param(
         "1", "initial crush peak of the virgin secondary honeycomb over its plateau, r2 = peak / "
         "F2 (1: no peak); as peak_ratio1, from x_L3 on",
@@ -193,6 +200,15 @@ class Honeycomb(eqx.Module):
                                                              self.unload_ratio))
             a1, a2 = (r1 - 1.0) * self.F1, (r2 - 1.0) * self.F2
             L1 = self.peak_length1
+            if self.peak_rise1 is not None and self.peak_ratio1 is not None:
+                # the peak that builds up: a two-segment table, 0 -> a1 over the rise, a1 -> 0
+                # over peak_length1 (validate_vehicle: not with excess1)
+                rise, fall = jnp.expand_dims(self.peak_rise1, -1), jnp.expand_dims(L1, -1)
+                a = jnp.expand_dims(a1, -1)
+                ext = dict(t1_c=jnp.concatenate([jnp.zeros_like(rise), rise], axis=-1),
+                           t1_dc=jnp.concatenate([rise, fall], axis=-1),
+                           t1_slope=jnp.concatenate([a / rise, -a / fall], axis=-1))
+                a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
             if table:  # the primary's excess from its table (validate_vehicle: not with r1)
                 e = self.excess1 * jnp.expand_dims(self.F1, -1)  # N, at the nodes c_j
                 n = e.shape[-1]
@@ -237,10 +253,10 @@ class HoneycombCurve(eqx.Module):
     L2: jnp.ndarray | None = None  # m, crush over which the secondary peak decays
     k_u: jnp.ndarray | None = None  # N/m, secondary stage's unloading stiffness, rho k_b3
     q: jnp.ndarray | None = None  # 1, plastic fraction of the k_b3 rise, 1 - 1 / rho
-    # the primary's tabulated excess (None unless ``Honeycomb.excess1`` is on): on the grid
-    # c_j = j dc, e(c) = a1 + sum_j slope_j clip(c - c_j, 0, dc)
-    t1_c: jnp.ndarray | None = None  # m, the table's nodes c_j (last axis: j = 0 .. n-1)
-    t1_dc: jnp.ndarray | None = None  # m, the grid step (last axis of length 1)
+    # the primary's tabulated excess (None unless ``Honeycomb.excess1`` or ``peak_rise1`` is
+    # on): segments from c_j of width dc_j, e(c) = a1 + sum_j slope_j clip(c - c_j, 0, dc_j)
+    t1_c: jnp.ndarray | None = None  # m, the segments' starts c_j (last axis: j = 0 .. n-1)
+    t1_dc: jnp.ndarray | None = None  # m, their widths (a uniform grid: last axis of length 1)
     t1_slope: jnp.ndarray | None = None  # N/m, the excess's slope on [c_j, c_j + dc]
     bonded: bool = eqx.field(static=True, default=False)
     extended: bool = eqx.field(static=True, default=False)

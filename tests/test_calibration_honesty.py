@@ -200,6 +200,22 @@ def test_peak_and_unloading_parameters_round_trip_through_the_fit_coordinates():
         assert float(hc.peak_ratio1) > 1 and slope <= 0.5 * float(fitted.ground.k) * (1 + 1e-9)
 
 
+def test_rise_length_round_trips_and_any_coordinates_give_a_valid_vehicle():
+    """L_rise1 (off: starts at 1 mm) between the build-up's slope limit and the room left."""
+    names = ("k_b1", "F1", "peak1", "L_peak1", "L_rise1")
+    veh = switch_on(jl.paper_vehicle(), names)
+    assert float(veh.honeycomb.peak_rise1) == 1e-3
+    z = to_unconstrained(veh, names)
+    np.testing.assert_allclose(np.asarray(from_unconstrained(jnp.asarray(z), names, veh)),
+                               get_values(veh, names), rtol=1e-12)
+    for shift in ((0, 0, -4, -4, -4), (0, 0, 1, 1, 1), (0, 0, 4, 0, -12), (0, 0, 3, 4, 4)):
+        vals = np.asarray(from_unconstrained(jnp.asarray(z + np.array(shift)), names, veh))
+        hc = jl.validate_vehicle(set_values(veh, names, vals)).honeycomb
+        a = (float(hc.peak_ratio1) - 1) * float(hc.F1)
+        assert a / float(hc.peak_rise1) < float(hc.k_b1)
+        assert float(hc.x_L1 + hc.peak_rise1 + hc.peak_length1) < float(hc.x_L2)
+
+
 def test_off_extensions_read_as_one_and_are_switched_on_by_set_values():
     veh = jl.paper_vehicle()
     assert get_values(veh, ("peak1", "unload")).tolist() == [1.0, 1.0]

@@ -543,3 +543,89 @@ def test_bad_excess_tables_are_refused_by_name(hc, needle):
         jl.vehicle_from_dict({"honeycomb": hc})
     assert needle in str(err.value)
     assert "\n" not in str(err.value)
+
+
+# ------------------------------------------------------------------ a peak that builds up
+
+RISE = dict(r1=1.25, L1=3e-3, rise=1.5e-3)
+
+
+def _hc_rise(r1=RISE["r1"], L1=RISE["L1"], rise=RISE["rise"], r2=None, rho=None):
+    hc = _hc(r1, r2, rho, L1)
+    return eqx.tree_at(lambda h: h.peak_rise1, hc, jnp.float64(rise), **_NONE)
+
+
+def test_peak_with_a_rise_length_builds_up_then_falls():
+    """Elastic to F1 at x_L1, a linear rise to r1 F1 over the rise length, a linear fall to F1
+    over peak_length1 (hand-written with np.interp); reloading after the peak: the plateau."""
+    r1, L1, rise = RISE["r1"], RISE["L1"], RISE["rise"]
+    hc = _hc_rise()
+    xs = np.linspace(0.0, X2 - 1e-3, 40_001)
+    expected = np.where(xs < X1, K1 * xs, np.interp(xs - X1, [0.0, rise, rise + L1],
+                                                    [F1, r1 * F1, F1]))
+    for f in (lambda x: laws.honeycomb(x, x, hc).force,
+              lambda x: laws.honeycomb_virgin_force(x, hc)):
+        np.testing.assert_allclose(jax.vmap(f)(jnp.asarray(xs)), expected, rtol=1e-11,
+                                   atol=1e-6)
+    f, *_ = _run(hc, _path(0.0, X1 + rise + L1 + 1e-3, 0.0, X1 + rise + L1 + 5e-3))
+    assert np.max(f[2 * 100_000:]) <= F1 * (1 + 1e-9)
+
+
+def test_work_of_the_force_with_a_rising_peak_is_stored_plus_crushed():
+    """The ledger of the hard law (the smoothed law keeps the hard law's closed forms, off by
+    as much as the paper law's own smoothing) along a history unloaded in the build-up."""
+    w = 0.0
+    hc = _hc_rise(r2=1.2, rho=1.3)
+    x_mid = X1 + 0.5 * RISE["rise"]  # unloaded while the peak is still building up
+    xs = _path(0.0, x_mid, x_mid - 5e-4, 0.004, 0.001, 0.065, 0.061, 0.0715, 0.07, 0.12)
+    f, el, cr, ps = _run(hc, xs, w)
+    work = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(xs)]))
+    scale = el[-1] + cr[-1]
+    np.testing.assert_allclose(work, el + cr, rtol=0, atol=2e-9 * scale)
+    assert np.all(np.diff(cr) >= -1e-9 * scale)
+    assert np.all(np.diff(ps) >= -1e-15)
+    # reloaded in the build-up: back to the strength reached, then on up the rise
+    i = 2 * 100_000
+    s_mid = F1 * (1 + (RISE["r1"] - 1) * 0.5)
+    assert np.max(f[100_000:i]) <= s_mid + 2 * K1 * w + 1e-6
+
+
+RNAMES = ("peak_ratio1", "peak_length1", "peak_rise1", "F1", "k_b1")
+
+
+def _rise_sum(theta, x, x_max, w):
+    hc = _hc_rise()
+    vals = tuple(getattr(hc, n) * jnp.exp(t) for n, t in zip(RNAMES, theta))
+    hc = eqx.tree_at(lambda h: tuple(getattr(h, n) for n in RNAMES), hc, vals)
+    o = laws.honeycomb(x, x_max, hc, w)
+    return o.force / 1e3 + o.elastic_energy + o.crush_energy + o.plastic_set * 1e3
+
+
+@pytest.mark.parametrize("x,x_max,w", [
+    (X1 + 0.7e-3, X1 + 0.7e-3, 0.0),  # building up, virgin
+    (X1 + 2.5e-3, X1 + 2.6e-3, 0.0),  # unloaded in the fall
+    (X1 + 1.5e-3, X1 + 1.5e-3 + 2e-5, 1e-4),  # smoothed, at the top
+])
+def test_rising_peak_gradients_match_central_differences(x, x_max, w):
+    theta = jnp.zeros(len(RNAMES))
+    g = np.asarray(jax.grad(_rise_sum)(theta, jnp.float64(x), jnp.float64(x_max), w))
+    assert np.all(np.isfinite(g))
+    f = jax.jit(lambda t: _rise_sum(t, jnp.float64(x), jnp.float64(x_max), w))
+    for h in (1e-6, 2e-6):
+        fd = np.array([(float(f(theta.at[i].set(h))) - float(f(theta.at[i].set(-h)))) / (2 * h)
+                       for i in range(theta.size)])
+        np.testing.assert_allclose(g, fd, rtol=2e-5, atol=1e-6 * np.max(np.abs(g)))
+
+
+def test_rise_length_in_toml_off_by_zero_and_refused_by_name(tmp_path):
+    assert jl.paper_vehicle().honeycomb.peak_rise1 is None
+    assert jl.vehicle_from_dict({"honeycomb": {"peak_rise1_mm": 0.0}}).honeycomb.peak_rise1 \
+        is None
+    on = jl.vehicle_from_dict({"honeycomb": {"peak_ratio1": 1.2, "peak_rise1_mm": 1.5}})
+    (tmp_path / "v.toml").write_text(jl.vehicle_to_toml(on))
+    assert float(jl.load_vehicle(tmp_path / "v.toml").honeycomb.peak_rise1) == 1.5e-3
+    for hc, needle in (({"peak_ratio1": 1.2, "peak_rise1_mm": 0.05}, "must be < k_b1"),
+                       ({"peak_ratio1": 1.2, "peak_rise1_mm": 56.0}, "must end before x_L2"),
+                       ({"excess1": [0.1], "peak_rise1_mm": 1.0}, "give either peak_rise1")):
+        with pytest.raises(jl.ConfigError, match=needle):
+            jl.vehicle_from_dict({"honeycomb": hc})

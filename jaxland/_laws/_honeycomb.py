@@ -24,9 +24,9 @@ Energy (closed forms, used by the ledger):
     crush    D(x_max) = F1 p1 + F2 p2  (plastic work of the ideal plateaus; p1, p2 the two
              clipped terms of x_p), so that integral_0^x_max F_v dx = W(y_max) + D(x_max).
 
-Optional extensions (``Honeycomb.peak_ratio1/2``, ``peak_length1/2``, ``excess1``,
-``excess_length1``, ``unload_ratio``), all off by default (None): the law above then runs on
-its own code path, bit for bit.
+Optional extensions (``Honeycomb.peak_ratio1/2``, ``peak_length1/2``, ``peak_rise1``,
+``excess1``, ``excess_length1``, ``unload_ratio``), all off by default (None): the law above
+then runs on its own code path, bit for bit.
 
 Initial crush peak (virgin material only). A bare honeycomb block resists the start of crushing
 more than its plateau: the elastic rise of stage i continues to r_i F_i (a_i = (r_i - 1) F_i over
@@ -63,6 +63,10 @@ over the plastic set, exact in closed form for the piecewise-linear e:
     (a^2 - e^2) / (2 k_b1) + a c + sum_j s_j (u_j^2 / 2 + dc max(c - c_j - dc, 0)),
 
 which for a two-node table (a, 0) over L is the linear peak's work above.
+
+A peak that builds up (``Honeycomb.peak_rise1`` = L_r, with peak_ratio1): the elastic rise
+ends at F1 (a = 0 at the onset x_L1), the strength rises linearly to r1 F1 over the crush L_r,
+then falls to F1 over peak_length1: the table's law with two segments, of widths L_r and L.
 
 Unloading after the secondary stage (``unload_ratio`` = rho >= 1). The secondary stage's elastic
 stiffness is k_u = rho k_b3 while its virgin rise keeps the slope k_b3: for rho > 1 the fraction
@@ -199,8 +203,8 @@ def _table(c, hc: HoneycombCurve, w: float):
         over = jnp.maximum(d - hc.t1_dc, 0.0)
         u = jnp.minimum(jnp.maximum(d, 0.0), hc.t1_dc)
     else:  # the interior nodes rounded; c, clipped to [0, L] (rounded), needs no clip at the ends
-        over = jnp.concatenate([ramp(d[..., :-1] - hc.t1_dc, w),
-                                jnp.zeros_like(d[..., :1])], axis=-1)
+        dc = hc.t1_dc[..., :-1] if hc.t1_dc.shape[-1] > 1 else hc.t1_dc  # uniform: one
+        over = jnp.concatenate([ramp(d[..., :-1] - dc, w), jnp.zeros_like(d[..., :1])], axis=-1)
         u = jnp.concatenate([d[..., :1], ramp(d[..., 1:], w)], axis=-1) - over
     e = hc.a1 + jnp.sum(hc.t1_slope * u, axis=-1)
     integral = hc.a1 * c + jnp.sum(hc.t1_slope * (0.5 * u * u + hc.t1_dc * over), axis=-1)
