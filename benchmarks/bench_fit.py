@@ -151,6 +151,16 @@ COVERAGE_CASES = {
     # every channel alike, which the fitted model (no peak) lacks
     "physical crush peak (+10 %, 1 mm), not in the model": dict(crush_peak=0.0,
                                                                 truth_peak=(1.1, 1e-3)),
+    # the same drop fitted with the crush-peak model: the data are then representable
+    "physical crush peak (+10 %, 1 mm), fitted with the peak": dict(
+        crush_peak=0.0, truth_peak=(1.1, 1e-3), fit_extra=("peak1", "L_peak1")),
+    # the rig's physical bump (+20 %, built up over 1.2 mm of crush) in the truth's honeycomb:
+    # not in the model; fitted with the law's linear peak; with its rise length too
+    "physical bump peak, not in the model": dict(peak_mode="physical"),
+    "physical bump peak, fitted with the linear peak": dict(
+        peak_mode="physical", fit_extra=("peak1", "L_peak1")),
+    "physical bump peak, fitted with the peak and its rise": dict(
+        peak_mode="physical", fit_extra=("peak1", "L_peak1", "L_rise1")),
 }
 Z95 = 1.959964
 
@@ -162,20 +172,24 @@ def coverage(n_seeds: int, height: float = 0.2) -> dict:
     p_true = get_values(truth, names)
     out = dict(n_seeds=n_seeds, drop_height_m=height, level=0.95, z=Z95,
                params=list(names), cases={})
+    n = len(names)
     for label, rig in COVERAGE_CASES.items():
-        kw = {k: v for k, v in rig.items() if k != "truth_peak"}
+        kw = {k: v for k, v in rig.items() if k not in ("truth_peak", "fit_extra")}
         if "truth_peak" in rig:
             kw["vehicle"] = set_values(truth, ("peak1", "L_peak1"), np.array(rig["truth_peak"]))
-        pseudo, _ = _fit([vr.drop_test(height, noise=None, **kw)])
-        p_pseudo = pseudo.values
+        params = names + tuple(rig.get("fit_extra", ()))  # the coverage: of the first n
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", cal.MisfitWarning)
+            pseudo, _ = _fit([vr.drop_test(height, noise=None, **kw)], params=params)
+        p_pseudo = pseudo.values[:n]
         rows = []
         for seed in range(n_seeds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", cal.MisfitWarning)
-                r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)])
-            rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values.tolist(),
-                             se=r.std_errors.tolist(), se_hac=r.std_errors_hac.tolist(),
-                             se_total=r.std_errors_total.tolist(),
+                r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)], params=params)
+            rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values[:n].tolist(),
+                             se=r.std_errors[:n].tolist(), se_hac=r.std_errors_hac[:n].tolist(),
+                             se_total=r.std_errors_total[:n].tolist(),
                              sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
                              misfit_warned=bool(r.diagnostics["misfit"])))
             print(f"[coverage] {label}, seed {seed}: {w:.1f} s, rho1 "
@@ -290,19 +304,30 @@ def peak_model_study(quick: bool = False) -> dict:
 PEAK_RECOVERY_SEEDS = 3000  # first noise seed of --peak-recovery (none of the other studies')
 
 
-def peak_recovery(n_seeds: int, height: float = 0.2) -> dict:
+def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical",
+                  model: str = "law") -> dict:
     """The crush-peak model (default parameters + peak1, L_peak1) on rig records of every
     ``vr.PEAK_SHAPES`` at ``height``, over ``n_seeds`` noise seeds each: per parameter the
     error against the truth and z = error / SE (HAC, total: with the channel spread, and
     classical), the shifts when one channel is left out, and the same fit on the noise-free
-    record (what the model converges to on that shape: its bias, no scatter)."""
+    record (what the model converges to on that shape: its bias, no scatter). ``peak_mode``:
+    the rig's (``vr.PEAK_MODES``): ``physical``, the shape in the truth's honeycomb (every
+    channel carries it), or ``sensor``, the force channels multiplied by it. ``model``:
+    ``law``, the law's linear peak fitted (peak1, L_peak1); ``law_rise``, with its rise
+    length too (L_rise1: the peak builds up over a crush length); ``true_shape``, the default
+    parameters fitted with the rig's own peak table in the model (physical mode only: the data
+    are then representable, which tells the law's shape from everything else)."""
     truth = vr.truth_vehicle()
     base = cal.DEFAULT_PARAMS
-    names = base + ("peak1", "L_peak1")
+    names = base + {"law": ("peak1", "L_peak1"), "law_rise": ("peak1", "L_peak1", "L_rise1"),
+                    "true_shape": ()}[model]
     p_true = get_values(truth, base)
     n = len(base)
     seeds = list(range(PEAK_RECOVERY_SEEDS, PEAK_RECOVERY_SEEDS + n_seeds))
-    out = dict(params=list(names), drop_height_m=height, seeds=seeds,
+    rig = dict(peak_mode=peak_mode)
+    if peak_mode == "physical":
+        rig.update(peak_length_m=vr.PHYSICAL_PEAK_LENGTH_M)
+    out = dict(params=list(names), drop_height_m=height, seeds=seeds, rig=rig, model=model,
                targets=dict(rel_error=0.03, z=2.0, checked=list(RECOVERY_CHECKED)), shapes={})
 
     def row(r, wall):
@@ -321,14 +346,19 @@ def peak_recovery(n_seeds: int, height: float = 0.2) -> dict:
     for shape in vr.PEAK_SHAPES:
         # the noise-free record weighted as the noisy ones (by the rig's noise, not the
         # loader's floor): what the fit converges to on this shape, without the scatter
-        clean = vr.drop_test(height, peak_shape=shape, noise=None)
+        clean = vr.drop_test(height, peak_shape=shape, noise=None, **rig)
         clean.noise_std.update({c: vr.NOISE[c] for c in clean.noise_std})
+        kw = dict(params=names)
+        if model == "true_shape":  # the rig's table in the model; started at the truth (at
+            # the nominal k the folds table's fall is steeper than the rule's k / 2): this
+            # measures where the optimum lies, not the convergence
+            kw.update(vehicle=vr.physical_peak(truth, vr.CRUSH_PEAK, shape))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", cal.MisfitWarning)
-            r, w = _fit([clean], params=names)
+            r, w = _fit([clean], **kw)
             rec = dict(noise_free=row(r, w), runs=[])
             for seed in seeds:
-                r, w = _fit([vr.drop_test(height, peak_shape=shape, seed=seed)], params=names)
+                r, w = _fit([vr.drop_test(height, peak_shape=shape, seed=seed, **rig)], **kw)
                 rec["runs"].append(dict(seed=seed, **row(r, w)))
                 print(f"[peak recovery] {shape}, seed {seed}: {w:.1f} s, "
                       + ", ".join(f"{k} {e:+.2%} ({rec['runs'][-1]['z_hac'][k]:+.1f})"
@@ -477,7 +507,12 @@ def main_coverage(args) -> int:
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
            else "peak_recovery" if args.peak_recovery else "coverage")
     if args.peak_recovery:
-        result = peak_recovery(2 if args.quick else args.peak_recovery)
+        result = peak_recovery(2 if args.quick else args.peak_recovery,
+                               peak_mode=args.rig_peak_mode, model=args.peak_model_kind)
+        if args.rig_peak_mode != "physical":
+            key = f"peak_recovery_{args.rig_peak_mode}"
+        if args.peak_model_kind != "law":
+            key = f"{key}_{args.peak_model_kind}"
     elif args.peak_model:
         result = peak_model_study(args.quick)
     elif args.fit_time:
@@ -524,6 +559,16 @@ def main(argv=None) -> int:
     ap.add_argument("--peak-recovery", type=int, default=0, metavar="N",
                     help="fit the crush-peak model to every rig peak shape over N noise seeds"
                          " (bench_fit.json's 'peak_recovery')")
+    ap.add_argument("--rig-peak-mode", choices=vr.PEAK_MODES, default="physical",
+                    help="with --peak-recovery: where the rig's peak acts (physical: in the "
+                         "truth's honeycomb, into 'peak_recovery'; sensor: on the force "
+                         "channels only, into 'peak_recovery_sensor')")
+    ap.add_argument("--peak-model-kind", choices=("law", "law_rise", "true_shape"),
+                    default="law",
+                    help="with --peak-recovery: fit the law's linear peak (peak1, L_peak1), "
+                         "with its rise length (law_rise: + L_rise1), or the default "
+                         "parameters with the rig's own peak table in the model (true_shape); "
+                         "into 'peak_recovery[_KIND]'")
     ap.add_argument("--one-fit", metavar="CASE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one_fit:
