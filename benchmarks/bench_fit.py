@@ -301,6 +301,42 @@ def peak_model_study(quick: bool = False) -> dict:
     return out
 
 
+OFFSET_STUDY_SEEDS = 20000  # first noise seed of --offset-coverage
+OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as long
+
+
+def offset_coverage(n_seeds: int, height: float = 0.2) -> dict:
+    """Coverage of the classical 95 % intervals on representable rig data (no peak) over
+    ``n_seeds`` noise seeds, with the record starting ``OFFSET_STUDY_PRE_TRIGGER_S`` before
+    touchdown: the sensors' offsets are the means of that free fall, and their error (the
+    noise over the square root of its samples) is not in the reported standard errors, so
+    a longer free fall tells whether it matters."""
+    truth = vr.truth_vehicle()
+    names = cal.DEFAULT_PARAMS
+    p_true = get_values(truth, names)
+    seeds = list(range(OFFSET_STUDY_SEEDS, OFFSET_STUDY_SEEDS + n_seeds))
+    out = dict(params=list(names), drop_height_m=height, seeds=[seeds[0], seeds[-1]], z=Z95,
+               cases={})
+    for pre in OFFSET_STUDY_PRE_TRIGGER_S:
+        err, se = [], []
+        for seed in seeds:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                r, _ = _fit([vr.drop_test(height, crush_peak=0.0, seed=seed, pre_trigger_s=pre)])
+            err.append(r.values - p_true)
+            se.append(r.std_errors)
+        err, se = np.array(err), np.array(se)
+        inside = np.abs(err) <= Z95 * se
+        out["cases"][f"{pre:g}"] = dict(
+            pre_trigger_s=pre, free_fall_samples=int(round(pre * vr.SAMPLE_RATE_HZ)),
+            coverage=dict(zip(names, inside.mean(axis=0).tolist())),
+            coverage_all=float(inside.mean()),
+            spread_over_se=dict(zip(names, (err.std(axis=0, ddof=1)
+                                            / se.mean(axis=0)).tolist())))
+        print(f"[offset coverage] pre-trigger {pre:g} s: {inside.mean():.3f}", flush=True)
+    return out
+
+
 PEAK_RECOVERY_SEEDS = 3000  # first noise seed of --peak-recovery (none of the other studies')
 
 
@@ -505,8 +541,11 @@ def main_coverage(args) -> int:
         print(f"rewrote the coverage summaries of {path}")
         return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
-           else "peak_recovery" if args.peak_recovery else "coverage")
-    if args.peak_recovery:
+           else "peak_recovery" if args.peak_recovery
+           else "offset_coverage" if args.offset_coverage else "coverage")
+    if args.offset_coverage:
+        result = offset_coverage(5 if args.quick else args.offset_coverage)
+    elif args.peak_recovery:
         result = peak_recovery(2 if args.quick else args.peak_recovery,
                                peak_mode=args.rig_peak_mode, model=args.peak_model_kind)
         if args.rig_peak_mode != "physical":
@@ -569,13 +608,17 @@ def main(argv=None) -> int:
                          "with its rise length (law_rise: + L_rise1), or the default "
                          "parameters with the rig's own peak table in the model (true_shape); "
                          "into 'peak_recovery[_KIND]'")
+    ap.add_argument("--offset-coverage", type=int, default=0, metavar="N",
+                    help="coverage of the classical intervals on representable data over N "
+                         "seeds, with a short and a long free fall before touchdown (the "
+                         "sensors' offsets; bench_fit.json's 'offset_coverage')")
     ap.add_argument("--one-fit", metavar="CASE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one_fit:
         print(json.dumps(one_fit(args.one_fit)))
         return 0
     if args.coverage or args.quick or args.coverage_summary or args.peak_model or \
-            args.fit_time or args.peak_recovery:
+            args.fit_time or args.peak_recovery or args.offset_coverage:
         return main_coverage(args)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"

@@ -507,6 +507,24 @@ def calibration_coverage() -> str:
     return _table(head, [r[:len(head)] for r in rows])
 
 
+def calibration_offset_coverage() -> str:
+    """Coverage of the classical intervals on representable data against the free fall the
+    sensors' offsets are taken from (``offset_coverage`` in bench_fit.json)."""
+    c = _load("bench_fit.json")["offset_coverage"]
+    params = c["params"]
+    n = c["seeds"][1] - c["seeds"][0] + 1
+    rows = [[f"{case['pre_trigger_s'] * 1e3:.0f} ms ({case['free_fall_samples']} samples)",
+             f"{case['coverage_all']:.3f}",
+             " ".join(f"{case['coverage'][p]:.2f}" for p in params),
+             " ".join(f"{case['spread_over_se'][p]:.2f}" for p in params)]
+            for case in c["cases"].values()]
+    return _table(["free fall before touchdown (offsets' samples)",
+                   f"classical 95 % interval covers the truth, {n} seeds [-]",
+                   f"per parameter ({', '.join(params)}) [-]",
+                   "scatter over the seeds / mean reported standard error, per parameter [-]"],
+                  rows)
+
+
 # --- design (design.json) -----------------------------------------------------------------------
 
 def _p(c) -> str:
@@ -590,6 +608,7 @@ TABLES = {
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
     "calibration-coverage": calibration_coverage,
+    "calibration-offset-coverage": calibration_offset_coverage,
     "design-verification": design_verification,
     "design-variables": design_variables,
     "design-step": design_step,
