@@ -309,8 +309,9 @@ def offset_coverage(n_seeds: int, height: float = 0.2) -> dict:
     """Coverage of the classical 95 % intervals on representable rig data (no peak) over
     ``n_seeds`` noise seeds, with the record starting ``OFFSET_STUDY_PRE_TRIGGER_S`` before
     touchdown: the sensors' offsets are the means of that free fall, and their error (the
-    noise over the square root of its samples) is not in the reported standard errors, so
-    a longer free fall tells whether it matters."""
+    noise over the square root of its samples) is part of the reported standard errors
+    (``calibration._fit._uncertainty``); a short and a long free fall check that it is
+    counted right."""
     truth = vr.truth_vehicle()
     names = cal.DEFAULT_PARAMS
     p_true = get_values(truth, names)

@@ -198,6 +198,7 @@ class CalibrationProblem:
         data = np.zeros((nd, nc, n))
         mask = np.zeros((nd, nc, n))
         inv_sigma = np.ones((nd, nc))
+        offset_var = np.zeros((nd, nc))  # variance of each offset, in residual units
         coeffs = np.tile(IDENTITY, (nd, nc, 1))
         for i, d in enumerate(drops):
             sel = self._in_window(d)
@@ -216,6 +217,11 @@ class CalibrationProblem:
                     data[i, j, :m] = y[sel]
                     mask[i, j, :m] = inside
                     inv_sigma[i, j] = 1.0 / (d.noise_std[c] * gain)
+                    if d.offset_samples and c not in d.filters:
+                        # the mean of n samples of white noise: sigma^2 / n (a filtered
+                        # channel's noise is correlated: left out, its errors are HAC's)
+                        offset_var[i, j] = 1.0 / d.offset_samples
+        self.offset_var = offset_var
         self.coeffs = coeffs
         # lag-1 autocorrelation that filtered white noise has (0 unfiltered): the misfit
         # test reads the residuals' autocorrelation against it
