@@ -151,6 +151,16 @@ COVERAGE_CASES = {
     # every channel alike, which the fitted model (no peak) lacks
     "physical crush peak (+10 %, 1 mm), not in the model": dict(crush_peak=0.0,
                                                                 truth_peak=(1.1, 1e-3)),
+    # the same drop fitted with the crush-peak model: the data are then representable
+    "physical crush peak (+10 %, 1 mm), fitted with the peak": dict(
+        crush_peak=0.0, truth_peak=(1.1, 1e-3), fit_extra=("peak1", "L_peak1")),
+    # the rig's physical bump (+20 %, built up over 1.2 mm of crush) in the truth's honeycomb:
+    # not in the model; fitted with the law's linear peak; with its rise length too
+    "physical bump peak, not in the model": dict(peak_mode="physical"),
+    "physical bump peak, fitted with the linear peak": dict(
+        peak_mode="physical", fit_extra=("peak1", "L_peak1")),
+    "physical bump peak, fitted with the peak and its rise": dict(
+        peak_mode="physical", fit_extra=("peak1", "L_peak1", "L_rise1")),
 }
 Z95 = 1.959964
 
@@ -162,20 +172,24 @@ def coverage(n_seeds: int, height: float = 0.2) -> dict:
     p_true = get_values(truth, names)
     out = dict(n_seeds=n_seeds, drop_height_m=height, level=0.95, z=Z95,
                params=list(names), cases={})
+    n = len(names)
     for label, rig in COVERAGE_CASES.items():
-        kw = {k: v for k, v in rig.items() if k != "truth_peak"}
+        kw = {k: v for k, v in rig.items() if k not in ("truth_peak", "fit_extra")}
         if "truth_peak" in rig:
             kw["vehicle"] = set_values(truth, ("peak1", "L_peak1"), np.array(rig["truth_peak"]))
-        pseudo, _ = _fit([vr.drop_test(height, noise=None, **kw)])
-        p_pseudo = pseudo.values
+        params = names + tuple(rig.get("fit_extra", ()))  # the coverage: of the first n
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", cal.MisfitWarning)
+            pseudo, _ = _fit([vr.drop_test(height, noise=None, **kw)], params=params)
+        p_pseudo = pseudo.values[:n]
         rows = []
         for seed in range(n_seeds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", cal.MisfitWarning)
-                r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)])
-            rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values.tolist(),
-                             se=r.std_errors.tolist(), se_hac=r.std_errors_hac.tolist(),
-                             se_total=r.std_errors_total.tolist(),
+                r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)], params=params)
+            rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values[:n].tolist(),
+                             se=r.std_errors[:n].tolist(), se_hac=r.std_errors_hac[:n].tolist(),
+                             se_total=r.std_errors_total[:n].tolist(),
                              sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
                              misfit_warned=bool(r.diagnostics["misfit"])))
             print(f"[coverage] {label}, seed {seed}: {w:.1f} s, rho1 "
@@ -287,22 +301,70 @@ def peak_model_study(quick: bool = False) -> dict:
     return out
 
 
+OFFSET_STUDY_SEEDS = 20000  # first noise seed of --offset-coverage
+OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as long
+
+
+def offset_coverage(n_seeds: int, height: float = 0.2) -> dict:
+    """Coverage of the classical 95 % intervals on representable rig data (no peak) over
+    ``n_seeds`` noise seeds, with the record starting ``OFFSET_STUDY_PRE_TRIGGER_S`` before
+    touchdown: the sensors' offsets are the means of that free fall, and their error (the
+    noise over the square root of its samples) is part of the reported standard errors
+    (``calibration._fit._uncertainty``); a short and a long free fall check that it is
+    counted right."""
+    truth = vr.truth_vehicle()
+    names = cal.DEFAULT_PARAMS
+    p_true = get_values(truth, names)
+    seeds = list(range(OFFSET_STUDY_SEEDS, OFFSET_STUDY_SEEDS + n_seeds))
+    out = dict(params=list(names), drop_height_m=height, seeds=[seeds[0], seeds[-1]], z=Z95,
+               cases={})
+    for pre in OFFSET_STUDY_PRE_TRIGGER_S:
+        err, se = [], []
+        for seed in seeds:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                r, _ = _fit([vr.drop_test(height, crush_peak=0.0, seed=seed, pre_trigger_s=pre)])
+            err.append(r.values - p_true)
+            se.append(r.std_errors)
+        err, se = np.array(err), np.array(se)
+        inside = np.abs(err) <= Z95 * se
+        out["cases"][f"{pre:g}"] = dict(
+            pre_trigger_s=pre, free_fall_samples=int(round(pre * vr.SAMPLE_RATE_HZ)),
+            coverage=dict(zip(names, inside.mean(axis=0).tolist())),
+            coverage_all=float(inside.mean()),
+            spread_over_se=dict(zip(names, (err.std(axis=0, ddof=1)
+                                            / se.mean(axis=0)).tolist())))
+        print(f"[offset coverage] pre-trigger {pre:g} s: {inside.mean():.3f}", flush=True)
+    return out
+
+
 PEAK_RECOVERY_SEEDS = 3000  # first noise seed of --peak-recovery (none of the other studies')
 
 
-def peak_recovery(n_seeds: int, height: float = 0.2) -> dict:
+def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical",
+                  model: str = "law") -> dict:
     """The crush-peak model (default parameters + peak1, L_peak1) on rig records of every
     ``vr.PEAK_SHAPES`` at ``height``, over ``n_seeds`` noise seeds each: per parameter the
     error against the truth and z = error / SE (HAC, total: with the channel spread, and
     classical), the shifts when one channel is left out, and the same fit on the noise-free
-    record (what the model converges to on that shape: its bias, no scatter)."""
+    record (what the model converges to on that shape: its bias, no scatter). ``peak_mode``:
+    the rig's (``vr.PEAK_MODES``): ``physical``, the shape in the truth's honeycomb (every
+    channel carries it), or ``sensor``, the force channels multiplied by it. ``model``:
+    ``law``, the law's linear peak fitted (peak1, L_peak1); ``law_rise``, with its rise
+    length too (L_rise1: the peak builds up over a crush length); ``true_shape``, the default
+    parameters fitted with the rig's own peak table in the model (physical mode only: the data
+    are then representable, which tells the law's shape from everything else)."""
     truth = vr.truth_vehicle()
     base = cal.DEFAULT_PARAMS
-    names = base + ("peak1", "L_peak1")
+    names = base + {"law": ("peak1", "L_peak1"), "law_rise": ("peak1", "L_peak1", "L_rise1"),
+                    "true_shape": ()}[model]
     p_true = get_values(truth, base)
     n = len(base)
     seeds = list(range(PEAK_RECOVERY_SEEDS, PEAK_RECOVERY_SEEDS + n_seeds))
-    out = dict(params=list(names), drop_height_m=height, seeds=seeds,
+    rig = dict(peak_mode=peak_mode)
+    if peak_mode == "physical":
+        rig.update(peak_length_m=vr.PHYSICAL_PEAK_LENGTH_M)
+    out = dict(params=list(names), drop_height_m=height, seeds=seeds, rig=rig, model=model,
                targets=dict(rel_error=0.03, z=2.0, checked=list(RECOVERY_CHECKED)), shapes={})
 
     def row(r, wall):
@@ -321,14 +383,19 @@ def peak_recovery(n_seeds: int, height: float = 0.2) -> dict:
     for shape in vr.PEAK_SHAPES:
         # the noise-free record weighted as the noisy ones (by the rig's noise, not the
         # loader's floor): what the fit converges to on this shape, without the scatter
-        clean = vr.drop_test(height, peak_shape=shape, noise=None)
+        clean = vr.drop_test(height, peak_shape=shape, noise=None, **rig)
         clean.noise_std.update({c: vr.NOISE[c] for c in clean.noise_std})
+        kw = dict(params=names)
+        if model == "true_shape":  # the rig's table in the model; started at the truth (at
+            # the nominal k the folds table's fall is steeper than the rule's k / 2): this
+            # measures where the optimum lies, not the convergence
+            kw.update(vehicle=vr.physical_peak(truth, vr.CRUSH_PEAK, shape))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", cal.MisfitWarning)
-            r, w = _fit([clean], params=names)
+            r, w = _fit([clean], **kw)
             rec = dict(noise_free=row(r, w), runs=[])
             for seed in seeds:
-                r, w = _fit([vr.drop_test(height, peak_shape=shape, seed=seed)], params=names)
+                r, w = _fit([vr.drop_test(height, peak_shape=shape, seed=seed, **rig)], **kw)
                 rec["runs"].append(dict(seed=seed, **row(r, w)))
                 print(f"[peak recovery] {shape}, seed {seed}: {w:.1f} s, "
                       + ", ".join(f"{k} {e:+.2%} ({rec['runs'][-1]['z_hac'][k]:+.1f})"
@@ -475,9 +542,17 @@ def main_coverage(args) -> int:
         print(f"rewrote the coverage summaries of {path}")
         return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
-           else "peak_recovery" if args.peak_recovery else "coverage")
-    if args.peak_recovery:
-        result = peak_recovery(2 if args.quick else args.peak_recovery)
+           else "peak_recovery" if args.peak_recovery
+           else "offset_coverage" if args.offset_coverage else "coverage")
+    if args.offset_coverage:
+        result = offset_coverage(5 if args.quick else args.offset_coverage)
+    elif args.peak_recovery:
+        result = peak_recovery(2 if args.quick else args.peak_recovery,
+                               peak_mode=args.rig_peak_mode, model=args.peak_model_kind)
+        if args.rig_peak_mode != "physical":
+            key = f"peak_recovery_{args.rig_peak_mode}"
+        if args.peak_model_kind != "law":
+            key = f"{key}_{args.peak_model_kind}"
     elif args.peak_model:
         result = peak_model_study(args.quick)
     elif args.fit_time:
@@ -524,13 +599,27 @@ def main(argv=None) -> int:
     ap.add_argument("--peak-recovery", type=int, default=0, metavar="N",
                     help="fit the crush-peak model to every rig peak shape over N noise seeds"
                          " (bench_fit.json's 'peak_recovery')")
+    ap.add_argument("--rig-peak-mode", choices=vr.PEAK_MODES, default="physical",
+                    help="with --peak-recovery: where the rig's peak acts (physical: in the "
+                         "truth's honeycomb, into 'peak_recovery'; sensor: on the force "
+                         "channels only, into 'peak_recovery_sensor')")
+    ap.add_argument("--peak-model-kind", choices=("law", "law_rise", "true_shape"),
+                    default="law",
+                    help="with --peak-recovery: fit the law's linear peak (peak1, L_peak1), "
+                         "with its rise length (law_rise: + L_rise1), or the default "
+                         "parameters with the rig's own peak table in the model (true_shape); "
+                         "into 'peak_recovery[_KIND]'")
+    ap.add_argument("--offset-coverage", type=int, default=0, metavar="N",
+                    help="coverage of the classical intervals on representable data over N "
+                         "seeds, with a short and a long free fall before touchdown (the "
+                         "sensors' offsets; bench_fit.json's 'offset_coverage')")
     ap.add_argument("--one-fit", metavar="CASE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one_fit:
         print(json.dumps(one_fit(args.one_fit)))
         return 0
     if args.coverage or args.quick or args.coverage_summary or args.peak_model or \
-            args.fit_time or args.peak_recovery:
+            args.fit_time or args.peak_recovery or args.offset_coverage:
         return main_coverage(args)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"

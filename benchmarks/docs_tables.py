@@ -449,25 +449,28 @@ def _err_z(run, p) -> str:
             f"{run['z_total'][p]:+.1f})")
 
 
+# the peak-recovery studies in bench_fit.json: (key, the rig's peak, the fitted model)
+PEAK_RECOVERY_STUDIES = (
+    ("peak_recovery", "physical", "linear peak (peak1, L_peak1)"),
+    ("peak_recovery_law_rise", "physical", "peak with its rise (+ L_rise1)"),
+    ("peak_recovery_true_shape", "physical", "the rig's own shape (its table), 6 parameters"),
+    ("peak_recovery_sensor", "on the forces only", "linear peak (peak1, L_peak1)"),
+)
+
+
 def calibration_peak_recovery() -> str:
-    """The crush-peak model on every rig peak shape: per shape, the errors' mean over the
-    seeds, the noise-free fit, and how many seeds meet the issue's targets (``peak_recovery``
+    """The crush-peak model on every rig peak shape: per study (``PEAK_RECOVERY_STUDIES``:
+    where the rig's peak acts, which model is fitted) and shape, the errors' mean over the
+    seeds, the noise-free fit, and how many seeds meet the issue's targets (``peak_recovery*``
     in bench_fit.json)."""
-    pr = _load("bench_fit.json")["peak_recovery"]
-    checked = pr["targets"]["checked"]
-    n = len(pr["seeds"])
+    b = _load("bench_fit.json")
     rows = []
-    for shape, rec in pr["shapes"].items():
-        nf = rec["noise_free"]
-        rows.append([
-            shape, ", ".join(f"{p} {rec['mean_rel_error'][p] * 100:+.2f} +/- "
-                             f"{rec['sem_rel_error'][p] * 100:.2f}" for p in checked),
-            ", ".join(f"{p} {nf['rel_error'][p] * 100:+.2f}" for p in checked),
-            ", ".join(f"{p} {rec['mean_se_hac_rel'][p] * 100:.2f} / "
-                      f"{rec['mean_se_total_rel'][p] * 100:.2f}" for p in checked),
-            f"{rec['seeds_within_3pct']}/{n}",
-            f"{rec['seeds_within_2se']}/{n} / {rec['seeds_within_2se_total']}/{n}"])
-    return _table(["rig peak shape",
+    for key, where, model in PEAK_RECOVERY_STUDIES:
+        if key not in b:
+            continue
+        rows += _peak_recovery_rows(b[key], where, model)
+    n = len(b["peak_recovery"]["seeds"])
+    return _table(["rig peak", "fitted model", "shape",
                    f"error against the truth, mean over {n} seeds +/- its standard error [%]",
                    "noise-free record (weighted by the rig's noise) [%]",
                    "mean standard error, HAC / total [%]",
@@ -475,9 +478,27 @@ def calibration_peak_recovery() -> str:
                    "seeds with the truth inside 2 SE of all five, HAC / total"], rows)
 
 
+def _peak_recovery_rows(pr, where, model) -> list:
+    checked = pr["targets"]["checked"]
+    n = len(pr["seeds"])
+    rows = []
+    for shape, rec in pr["shapes"].items():
+        nf = rec["noise_free"]
+        rows.append([
+            where, model, shape, ", ".join(f"{p} {rec['mean_rel_error'][p] * 100:+.2f} +/- "
+                             f"{rec['sem_rel_error'][p] * 100:.2f}" for p in checked),
+            ", ".join(f"{p} {nf['rel_error'][p] * 100:+.2f}" for p in checked),
+            ", ".join(f"{p} {rec['mean_se_hac_rel'][p] * 100:.2f} / "
+                      f"{rec['mean_se_total_rel'][p] * 100:.2f}" for p in checked),
+            f"{rec['seeds_within_3pct']}/{n}",
+            f"{rec['seeds_within_2se']}/{n} / {rec['seeds_within_2se_total']}/{n}"])
+    return rows
+
+
 def calibration_peak_recovery_seeds() -> str:
-    """Every seed of ``peak_recovery``: error against the truth and z = error / SE (HAC and
-    total), and the channel whose leaving out moves k_b1 most."""
+    """Every seed of ``peak_recovery`` (the physical peak, the linear peak fitted): error
+    against the truth and z = error / SE (HAC and total), and the channel whose leaving out
+    moves k_b1 most."""
     pr = _load("bench_fit.json")["peak_recovery"]
     checked = pr["targets"]["checked"]
 
@@ -527,6 +548,24 @@ def calibration_coverage() -> str:
     if all(len(r) > len(head) for r in rows):
         head += ["total: trusted and channel spread [-]", "total, per parameter [-]"]
     return _table(head, [r[:len(head)] for r in rows])
+
+
+def calibration_offset_coverage() -> str:
+    """Coverage of the classical intervals on representable data against the free fall the
+    sensors' offsets are taken from (``offset_coverage`` in bench_fit.json)."""
+    c = _load("bench_fit.json")["offset_coverage"]
+    params = c["params"]
+    n = c["seeds"][1] - c["seeds"][0] + 1
+    rows = [[f"{case['pre_trigger_s'] * 1e3:.0f} ms ({case['free_fall_samples']} samples)",
+             f"{case['coverage_all']:.3f}",
+             " ".join(f"{case['coverage'][p]:.2f}" for p in params),
+             " ".join(f"{case['spread_over_se'][p]:.2f}" for p in params)]
+            for case in c["cases"].values()]
+    return _table(["free fall before touchdown (offsets' samples)",
+                   f"classical 95 % interval covers the truth, {n} seeds [-]",
+                   f"per parameter ({', '.join(params)}) [-]",
+                   "scatter over the seeds / mean reported standard error, per parameter [-]"],
+                  rows)
 
 
 # --- design (design.json) -----------------------------------------------------------------------
@@ -615,6 +654,7 @@ TABLES = {
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
     "calibration-coverage": calibration_coverage,
+    "calibration-offset-coverage": calibration_offset_coverage,
     "design-verification": design_verification,
     "design-variables": design_variables,
     "design-step": design_step,

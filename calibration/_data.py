@@ -183,6 +183,7 @@ class DropTest:
     onset_channel: str = ""
     offsets: dict = field(default_factory=dict)
     offset_source: str = ""
+    offset_samples: int = 0  # free-fall samples each offset is the mean of (0: no offset)
     noise_std: dict = field(default_factory=dict)
     noise_source: dict = field(default_factory=dict)
     unit_conversions: dict = field(default_factory=dict)
@@ -337,6 +338,7 @@ class DropTest:
             f"none: {n_pre} samples before touchdown (< {MIN_PRE_SAMPLES}), the sensors' zero "
             "is kept")
         g = float(self.vehicle.g)
+        self.offset_samples = n_pre if n_pre >= MIN_PRE_SAMPLES else 0
         for col, vals in self.channels.items():
             free_fall = CHANNELS[base_channel(col)][2]
             free_fall = -g if free_fall is None else free_fall

@@ -287,7 +287,10 @@ def _start_vehicle(base: jl.Vehicle, names, start) -> jl.Vehicle:
 
 def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     """Gauss-Newton covariance at ``theta``: cov = s^2 (J^T J)^-1 in the unconstrained
-    coordinates, J the Jacobian of the noise-weighted residuals. Least squares: s^2 = |r|^2 /
+    coordinates, J the Jacobian of the noise-weighted residuals, plus the offsets' error:
+    (J^T J)^-1 (sum_c v_c J^T u_c u_c^T J) (J^T J)^-1, u_c the indicator of channel c's
+    residuals and v_c = 1 / n_c its offset's variance (noise units, the mean of n_c free-fall
+    samples; unfiltered channels). Least squares: s^2 = |r|^2 /
     (n - p). Huber (threshold c): s^2 = [sum psi(r)^2 / (n - p)] / mean(psi'(r))^2 (Huber 1981,
     psi(r) = clip(r, -c, c)), which reduces to the former when no residual exceeds c. Mapped to
     the physical values by the delta method. Parameters whose Jacobian column vanishes are left
@@ -310,9 +313,23 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     keep = ~zero
     js = jac[:, keep] / col[keep]
     cov_s = np.linalg.pinv(js.T @ js, rcond=1e-13, hermitian=True)
+    # the offsets' error: each channel's offset is the mean of its free fall, and an error
+    # in it shifts all of that channel's residuals alike; its effect on the values is the
+    # least-squares response to that shift, added to both covariances
+    add_s = np.zeros_like(cov_s)
+    mask = problem.mask.reshape(*problem.offset_var.shape, -1)
+    rows = []
+    for (i, j), v in np.ndenumerate(problem.offset_var):
+        if v > 0 and mask[i, j].any():
+            u = np.zeros(mask.shape)
+            u[i, j] = mask[i, j] * math.sqrt(v)
+            rows.append(js.T @ u.ravel()[active])
+    if rows:
+        a = np.array(rows)
+        add_s = cov_s @ (a.T @ a) @ cov_s
     cov_theta = np.full((p, p), np.nan)
     idx = np.nonzero(keep)[0]
-    cov_theta[np.ix_(idx, idx)] = sigma2 * cov_s / np.outer(col[keep], col[keep])
+    cov_theta[np.ix_(idx, idx)] = (sigma2 * cov_s + add_s) / np.outer(col[keep], col[keep])
     g = problem.transform_jacobian(theta)  # d values / d z
     cz = cov_theta[:n_z, :n_z]
     cov_p = g @ np.where(np.isfinite(cz), cz, 0.0) @ g.T
@@ -331,7 +348,7 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     jac_s = jac_all.reshape(*shape, p)[..., keep] / col[keep]
     hac = hac_covariance(r_all.reshape(shape), jac_s, problem.mask, huber_c)
     cov_theta_h = np.full((p, p), np.nan)
-    cov_theta_h[np.ix_(idx, idx)] = hac["cov"] / np.outer(col[keep], col[keep])
+    cov_theta_h[np.ix_(idx, idx)] = (hac["cov"] + add_s) / np.outer(col[keep], col[keep])
     czh = cov_theta_h[:n_z, :n_z]
     cov_h = g @ np.where(np.isfinite(czh), czh, 0.0) @ g.T
     cov_h[bad_p, :] = np.nan

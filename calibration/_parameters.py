@@ -5,16 +5,18 @@ keeps it physical while the optimiser works on an unconstrained number.
 * ``gamma`` in (0, 1) as ``logit(gamma)``.
 * ``F2`` as ``log(F2 - F1)``: the secondary plateau always exceeds the primary (the vehicle's
   validity rule), whatever the optimiser tries.
-* The honeycomb's crush-peak ratios, their decay lengths and the unloading ratio (``peak1``,
-  ``L_peak1``, ``peak2``, ``L_peak2``, ``unload``) within the bounds of the vehicle's rules
+* The honeycomb's crush-peak ratios, their decay lengths, the primary's rise length and the
+  unloading ratio (``peak1``, ``L_peak1``, ``L_rise1``, ``peak2``, ``L_peak2``, ``unload``)
+  within the bounds of the vehicle's rules
   (``jaxland.validate_vehicle``), as logit((x - lo) / (hi - lo)), or log(x - lo) without an
   upper bound: unload in (1, max(k_b1, k_b3) / k_b3); L between 2 (r - 1) F / k (the
   falling slope (r - 1) F / L <= k / 2) and the room left before x_L2 (x_L4); r in (1, the
-  largest peak those leave room for), and r1 F1 < F2. A sharper measured peak than the rule
-  allows ends the fit at the bound (the peak's work, not its shape), never at an invalid
-  vehicle. Off in the starting vehicle (ratio 1, the paper's law) the ratios start from
-  ``START_IF_OFF`` (1.2: the middle of the pre-crushed honeycomb's 1.0-1.3 x range; 1.1 for
-  the unloading ratio).
+  largest peak those leave room for), and r1 F1 < F2; L_rise1 between (r1 - 1) F1 / k_b1 (a
+  build-up slower than the elastic rise) and the room L_peak1 leaves before x_L2. A sharper
+  measured peak than the rule allows ends the fit at the bound (the peak's work, not its
+  shape), never at an invalid vehicle. Off in the starting vehicle (ratio 1, the paper's law)
+  the ratios start from ``START_IF_OFF`` (1.2: the middle of the pre-crushed honeycomb's
+  1.0-1.3 x range; 1.1 for the unloading ratio; a rise length that is off starts at 1 mm).
 
 Standard errors and correlations are reported for the physical values, through the Jacobian of
 this transform (delta method).
@@ -60,6 +62,8 @@ PARAMS = {
               "primary honeycomb initial crush peak / F1"),
     "L_peak1": (lambda v: v.honeycomb.peak_length1, "m", "honeycomb.peak_length1_mm", "length",
                 "crush over which the primary peak decays to F1"),
+    "L_rise1": (lambda v: v.honeycomb.peak_rise1, "m", "honeycomb.peak_rise1_mm", "rise",
+                "crush over which the primary peak builds up from F1 (with peak1)"),
     "peak2": (lambda v: v.honeycomb.peak_ratio2, "1", "honeycomb.peak_ratio2", "over1",
               "secondary honeycomb initial crush peak / F2"),
     "L_peak2": (lambda v: v.honeycomb.peak_length2, "m", "honeycomb.peak_length2_mm", "length",
@@ -68,7 +72,7 @@ PARAMS = {
                "secondary stage's unloading stiffness / k_b3"),
 }
 # where an optional law extension is off (None: ratio 1) a fit of it starts here
-START_IF_OFF = {"peak1": 1.2, "peak2": 1.2, "unload": 1.1}
+START_IF_OFF = {"peak1": 1.2, "peak2": 1.2, "unload": 1.1, "L_rise1": 1e-3}
 PEAK_PARAMS = ("peak1", "L_peak1")  # the crush-peak model's extra parameters (model selection)
 _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None field
 DEFAULT_PARAMS = ("k", "gamma", "D_b", "k_b1", "F1", "F2")
@@ -133,6 +137,9 @@ def _bounds(n, names, values, vehicle):
         return _value(m, names, values, vehicle)
 
     hc = vehicle.honeycomb
+    if n == "L_rise1":  # the build-up (r1 - 1) F1 / L_r < k_b1; the rise and fall end in x_L2
+        a = (v("peak1") - 1.0) * v("F1")
+        return a / v("k_b1"), hc.x_L2 - v("F1") / v("k_b1") - v("L_peak1")
     if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
         return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3")
     first = n in ("peak1", "L_peak1")
@@ -155,14 +162,15 @@ def _bounds(n, names, values, vehicle):
     return 2.0 * a / v("k"), room - a / v(k_el)
 
 
-_STAGE = {"log": 0, "logit": 0, "gap": 1, "over1": 2, "length": 3}  # evaluation order
+_STAGE = {"log": 0, "logit": 0, "gap": 1, "over1": 2, "length": 3, "rise": 4}  # in order
 
 
 def to_unconstrained(vehicle: jl.Vehicle, names) -> np.ndarray:
     """Unconstrained coordinates z of the selected parameters of ``vehicle``."""
     p = get_values(vehicle, names)
     for i, n in enumerate(names):  # an extension that is off starts from its documented value
-        if PARAMS[n][3] == "over1" and p[i] == 1.0:
+        if (PARAMS[n][3] == "over1" and p[i] == 1.0) or (
+                n in START_IF_OFF and PARAMS[n][0](vehicle) is None):
             p[i] = START_IF_OFF[n]
     f1 = float(_f1_of(names, p, vehicle))
     z = np.zeros(len(names))
@@ -183,7 +191,7 @@ def to_unconstrained(vehicle: jl.Vehicle, names) -> np.ndarray:
         else:  # bounded by the vehicle's rules
             lo, hi = (None if b is None else float(b) for b in _bounds(n, names, p, vehicle))
             if not (x > lo and (hi is None or x < hi)):
-                shown, unit = (x * 1e3, " mm") if kind == "length" else (x, "")
+                shown, unit = (x * 1e3, " mm") if kind in ("length", "rise") else (x, "")
                 raise jl.ConfigError(
                     PARAMS[n][2], shown, f"must lie in ({lo * (1e3 if unit else 1):.4g}, "
                     f"{'inf' if hi is None else format(hi * (1e3 if unit else 1), '.4g')})"
@@ -199,7 +207,7 @@ def from_unconstrained(z, names, vehicle: jl.Vehicle):
     vehicle's rules: positive, gamma in (0, 1), F2 > F1, the crush peaks and unloading ratio
     inside their bounds (``_bounds``)."""
     out = [None] * len(names)
-    for stage in range(4):
+    for stage in range(5):
         for i, n in enumerate(names):
             kind = PARAMS[n][3]
             if _STAGE[kind] != stage:

@@ -70,8 +70,9 @@ def check_integrator(integrator, smoothing_m, smoothing_N) -> tuple[str, float, 
 
 
 def _vehicle_key(vehicle):
-    leaves, treedef = jax.tree.flatten(vehicle)
-    return treedef, tuple(float(x) for x in leaves)
+    leaves, treedef = jax.tree.flatten(vehicle)  # scalars, and tables (Honeycomb.excess1)
+    return treedef, tuple(float(x) if np.ndim(x) == 0 else tuple(np.ravel(x).tolist())
+                          for x in leaves)
 
 
 def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False):
@@ -197,6 +198,7 @@ class CalibrationProblem:
         data = np.zeros((nd, nc, n))
         mask = np.zeros((nd, nc, n))
         inv_sigma = np.ones((nd, nc))
+        offset_var = np.zeros((nd, nc))  # variance of each offset, in residual units
         coeffs = np.tile(IDENTITY, (nd, nc, 1))
         for i, d in enumerate(drops):
             sel = self._in_window(d)
@@ -215,6 +217,11 @@ class CalibrationProblem:
                     data[i, j, :m] = y[sel]
                     mask[i, j, :m] = inside
                     inv_sigma[i, j] = 1.0 / (d.noise_std[c] * gain)
+                    if d.offset_samples and c not in d.filters:
+                        # the mean of n samples of white noise: sigma^2 / n (a filtered
+                        # channel's noise is correlated: left out, its errors are HAC's)
+                        offset_var[i, j] = 1.0 / d.offset_samples
+        self.offset_var = offset_var
         self.coeffs = coeffs
         # lag-1 autocorrelation that filtered white noise has (0 unfiltered): the misfit
         # test reads the residuals' autocorrelation against it

@@ -20,6 +20,16 @@ what a real rig records, with what a real rig adds:
   (the default above), ``"exp"`` (a jump at the crush onset decaying as exp(-p / p0)) and
   ``"folds"`` (a fold-by-fold ripple, |cos(pi p / (2 p0))| exp(-p / (4 p0)): every wall fold
   re-peaks, decaying);
+* ``peak_mode`` says where the crush peak acts. ``"sensor"`` (the default, and the bundled
+  records'): the multiplier above on the two force channels only, a sensor-side artefact; the
+  stroke and the body acceleration are those of the drop without a peak, so no honeycomb law
+  reproduces every channel. ``"physical"``: the shape is tabulated into the truth's honeycomb
+  as its strength excess (``Honeycomb.excess1``, ``physical_peak``), F1 (1 + CRUSH_PEAK s(c))
+  against the crush c past the onset, so the simulated drop carries the peak in force, stroke
+  and acceleration alike. There its length is ``PHYSICAL_PEAK_LENGTH_M`` (1.2 mm): with 0.4 mm
+  the ``exp`` and ``folds`` shapes fall faster than half the ground stiffness, which the law
+  refuses (the foot would snap through); ``peak_rise_m`` lets any shape build up linearly over
+  that much crush first;
 * optionally, **sensor low-pass filtering** (``lowpass_Hz``): every channel through a causal
   two-pole Butterworth filter at that corner frequency (an anti-aliasing / conditioning filter
   the model does not have; default off);
@@ -43,6 +53,8 @@ import math
 import sys
 from pathlib import Path
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
@@ -53,7 +65,8 @@ from ._parameters import get_values, set_values
 from ._report import atomic_write_text
 
 __all__ = ["TRUTH_SCALE", "NOISE", "STROKE_OFFSET_M", "CRUSH_PEAK", "CRUSH_PEAK_LENGTH_M",
-           "HEIGHTS_M", "BUNDLED_ARTEFACTS", "LAB", "truth_vehicle", "record", "drop_test",
+           "PHYSICAL_PEAK_LENGTH_M", "PEAK_MODES", "physical_peak", "HEIGHTS_M",
+           "BUNDLED_ARTEFACTS", "LAB", "truth_vehicle", "record", "drop_test",
            "write_drop_test", "write_lab_drop_test", "main"]
 
 # truth = paper vehicle x scale (ground stiffer and lossier-less, less damping, softer primary
@@ -64,6 +77,9 @@ NOISE = {"normal_force_N": 60.0, "buffer_force_N": 40.0, "stroke_m": 5e-5,
 STROKE_OFFSET_M = 1.5e-3
 CRUSH_PEAK = 0.20
 CRUSH_PEAK_LENGTH_M = 4e-4
+PHYSICAL_PEAK_LENGTH_M = 1.2e-3  # the shapes' length p0 where the peak acts in the honeycomb
+_TABLE_STEP = 0.1  # the physical peak's table: grid step, in peak lengths (folds' kinks on it)
+_TABLE_SPAN = 30.0  # and its span (the shapes have decayed to < 1e-3 of the peak there)
 HEIGHTS_M = (0.15, 0.20, 0.30)
 # what the bundled drops carry beyond noise, the stroke offset and the crush peak: a jittery
 # sampling clock and a sensor conditioning low-pass
@@ -102,6 +118,39 @@ def _crush_shape(p, shape: str = "bump"):
     raise jl.ConfigError("peak_shape", shape, "must be one of " + ", ".join(PEAK_SHAPES))
 
 
+PEAK_MODES = ("sensor", "physical")
+
+
+def physical_peak(vehicle: jl.Vehicle, crush_peak: float = CRUSH_PEAK, shape: str = "bump", *,
+                  length_m: float = PHYSICAL_PEAK_LENGTH_M,
+                  rise_m: float = 0.0) -> jl.Vehicle:
+    """``vehicle`` with a crush peak of the rig's ``shape`` in its honeycomb: the primary's
+    strength excess (``Honeycomb.excess1``) crush_peak s(c / length_m) F1 against the crush c
+    past its onset, s the shape of ``_crush_shape`` taken from the right at c = 0 (an ``exp``
+    peak starts at its top); with ``rise_m`` > 0 the excess first rises linearly from 0 over
+    that much crush to the shape's start, then follows the shape. Tabulated every
+    ``_TABLE_STEP`` lengths over ``_TABLE_SPAN`` lengths (+ the rise); validated (a peak that
+    rises faster than k_b1 or falls faster than half the ground stiffness is refused)."""
+    _crush_shape(np.zeros(1), shape)  # refuses an unknown shape by name
+    if not (np.isfinite(rise_m) and rise_m >= 0.0):
+        raise jl.ConfigError("peak_rise_m", rise_m, "must be >= 0 m")
+    if not (np.isfinite(length_m) and length_m > 0.0):
+        raise jl.ConfigError("peak_length_m", length_m, "must be > 0 m")
+    dc = _TABLE_STEP * length_m
+    n = int(round((_TABLE_SPAN * length_m + rise_m) / dc))
+    c = dc * np.arange(n)
+    scale = CRUSH_PEAK_LENGTH_M / length_m  # _crush_shape's argument is in its own length
+    after = np.maximum(c - rise_m, 1e-300)  # the shape from the right at its start
+    s = _crush_shape(after * scale, shape)
+    if rise_m > 0.0:
+        start = float(_crush_shape(np.array([1e-300]), shape)[0])
+        s = np.where(c < rise_m, start * c / rise_m, s)
+    table = jnp.asarray(crush_peak * s, dtype=jnp.float64)
+    return jl.validate_vehicle(eqx.tree_at(
+        lambda v: (v.honeycomb.excess1, v.honeycomb.excess_length1), vehicle,
+        (table, jnp.float64(n * dc)), is_leaf=lambda x: x is None))
+
+
 def butterworth2(y: np.ndarray, corner_Hz: float, rate_Hz: float) -> np.ndarray:
     """Causal two-pole Butterworth low-pass (bilinear transform, pre-warped corner), started at
     rest on the first sample."""
@@ -128,7 +177,8 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
            crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0,
            lowpass_Hz: float | None = None, peak_shape: str = "bump", jitter_s: float = 0.0,
            legs=None, time_from_release: bool = False, specific_force: bool = False,
-           cfc: int | None = None):
+           cfc: int | None = None, peak_mode: str = "sensor",
+           peak_length_m: float = PHYSICAL_PEAK_LENGTH_M, peak_rise_m: float = 0.0):
     """Run the rig: ``(time_s, {channel: samples}, info)``. ``noise=None``, ``stroke_offset_m=0``
     and ``crush_peak=0`` give the clean record (the model itself, sampled). ``lowpass_Hz``:
     filter every channel (before the noise, as a sensor's conditioning would) at this corner
@@ -140,7 +190,15 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
     release (the record still starts ``pre_trigger_s`` before touchdown: mid-fall; 0 puts its
     first sample at touchdown). ``specific_force``: the body channel is an accelerometer's
     specific force (0 in free fall). ``cfc``: the lab's SAE J211 filter of that class on every
-    channel, after the noise (the record is delivered filtered)."""
+    channel, after the noise (the record is delivered filtered). ``peak_mode``: one of
+    ``PEAK_MODES``, ``"sensor"`` (the forces multiplied by the peak) or ``"physical"`` (the
+    peak tabulated into ``vehicle``'s honeycomb by ``physical_peak`` with ``peak_length_m``
+    and ``peak_rise_m``; ``info["truth_vehicle"]`` is the vehicle simulated)."""
+    if peak_mode not in PEAK_MODES:
+        raise jl.ConfigError("peak_mode", peak_mode, "must be one of " + ", ".join(PEAK_MODES))
+    if peak_mode == "physical" and crush_peak != 0.0:
+        vehicle = physical_peak(vehicle, crush_peak, peak_shape, length_m=peak_length_m,
+                                rise_m=peak_rise_m)
     if not (np.isfinite(jitter_s) and 0.0 <= jitter_s < 0.25 / sample_rate_Hz):
         raise jl.ConfigError("jitter_s", jitter_s, f"must be in [0, {0.25 / sample_rate_Hz:g})"
                              " s (a quarter of the sampling interval)")
@@ -178,7 +236,8 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
             return col[idx]
     hc = vehicle.honeycomb
     p1 = np.minimum(sample(tr["plastic_set_m"]), float(hc.x_L2 - hc.x_L1))
-    peak = 1.0 + crush_peak * _crush_shape(p1, peak_shape)
+    sensor_peak = crush_peak if peak_mode == "sensor" else 0.0
+    peak = 1.0 + sensor_peak * _crush_shape(p1, peak_shape)
     out = {}
     series = [(c, None) for c in channels if legs is None or c == "body_accel_mps2"]
     if legs is not None:
@@ -207,7 +266,8 @@ def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2
                 final_stroke_m=float(res.outcomes["final_stroke_m"]),
                 peak_normal_force_N=float(res.outcomes["peak_normal_force_N"]),
                 peak_strut_force_N=float(res.outcomes["peak_strut_force_N"]),
-                peak_body_accel_mps2=float(res.outcomes["peak_body_accel_mps2"]))
+                peak_body_accel_mps2=float(res.outcomes["peak_body_accel_mps2"]),
+                peak_mode=peak_mode, truth_vehicle=vehicle)
     return time_s, out, info
 
 

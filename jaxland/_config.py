@@ -67,12 +67,15 @@ def _paper_dict() -> dict:
             x_L2_mm=57.60,
             k_b3_N_per_m=round((f2 - f1) / (_PAPER_DX_L3_MM * 1e-3), -3), F2_N=round(f2, 1),
             x_L4_mm=183.23, k_bottom_N_per_m=1e8, peak_ratio1=1.0, peak_length1_mm=2.0,
-            peak_ratio2=1.0, peak_length2_mm=2.0, unload_ratio=1.0, bonded=False),
+            peak_rise1_mm=0.0, peak_ratio2=1.0, peak_length2_mm=2.0, excess1=[],
+            excess_length1_mm=10.0, unload_ratio=1.0, bonded=False),
         "ground": dict(k_N_per_m=2e6, gamma=0.5, chi_s_per_m=2e-4, mu=0.5, k_tan_N_per_m=7e4),
     }
 
 
 _SECTIONS = {"leg": Leg, "honeycomb": Honeycomb, "ground": Ground}
+_TABLE_KEYS = {f.metadata["toml"] for cls in _SECTIONS.values() for f in field_info(cls)
+               if f.metadata.get("table")}
 _CELL_KEYS = set(PAPER_CELLS)
 
 
@@ -80,6 +83,9 @@ def _build(cls, section: str, values: dict):
     kwargs = {}
     for f in field_info(cls):
         key = f.metadata["toml"]
+        if f.metadata.get("table"):  # a list of numbers; [] is off
+            kwargs[f.name] = [float(v) * f.metadata["to_si"] for v in values[key]] or None
+            continue
         kwargs[f.name] = float(values[key]) * f.metadata["to_si"]
         if "off" in f.metadata and float(values[key]) == f.metadata["off"]:
             kwargs[f.name] = None  # an optional extension, off: the paper's law, bit for bit
@@ -108,7 +114,11 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
             if key not in merged[section]:
                 raise ConfigError(f"{section}.{key}", val,
                                   f"unknown key; known: {', '.join(merged[section])}")
-            if key not in ("bonded", "n_legs") and (
+            if key in _TABLE_KEYS:
+                if not isinstance(val, list) or any(
+                        isinstance(v, bool) or not isinstance(v, (int, float)) for v in val):
+                    raise ConfigError(f"{section}.{key}", val, "must be a list of numbers")
+            elif key not in ("bonded", "n_legs") and (
                     isinstance(val, bool) or not isinstance(val, (int, float))):
                 raise ConfigError(f"{section}.{key}", val, "must be a number")
             merged[section][key] = val
@@ -270,10 +280,22 @@ def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
     x1, x3 = F1 / k1, x2 + (F2 - F1) / k3
     stages = (("1", r1, L1, F1, k1, x1, x2, "x_L2", "F2_N", F2),
               ("2", r2, L2, F2, k3, x3, x4, "x_L4", None, None))
+    rise = concrete(hc.peak_rise1) if hc.peak_rise1 is not None else None
+    if hc.peak_rise1 is not None and rise is None:  # a tracer: not checked
+        return
     for i, r, length, F, k_el, start, end, end_name, above, F_above in stages:
         on = r > 1
         a = (r - 1) * F
-        done = start + a / k_el + length  # stroke where the peak has decayed to the plateau
+        up = a / k_el  # crush (stroke) of the rise to the peak: elastic, or the rise length
+        if i == "1" and rise is not None:
+            up = rise
+            if np.any(on & ~(a / rise < k1)):
+                raise ConfigError("honeycomb.peak_rise1_mm", float(np.min(rise)) * 1e3,
+                                  f"the peak builds up at (r1 - 1) F1 / rise = "
+                                  f"{float(np.max(a / rise)):.4g} N/m, which must be < k_b1 = "
+                                  f"{float(np.min(k1)):.6g} N/m (a faster rise is elastic, not "
+                                  "crushing): a longer rise")
+        done = start + up + length  # stroke where the peak has decayed to the plateau
         if np.any(on & ~(done < end)):
             raise ConfigError(f"honeycomb.peak_length{i}_mm", float(np.max(length)) * 1e3,
                               f"the peak must end before {end_name}: its rise to r F and decay "
@@ -291,12 +313,55 @@ def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
                               f"is a negative stiffness and must be <= k / 2 = "
                               f"{float(np.min(k)) * 0.5:.4g} N/m (ground.k_N_per_m): a longer "
                               "decay or a smaller ratio, or the foot snaps through")
+    if hc.excess1 is not None:
+        if hc.peak_rise1 is not None:
+            raise ConfigError("honeycomb.excess1", "[...]", "give either peak_rise1_mm or "
+                              "excess1, not both (each sets the primary's crush peak)")
+        _check_excess_table(hc, k, F1, F2, k1, x1, x2)
     if np.any(~(rho * k3 <= np.maximum(k1, k3))):
         raise ConfigError("honeycomb.unload_ratio", float(np.max(rho)),
                           f"the unloading stiffness unload_ratio k_b3 = "
                           f"{float(np.max(rho * k3)):.6g} N/m must be <= max(k_b1, k_b3) = "
                           f"{float(np.min(np.maximum(k1, k3))):.6g} N/m (the stack cannot unload "
                           "stiffer than its stiffest stage; the stable step assumes it)")
+
+
+def _check_excess_table(hc, k, F1, F2, k1, x1, x2):
+    """Cross-field rules of the primary's tabulated strength excess (``Honeycomb.excess1``)."""
+    t, length = concrete(hc.excess1), concrete(hc.excess_length1)
+    if t is None or length is None:
+        return
+    if hc.peak_ratio1 is not None:
+        raise ConfigError("honeycomb.excess1", "[...]", "give either peak_ratio1 or excess1, "
+                          "not both (each sets the primary's crush peak)")
+    e = t * np.expand_dims(F1, -1)  # N, at the nodes
+    n = e.shape[-1]
+    dc = np.expand_dims(length / n, -1)
+    slope = np.diff(np.concatenate([e, np.zeros_like(e[..., :1])], axis=-1), axis=-1) / dc
+    done = x1 + e[..., 0] / k1 + length  # stroke where the excess has ended
+    if np.any(~(done < x2)):
+        raise ConfigError("honeycomb.excess_length1_mm", float(np.max(length)) * 1e3,
+                          f"the excess must end before x_L2: its onset and length end at "
+                          f"{float(np.max(done)) * 1e3:.4g} mm, not < x_L2 = "
+                          f"{float(np.min(x2)) * 1e3:.4g} mm")
+    if np.any(~(F1 + e.max(axis=-1) < F2)):
+        raise ConfigError("honeycomb.excess1", float(np.max(t)),
+                          f"the primary's strength F1 (1 + excess) = "
+                          f"{float(np.max(F1 + e.max(axis=-1))):.6g} N must stay below F2_N = "
+                          f"{float(np.min(F2)):.6g} N (or the secondary block would crush first)")
+    k1_ = np.expand_dims(k1, -1)
+    if np.any(~(slope < k1_)):
+        raise ConfigError("honeycomb.excess1", float(np.max(t)),
+                          f"the excess rises at {float(np.max(slope)):.4g} N/m of crush, which "
+                          f"must be < k_b1 = {float(np.min(k1)):.6g} N/m (a faster rise is "
+                          "elastic, not crushing: the plastic set would shrink); refine the "
+                          "table or lengthen excess_length1_mm")
+    if np.any(~(-slope <= 0.5 * np.expand_dims(k, -1))):
+        raise ConfigError("honeycomb.excess_length1_mm", float(np.min(length)) * 1e3,
+                          f"the excess falls at {float(np.max(-slope)):.4g} N/m of crush, a "
+                          f"negative stiffness that must be <= k / 2 = "
+                          f"{float(np.min(k)) * 0.5:.4g} N/m (ground.k_N_per_m): a longer "
+                          "table or a smaller excess, or the foot snaps through")
 
 
 # ----------------------------------------------------------------------------------- output
@@ -334,7 +399,12 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
     def line(section, md, val):
         source = (f"SET BY {given_by}" if f"{section}.{md['toml']}" in given
                   else md["source"])
-        return (f"{md['toml']} = {_fmt(float(val) / md['to_si'])}"
+        if md.get("table"):
+            text = "[" + ", ".join(_fmt(float(v) / md["to_si"])
+                                   for v in np.ravel(np.asarray(val, dtype=float))) + "]"
+        else:
+            text = _fmt(float(val) / md["to_si"])
+        return (f"{md['toml']} = {text}"
                 f"  # {md['doc']} [{_unit(md)}]; {source}; rule {md['rule']}")
 
     for f in field_info(Vehicle):
@@ -345,7 +415,8 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
         for f in field_info(type(mod)):
             md = f.metadata
             val = getattr(mod, f.name)
-            val = md["off"] * md["to_si"] if val is None else val  # an extension, off
+            if val is None:  # an extension, off
+                val = md["off"] if md.get("table") else md["off"] * md["to_si"]
             lines.append(line(section, md, val))
         if section == "honeycomb":
             bonded_doc = Honeycomb.__dataclass_fields__["bonded"].metadata["doc"]

@@ -29,6 +29,14 @@ def _opt_f64(x):
     return None if x is None else _f64(x)
 
 
+def _opt_table(x):
+    """A strength-excess table as a float64 array, or None (off) for None or an empty table."""
+    if x is None:
+        return None
+    x = jnp.asarray(x, dtype=jnp.float64)
+    return None if x.size == 0 else x
+
+
 def concrete(x):
     """``x`` as a float numpy array, or None if it is None or a tracer (inside jit/vmap/grad,
     where values cannot be checked)."""
@@ -74,9 +82,11 @@ class Honeycomb(eqx.Module):
     ``F2`` (k_b4 = 0) to ``x_L4``, then bottoming out on ``k_bottom``. Unloading and reloading
     follow the stack's elastic law from the plastic set reached (see ``jaxland._laws._honeycomb``).
 
-    Two optional extensions, off by default (the paper's law, bit for bit): an initial crush peak
-    per stage on virgin material (``peak_ratio1/2``, ``peak_length1/2``) and the unloading
-    stiffness of the secondary stage (``unload_ratio``).
+    Three optional extensions, off by default (the paper's law, bit for bit): an initial crush
+    peak per stage on virgin material (``peak_ratio1/2``, ``peak_length1/2``), a tabulated
+    strength excess of the primary stage on virgin material (``excess1``, ``excess_length1``:
+    any peak shape, e.g. a measured one) and the unloading stiffness of the secondary stage
+    (``unload_ratio``).
     """
 
     k_b1: jnp.ndarray = _param(
@@ -122,6 +132,13 @@ class Honeycomb(eqx.Module):
         "fold 2H ~ 2.9 mm of Table 1's primary cells (Wierzbicki 1983); fit it from a drop "
         "record. Unused while peak_ratio1 = 1",
         "> 0", toml="peak_length1_mm", to_si=1e-3, default=2e-3)
+    peak_rise1: jnp.ndarray = _param(
+        "m", "crush over which the primary peak builds up: with it, the elastic rise ends at F1 "
+        "and the strength rises linearly from F1 to peak_ratio1 F1 over this much crush, then "
+        "falls over peak_length1_mm (0: off, the elastic rise goes to the peak itself)",
+        "our extension (issue 12): a peak that builds up while the first folds form; fit it "
+        "from a drop record. Default off. Unused while peak_ratio1 = 1",
+        "> 0", toml="peak_rise1_mm", to_si=1e-3, off=0.0)
     peak_ratio2: jnp.ndarray = _param(
         "1", "initial crush peak of the virgin secondary honeycomb over its plateau, r2 = peak / "
         "F2 (1: no peak); as peak_ratio1, from x_L3 on",
@@ -131,6 +148,25 @@ class Honeycomb(eqx.Module):
         "m", "crush over which the secondary peak falls back to F2 (linear decay)",
         "our assumption: 2 mm, as peak_length1. Unused while peak_ratio2 = 1",
         "> 0", toml="peak_length2_mm", to_si=1e-3, default=2e-3)
+    excess1: jnp.ndarray = eqx.field(
+        converter=_opt_table, default=None,
+        metadata=dict(
+            unit="1", toml="excess1", to_si=1.0, off=(), table=True,
+            doc="tabulated strength excess of the virgin primary honeycomb over its plateau, as "
+                "ratios of F1: the values e_j / F1 at the crush c_j = j excess_length1_mm / n "
+                "(j = 0 .. n-1, n the table's length), piecewise linear between them and 0 from "
+                "c = excess_length1_mm on. c is the crush past the onset x_L1 + e_0 / k_b1 "
+                "(where the elastic rise meets F1 + e_0); the strength is F1 + e(c) as a function "
+                "of the largest stroke reached, so an already crushed block has no excess. Any "
+                "peak shape (a rise, a fall, fold ripples); [] or absent: off. Not with "
+                "peak_ratio1",
+            source="our extension (issue 12): a measured or modelled peak shape; the virtual "
+                   "rig's physical crush peaks use it. Default off",
+            rule=">= 0"))
+    excess_length1: jnp.ndarray = _param(
+        "m", "crush length the excess1 table spans (the excess is 0 from there on)",
+        "our assumption: 10 mm. Unused while excess1 is off",
+        "> 0", toml="excess_length1_mm", to_si=1e-3, default=1e-2)
     unload_ratio: jnp.ndarray = _param(
         "1", "unloading stiffness of the secondary stage over its loading stiffness, "
         "k_u = unload_ratio k_b3. 1: a crushed stack unloads back along k_b3 to F1, then along "
@@ -155,14 +191,34 @@ class Honeycomb(eqx.Module):
         """The force law's numbers with the derived breakpoints evaluated once (do this outside
         a time loop: XLA does not hoist the divisions out of it)."""
         x_L1, x_L3 = self.x_L1, self.x_L3
-        peak = self.peak_ratio1 is not None or self.peak_ratio2 is not None
+        table = self.excess1 is not None
+        peak = self.peak_ratio1 is not None or self.peak_ratio2 is not None or table
         unload = self.unload_ratio is not None
         ext = {}
         if peak or unload:  # the general law (every extension's term present)
             r1, r2, rho = (1.0 if r is None else r for r in (self.peak_ratio1, self.peak_ratio2,
                                                              self.unload_ratio))
             a1, a2 = (r1 - 1.0) * self.F1, (r2 - 1.0) * self.F2
-            ext = dict(a1=a1, x_pk1=x_L1 + a1 / self.k_b1, L1=self.peak_length1,
+            L1 = self.peak_length1
+            if self.peak_rise1 is not None and self.peak_ratio1 is not None:
+                # the peak that builds up: a two-segment table, 0 -> a1 over the rise, a1 -> 0
+                # over peak_length1 (validate_vehicle: not with excess1)
+                rise, fall = jnp.expand_dims(self.peak_rise1, -1), jnp.expand_dims(L1, -1)
+                a = jnp.expand_dims(a1, -1)
+                ext = dict(t1_c=jnp.concatenate([jnp.zeros_like(rise), rise], axis=-1),
+                           t1_dc=jnp.concatenate([rise, fall], axis=-1),
+                           t1_slope=jnp.concatenate([a / rise, -a / fall], axis=-1))
+                a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
+            if table:  # the primary's excess from its table (validate_vehicle: not with r1)
+                e = self.excess1 * jnp.expand_dims(self.F1, -1)  # N, at the nodes c_j
+                n = e.shape[-1]
+                L1 = self.excess_length1
+                dc = jnp.expand_dims(L1 / n, -1)  # m, the grid step
+                e_next = jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
+                a1 = e[..., 0]
+                ext = dict(t1_c=dc * jnp.arange(n, dtype=jnp.float64), t1_dc=dc,
+                           t1_slope=(e_next - e) / dc)
+            ext.update(a1=a1, x_pk1=x_L1 + a1 / self.k_b1, L1=L1,
                        a2=a2, x_pk2=x_L3 + a2 / self.k_b3, L2=self.peak_length2,
                        k_u=self.k_b3 * rho, q=1.0 - 1.0 / rho)
         return HoneycombCurve(k_b1=self.k_b1, k_b3=self.k_b3, k_bottom=self.k_bottom,
@@ -197,6 +253,11 @@ class HoneycombCurve(eqx.Module):
     L2: jnp.ndarray | None = None  # m, crush over which the secondary peak decays
     k_u: jnp.ndarray | None = None  # N/m, secondary stage's unloading stiffness, rho k_b3
     q: jnp.ndarray | None = None  # 1, plastic fraction of the k_b3 rise, 1 - 1 / rho
+    # the primary's tabulated excess (None unless ``Honeycomb.excess1`` or ``peak_rise1`` is
+    # on): segments from c_j of width dc_j, e(c) = a1 + sum_j slope_j clip(c - c_j, 0, dc_j)
+    t1_c: jnp.ndarray | None = None  # m, the segments' starts c_j (last axis: j = 0 .. n-1)
+    t1_dc: jnp.ndarray | None = None  # m, their widths (a uniform grid: last axis of length 1)
+    t1_slope: jnp.ndarray | None = None  # N/m, the excess's slope on [c_j, c_j + dc]
     bonded: bool = eqx.field(static=True, default=False)
     extended: bool = eqx.field(static=True, default=False)
 

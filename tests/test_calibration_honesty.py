@@ -200,6 +200,22 @@ def test_peak_and_unloading_parameters_round_trip_through_the_fit_coordinates():
         assert float(hc.peak_ratio1) > 1 and slope <= 0.5 * float(fitted.ground.k) * (1 + 1e-9)
 
 
+def test_rise_length_round_trips_and_any_coordinates_give_a_valid_vehicle():
+    """L_rise1 (off: starts at 1 mm) between the build-up's slope limit and the room left."""
+    names = ("k_b1", "F1", "peak1", "L_peak1", "L_rise1")
+    veh = switch_on(jl.paper_vehicle(), names)
+    assert float(veh.honeycomb.peak_rise1) == 1e-3
+    z = to_unconstrained(veh, names)
+    np.testing.assert_allclose(np.asarray(from_unconstrained(jnp.asarray(z), names, veh)),
+                               get_values(veh, names), rtol=1e-12)
+    for shift in ((0, 0, -4, -4, -4), (0, 0, 1, 1, 1), (0, 0, 4, 0, -12), (0, 0, 3, 4, 4)):
+        vals = np.asarray(from_unconstrained(jnp.asarray(z + np.array(shift)), names, veh))
+        hc = jl.validate_vehicle(set_values(veh, names, vals)).honeycomb
+        a = (float(hc.peak_ratio1) - 1) * float(hc.F1)
+        assert a / float(hc.peak_rise1) < float(hc.k_b1)
+        assert float(hc.x_L1 + hc.peak_rise1 + hc.peak_length1) < float(hc.x_L2)
+
+
 def test_off_extensions_read_as_one_and_are_switched_on_by_set_values():
     veh = jl.paper_vehicle()
     assert get_values(veh, ("peak1", "unload")).tolist() == [1.0, 1.0]
@@ -274,6 +290,48 @@ def test_rig_peak_shapes_overshoot_the_crush_force_by_the_set_fraction(rig_recor
     # three different shapes: the records differ pairwise
     a, b, c = (shapes[s][1]["buffer_force_N"] for s in vr.PEAK_SHAPES)
     assert not np.allclose(a, b) and not np.allclose(b, c) and not np.allclose(a, c)
+
+
+def test_rig_physical_peak_acts_in_the_honeycomb_and_every_channel(rig_records):
+    """peak_mode="physical" tabulates the shape into the truth's honeycomb: the table is the
+    shape (written out here by hand), the simulated honeycomb force reaches F1 (1 + peak), and
+    every channel, stroke and body acceleration included, differs from the drop without it."""
+    (t, clean, _), _, kw = rig_records
+    u = np.arange(300) * 0.1  # the table's nodes in peak lengths (step 0.1, span 30)
+    by_hand = {"bump": u * np.exp(1 - u), "exp": np.exp(-u),
+               "folds": np.abs(np.cos(0.5 * np.pi * u)) * np.exp(-0.25 * u)}
+    f1 = float(vr.truth_vehicle().honeycomb.F1)
+    for shape, s in by_hand.items():
+        _, rec, info = vr.record(vr.truth_vehicle(), 0.2, peak_shape=shape,
+                                 peak_mode="physical", **kw)
+        hc = info["truth_vehicle"].honeycomb
+        np.testing.assert_allclose(np.asarray(hc.excess1), vr.CRUSH_PEAK * s, rtol=1e-12,
+                                   atol=1e-15)
+        assert float(hc.excess_length1) == pytest.approx(30 * vr.PHYSICAL_PEAK_LENGTH_M)
+        tr = jl.simulate(jl.Scene(drop_height=0.2), info["truth_vehicle"], t_end=0.3,
+                          save_dt=1e-5).trajectory
+        primary = tr["stroke_max_m"] < float(hc.x_L2) - 1e-3
+        assert np.max(tr["honeycomb_force_N"][primary]) == pytest.approx(
+            f1 * (1 + vr.CRUSH_PEAK), rel=2e-3), shape
+        for c in clean:  # well above rounding: the peak moves every channel
+            assert np.max(np.abs(rec[c] - clean[c])) > 0.05 * vr.NOISE[c], (shape, c)
+        if shape == "exp":  # nothing on top of the drop of that honeycomb: no sensor factor
+            _, bare, _ = vr.record(info["truth_vehicle"], 0.2, crush_peak=0.0, **kw)
+            for c in clean:
+                np.testing.assert_array_equal(rec[c], bare[c])
+    # the sensor mode (the bundled records') leaves stroke and acceleration without the peak
+    _, sensor, _ = vr.record(vr.truth_vehicle(), 0.2, peak_shape="exp", **kw)
+    np.testing.assert_array_equal(sensor["body_accel_mps2"], clean["body_accel_mps2"])
+    with pytest.raises(jl.ConfigError, match="peak_mode"):
+        vr.record(vr.truth_vehicle(), 0.2, peak_mode="both", **kw)
+    with pytest.raises(jl.ConfigError, match="negative stiffness"):  # too steep a fall
+        vr.record(vr.truth_vehicle(), 0.2, peak_shape="exp", peak_mode="physical",
+                  peak_length_m=4e-4, **kw)
+    # a rise length: the excess builds up linearly from 0, then follows the shape
+    v = vr.physical_peak(vr.truth_vehicle(), 0.2, "exp", rise_m=0.6e-3)
+    table = np.asarray(v.honeycomb.excess1)
+    np.testing.assert_allclose(table[:6], 0.2 * np.arange(6) / 5, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(table[5:8], 0.2 * np.exp(-np.arange(3) * 0.1), rtol=1e-12)
 
 
 def test_rig_jitter_lowpass_and_unloading_options(rig_records):

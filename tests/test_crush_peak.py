@@ -358,3 +358,274 @@ def test_bad_peak_or_unloading_values_are_refused_by_name(hc, needle):
         jl.vehicle_from_dict({"honeycomb": hc})
     assert needle in str(err.value)
     assert "\n" not in str(err.value)
+
+
+# ------------------------------------------------------------- tabulated strength excess
+
+# a rise over the first fifth, then a fall with a shoulder, over 6 mm (ratios of F1)
+TABLE = (0.0, 0.08, 0.15, 0.12, 0.07, 0.05, 0.03, 0.01)
+TABLE_L = 6e-3
+
+
+def _hc_table(table=TABLE, length=TABLE_L, r2=None, rho=None, bonded=False):
+    """The paper honeycomb with the primary's tabulated excess (and the other extensions)."""
+    hc = _hc(None, r2, rho, bonded=bonded)
+    return eqx.tree_at(lambda h: (h.excess1, h.excess_length1), hc,
+                       (jnp.asarray(table, dtype=jnp.float64), jnp.float64(length)), **_NONE)
+
+
+def _expected_table_virgin(x, table=TABLE, length=TABLE_L):
+    """Hand-written primary virgin curve with a table: elastic to F1 (1 + e_0), then
+    F1 (1 + np.interp) over the crush past that point, 0 excess from the table's end."""
+    e = np.append(table, 0.0) * F1
+    nodes = np.linspace(0.0, length, len(table) + 1)
+    x_on = X1 + e[0] / K1
+    return np.where(x < x_on, K1 * x, F1 + np.interp(x - x_on, nodes, e))
+
+
+def test_excess_table_virgin_curve_is_the_interpolated_table():
+    hc = _hc_table()
+    xs = np.linspace(0.0, X2 - 1e-3, 40_001)
+    expected = _expected_table_virgin(xs)
+    closed = jax.vmap(lambda x: laws.honeycomb_virgin_force(x, hc))(jnp.asarray(xs))
+    np.testing.assert_allclose(closed, expected, rtol=1e-11, atol=1e-6)
+    memory = jax.vmap(lambda x: laws.honeycomb(x, x, hc).force)(jnp.asarray(xs))
+    np.testing.assert_allclose(memory, expected, rtol=1e-11, atol=1e-6)
+    # an excess that starts at its top (a jump at the onset) rises elastically to it
+    hc = _hc_table((0.2, 0.1, 0.05), 4e-3)
+    memory = jax.vmap(lambda x: laws.honeycomb(x, x, hc).force)(jnp.asarray(xs))
+    np.testing.assert_allclose(memory, _expected_table_virgin(xs, (0.2, 0.1, 0.05), 4e-3),
+                               rtol=1e-11, atol=1e-6)
+
+
+def test_two_node_table_is_the_linear_peak():
+    """The table (a / F1) over L is the law's own linear peak r = 1 + a / F1 over L: same
+    force, energies and plastic set along a load / unload / reload history."""
+    xs = _path(0.0, 0.003, 0.0005, 0.009, 0.001, 0.065, 0.061, 0.0715, n=20_001)
+    for w in (0.0, 1e-5):
+        ref = _run(_hc(1.3, None, None, 4e-3), xs, w)
+        got = _run(_hc_table((0.3,), 4e-3), xs, w)
+        for a, b in zip(ref, got):
+            np.testing.assert_allclose(b, a, rtol=1e-11, atol=1e-8)
+
+
+@pytest.mark.parametrize("w", [0.0, 1e-6])
+def test_excess_only_on_virgin_material(w):
+    """Crushed past the table and reloaded: only the plateau. Unloaded inside the table:
+    reloads to the strength left at the largest stroke, then follows the table on."""
+    hc = _hc_table()
+    x_on = X1  # e_0 = 0: the excess starts at x_L1
+    x_m = x_on + TABLE_L + 3e-3
+    f, *_ = _run(hc, _path(0.0, x_m, 0.0, x_m + 10e-3), w)
+    tol = 2.0 * K1 * w + 1e-6
+    assert np.max(f[:100_000]) >= F1 * (1 + max(TABLE)) * (1 - 1e-3)  # the virgin peak
+    assert np.max(f[2 * 100_000:]) <= F1 * (1 + 1e-9) + tol
+    # unloaded at the table's top and in its fall, reloaded: back to the strength left at the
+    # largest stroke (the falling table is higher just below it), then on along the table
+    for c_m in (2.0, 3.3):
+        x_m = x_on + c_m * TABLE_L / len(TABLE)
+        left = _expected_table_virgin(x_m)
+        f, *_ = _run(hc, _path(0.0, x_m, x_m - 1e-3, x_m + TABLE_L), w)
+        assert np.max(f[100_000:]) <= left + tol
+        assert np.max(f[100_000:]) >= left - tol - 1e-6 * F1  # reached it again
+        np.testing.assert_allclose(f[-1], F1, atol=tol)
+
+
+TABLE_CASES = {
+    "table": dict(),
+    "table_jump_start": dict(table=(0.2, 0.1, 0.05, 0.02), length=5e-3),
+    "table_peak2_unloading_bonded": dict(r2=1.2, rho=1.3, bonded=True),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TABLE_CASES))
+def test_work_of_the_force_with_an_excess_table_is_stored_plus_crushed(case):
+    """The energy ledger with the table: integral F dx along load / unload / reload cycles
+    (one inside the table) equals the change of elastic + crush energy, crush never
+    decreases and the plastic set never shrinks."""
+    kw = TABLE_CASES[case]
+    hc = _hc_table(**kw)
+    xs = _path(0.0, 0.0025, 0.0005, 0.004, 0.0, 0.009, -0.002 if kw.get("bonded") else 0.001,
+               0.065, 0.061, 0.0715, 0.07, 0.12)
+    f, el, cr, ps = _run(hc, xs)
+    work = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(xs)]))
+    scale = el[-1] + cr[-1]
+    np.testing.assert_allclose(work, el + cr, rtol=0, atol=2e-9 * scale)
+    assert np.all(np.diff(cr) >= -1e-9 * scale)
+    assert np.all(np.diff(ps) >= -1e-15)
+    # the excess's own work, integrated independently: crush at the end of the primary stage
+    # less the plateau's, against the area between the virgin curve and F1 ...
+    i = np.argmax(xs >= 0.0575)  # past the table, still on the primary plateau
+    x_on = X1 + kw.get("table", TABLE)[0] * F1 / K1
+    c = np.linspace(0.0, kw.get("length", TABLE_L), 200_001)
+    e = _expected_table_virgin(x_on + c, kw.get("table", TABLE), kw.get("length", TABLE_L)) - F1
+    area = np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(c))
+    e0 = kw.get("table", TABLE)[0] * F1
+    # ... plus the elastic energy the onset's jump e_0 releases when the force falls back
+    expected = F1 * ps[i] + area + e0**2 / (2 * K1)
+    np.testing.assert_allclose(cr[i], expected, rtol=1e-7)
+
+
+TNAMES = ("excess1", "excess_length1", "F1", "k_b1")
+
+
+def _table_sum(theta, x, x_max, w):
+    hc = _hc_table(r2=1.2, rho=1.3)
+    scale = jnp.exp(theta[:len(TNAMES) - 1 + len(TABLE)])
+    t = hc.excess1 * scale[:len(TABLE)]
+    rest = tuple(getattr(hc, n) * s for n, s in zip(TNAMES[1:], scale[len(TABLE):]))
+    hc = eqx.tree_at(lambda h: (h.excess1,) + tuple(getattr(h, n) for n in TNAMES[1:]), hc,
+                     (t,) + rest)
+    o = laws.honeycomb(x, x_max, hc, w)
+    return o.force / 1e3 + o.elastic_energy + o.crush_energy + o.plastic_set * 1e3
+
+
+_DC = TABLE_L / len(TABLE)
+
+
+@pytest.mark.parametrize("x,x_max,w", [
+    (X1 + 0.6 * _DC, X1 + 0.6 * _DC, 0.0),  # rising, on the virgin curve
+    (X1 + 3.3 * _DC - 2e-4, X1 + 3.3 * _DC, 0.0),  # unloaded inside the fall
+    (X1 + 5.5 * _DC, X1 + 5.5 * _DC, 1e-4),  # smoothed
+    (0.03, 0.031, 0.0),  # past the table, unloaded
+])
+def test_excess_table_gradients_match_central_differences(x, x_max, w):
+    theta = jnp.zeros(len(TABLE) + len(TNAMES) - 1)
+    g = np.asarray(jax.grad(_table_sum)(theta, jnp.float64(x), jnp.float64(x_max), w))
+    f = jax.jit(lambda t: _table_sum(t, jnp.float64(x), jnp.float64(x_max), w))
+    for h in (1e-6, 2e-6):
+        fd = np.array([(float(f(theta.at[i].set(h))) - float(f(theta.at[i].set(-h)))) / (2 * h)
+                       for i in range(theta.size)])
+        np.testing.assert_allclose(g, fd, rtol=2e-5, atol=1e-6 * np.max(np.abs(g)))
+
+
+@pytest.mark.parametrize("x,x_max", [(X1, X1), (X1 + 2 * _DC,) * 2, (X1 + TABLE_L,) * 2,
+                                     (X1 + 2 * _DC - 1e-4, X1 + 2 * _DC), (-1e-3, 0.01)])
+def test_no_nan_gradients_at_the_table_nodes(x, x_max):
+    for w in (0.0, 1e-6):
+        g = jax.grad(_table_sum, argnums=(0, 1, 2))(jnp.zeros(len(TABLE) + len(TNAMES) - 1),
+                                                    jnp.float64(x), jnp.float64(x_max), w)
+        assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree.leaves(g))
+
+
+def test_landing_with_an_excess_table_closes_its_ledger_and_carries_the_table():
+    veh = jl.vehicle_from_dict({"honeycomb": {"excess1": list(TABLE),
+                                              "excess_length1_mm": TABLE_L * 1e3}})
+    r = jl.simulate(vehicle=veh, t_end=0.45)
+    assert abs(r.outcomes["energy_closure_rel"]) < 2e-4
+    tr = r.trajectory
+    primary = tr["stroke_max_m"] < X2 - 1e-3
+    assert np.max(tr["honeycomb_force_N"][primary]) == pytest.approx(F1 * (1 + max(TABLE)),
+                                                                     rel=0.01)
+
+
+def test_excess_table_in_toml_round_trips_and_empty_is_off(tmp_path):
+    assert jl.paper_vehicle().honeycomb.excess1 is None
+    assert jl.vehicle_from_dict({"honeycomb": {"excess1": []}}).honeycomb.excess1 is None
+    on = jl.vehicle_from_dict({"honeycomb": {"excess1": list(TABLE), "excess_length1_mm": 6.0}})
+    (tmp_path / "v.toml").write_text(jl.vehicle_to_toml(on))
+    back = jl.load_vehicle(tmp_path / "v.toml")
+    np.testing.assert_array_equal(np.asarray(back.honeycomb.excess1), TABLE)
+    assert float(back.honeycomb.excess_length1) == 6e-3
+
+
+@pytest.mark.parametrize("hc,needle", [
+    ({"excess1": [-0.1, 0.0]}, "honeycomb.excess1 = -0.1: must be >= 0"),
+    ({"excess1": "0.1"}, "must be a list of numbers"),
+    ({"excess1": [0.1], "peak_ratio1": 1.1}, "give either peak_ratio1 or excess1"),
+    ({"excess1": [0.1], "excess_length1_mm": 60.0}, "must end before x_L2"),
+    ({"excess1": [0.0, 0.9]}, "must stay below F2_N"),
+    ({"excess1": [0.0, 0.5], "excess_length1_mm": 0.4}, "must be < k_b1"),
+    ({"excess1": [0.3], "excess_length1_mm": 1.0}, "negative stiffness"),
+])
+def test_bad_excess_tables_are_refused_by_name(hc, needle):
+    with pytest.raises(jl.ConfigError) as err:
+        jl.vehicle_from_dict({"honeycomb": hc})
+    assert needle in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+# ------------------------------------------------------------------ a peak that builds up
+
+RISE = dict(r1=1.25, L1=3e-3, rise=1.5e-3)
+
+
+def _hc_rise(r1=RISE["r1"], L1=RISE["L1"], rise=RISE["rise"], r2=None, rho=None):
+    hc = _hc(r1, r2, rho, L1)
+    return eqx.tree_at(lambda h: h.peak_rise1, hc, jnp.float64(rise), **_NONE)
+
+
+def test_peak_with_a_rise_length_builds_up_then_falls():
+    """Elastic to F1 at x_L1, a linear rise to r1 F1 over the rise length, a linear fall to F1
+    over peak_length1 (hand-written with np.interp); reloading after the peak: the plateau."""
+    r1, L1, rise = RISE["r1"], RISE["L1"], RISE["rise"]
+    hc = _hc_rise()
+    xs = np.linspace(0.0, X2 - 1e-3, 40_001)
+    expected = np.where(xs < X1, K1 * xs, np.interp(xs - X1, [0.0, rise, rise + L1],
+                                                    [F1, r1 * F1, F1]))
+    for f in (lambda x: laws.honeycomb(x, x, hc).force,
+              lambda x: laws.honeycomb_virgin_force(x, hc)):
+        np.testing.assert_allclose(jax.vmap(f)(jnp.asarray(xs)), expected, rtol=1e-11,
+                                   atol=1e-6)
+    f, *_ = _run(hc, _path(0.0, X1 + rise + L1 + 1e-3, 0.0, X1 + rise + L1 + 5e-3))
+    assert np.max(f[2 * 100_000:]) <= F1 * (1 + 1e-9)
+
+
+def test_work_of_the_force_with_a_rising_peak_is_stored_plus_crushed():
+    """The ledger of the hard law (the smoothed law keeps the hard law's closed forms, off by
+    as much as the paper law's own smoothing) along a history unloaded in the build-up."""
+    w = 0.0
+    hc = _hc_rise(r2=1.2, rho=1.3)
+    x_mid = X1 + 0.5 * RISE["rise"]  # unloaded while the peak is still building up
+    xs = _path(0.0, x_mid, x_mid - 5e-4, 0.004, 0.001, 0.065, 0.061, 0.0715, 0.07, 0.12)
+    f, el, cr, ps = _run(hc, xs, w)
+    work = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(xs)]))
+    scale = el[-1] + cr[-1]
+    np.testing.assert_allclose(work, el + cr, rtol=0, atol=2e-9 * scale)
+    assert np.all(np.diff(cr) >= -1e-9 * scale)
+    assert np.all(np.diff(ps) >= -1e-15)
+    # reloaded in the build-up: back to the strength reached, then on up the rise
+    i = 2 * 100_000
+    s_mid = F1 * (1 + (RISE["r1"] - 1) * 0.5)
+    assert np.max(f[100_000:i]) <= s_mid + 2 * K1 * w + 1e-6
+
+
+RNAMES = ("peak_ratio1", "peak_length1", "peak_rise1", "F1", "k_b1")
+
+
+def _rise_sum(theta, x, x_max, w):
+    hc = _hc_rise()
+    vals = tuple(getattr(hc, n) * jnp.exp(t) for n, t in zip(RNAMES, theta))
+    hc = eqx.tree_at(lambda h: tuple(getattr(h, n) for n in RNAMES), hc, vals)
+    o = laws.honeycomb(x, x_max, hc, w)
+    return o.force / 1e3 + o.elastic_energy + o.crush_energy + o.plastic_set * 1e3
+
+
+@pytest.mark.parametrize("x,x_max,w", [
+    (X1 + 0.7e-3, X1 + 0.7e-3, 0.0),  # building up, virgin
+    (X1 + 2.5e-3, X1 + 2.6e-3, 0.0),  # unloaded in the fall
+    (X1 + 1.5e-3, X1 + 1.5e-3 + 2e-5, 1e-4),  # smoothed, at the top
+])
+def test_rising_peak_gradients_match_central_differences(x, x_max, w):
+    theta = jnp.zeros(len(RNAMES))
+    g = np.asarray(jax.grad(_rise_sum)(theta, jnp.float64(x), jnp.float64(x_max), w))
+    assert np.all(np.isfinite(g))
+    f = jax.jit(lambda t: _rise_sum(t, jnp.float64(x), jnp.float64(x_max), w))
+    for h in (1e-6, 2e-6):
+        fd = np.array([(float(f(theta.at[i].set(h))) - float(f(theta.at[i].set(-h)))) / (2 * h)
+                       for i in range(theta.size)])
+        np.testing.assert_allclose(g, fd, rtol=2e-5, atol=1e-6 * np.max(np.abs(g)))
+
+
+def test_rise_length_in_toml_off_by_zero_and_refused_by_name(tmp_path):
+    assert jl.paper_vehicle().honeycomb.peak_rise1 is None
+    assert jl.vehicle_from_dict({"honeycomb": {"peak_rise1_mm": 0.0}}).honeycomb.peak_rise1 \
+        is None
+    on = jl.vehicle_from_dict({"honeycomb": {"peak_ratio1": 1.2, "peak_rise1_mm": 1.5}})
+    (tmp_path / "v.toml").write_text(jl.vehicle_to_toml(on))
+    assert float(jl.load_vehicle(tmp_path / "v.toml").honeycomb.peak_rise1) == 1.5e-3
+    for hc, needle in (({"peak_ratio1": 1.2, "peak_rise1_mm": 0.05}, "must be < k_b1"),
+                       ({"peak_ratio1": 1.2, "peak_rise1_mm": 56.0}, "must end before x_L2"),
+                       ({"excess1": [0.1], "peak_rise1_mm": 1.0}, "give either peak_rise1")):
+        with pytest.raises(jl.ConfigError, match=needle):
+            jl.vehicle_from_dict({"honeycomb": hc})

@@ -24,8 +24,9 @@ Energy (closed forms, used by the ledger):
     crush    D(x_max) = F1 p1 + F2 p2  (plastic work of the ideal plateaus; p1, p2 the two
              clipped terms of x_p), so that integral_0^x_max F_v dx = W(y_max) + D(x_max).
 
-Two optional extensions (``Honeycomb.peak_ratio1/2``, ``peak_length1/2``, ``unload_ratio``),
-both off by default (None): the law above then runs on its own code path, bit for bit.
+Optional extensions (``Honeycomb.peak_ratio1/2``, ``peak_length1/2``, ``peak_rise1``,
+``excess1``, ``excess_length1``, ``unload_ratio``), all off by default (None): the law above
+then runs on its own code path, bit for bit.
 
 Initial crush peak (virgin material only). A bare honeycomb block resists the start of crushing
 more than its plateau: the elastic rise of stage i continues to r_i F_i (a_i = (r_i - 1) F_i over
@@ -46,6 +47,26 @@ The peak's extra crush work (closed form, added to D) is
     (a_i^2 - e_i^2) / (2 k) + a_i c (1 - c / (2 L_i)),   c = clip(x_max - x_pk, 0, L_i),
 
 with k = k_b1 for the primary stage and k_u (below) for the secondary.
+
+Tabulated strength excess of the primary stage (``Honeycomb.excess1``, ``excess_length1``):
+the linear fall above replaced by any shape, a table of excess values e_j at the crush
+c_j = j dc (dc = L / n), piecewise linear between them and 0 from c = L on. With a = e_0 the
+elastic rise goes to F1 + a at x_pk = x_L1 + a / k_b1, and from there the strength is
+S1(x_max) = F1 + e(c), c = clip(x_max - x_pk, 0, L); written without a gather as
+
+    e(c) = a + sum_j s_j u_j,   u_j = clip(c - c_j, 0, dc),   s_j = (e_{j+1} - e_j) / dc.
+
+The plastic set p1 = x_max - x_L1 - e / k_b1 grows with x_max while e rises slower than k_b1
+(``validate_vehicle``), and the crush work beyond the plateau's is the integral of the strength
+over the plastic set, exact in closed form for the piecewise-linear e:
+
+    (a^2 - e^2) / (2 k_b1) + a c + sum_j s_j (u_j^2 / 2 + dc max(c - c_j - dc, 0)),
+
+which for a two-node table (a, 0) over L is the linear peak's work above.
+
+A peak that builds up (``Honeycomb.peak_rise1`` = L_r, with peak_ratio1): the elastic rise
+ends at F1 (a = 0 at the onset x_L1), the strength rises linearly to r1 F1 over the crush L_r,
+then falls to F1 over peak_length1: the table's law with two segments, of widths L_r and L.
 
 Unloading after the secondary stage (``unload_ratio`` = rho >= 1). The secondary stage's elastic
 stiffness is k_u = rho k_b3 while its virgin rise keeps the slope k_b3: for rho > 1 the fraction
@@ -83,7 +104,8 @@ def honeycomb_virgin_force(x, hc: Honeycomb | HoneycombCurve):
         return (
             hc.k_b1 * _clip(x, 0.0, hc.x_L1)
             + jnp.minimum(hc.k_b1 * jnp.maximum(x - hc.x_L1, 0.0),
-                          _excess(x, hc.a1, hc.x_pk1, hc.L1))
+                          _excess(x, hc.a1, hc.x_pk1, hc.L1) if hc.t1_c is None else
+                          _table(_crushed(x, hc.x_pk1, hc.L1), hc, 0.0)[0])
             + hc.k_b3 * _clip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
             + jnp.minimum(hc.k_b3 * jnp.maximum(x - hc.x_L3, 0.0),
                           _excess(x, hc.a2, hc.x_pk2, hc.L2))
@@ -173,6 +195,22 @@ def _excess(x_max, a, x_pk, length, w: float = 0.0):
     return a - a * _crushed(x_max, x_pk, length, w) / length
 
 
+def _table(c, hc: HoneycombCurve, w: float):
+    """The primary's tabulated excess e(c) [N] at the crush c [m] past its onset, and the
+    integral of e over [0, c] [J]; the table's kinks rounded over ``w`` [m] if > 0."""
+    d = jnp.expand_dims(c, -1) - hc.t1_c
+    if w == 0.0:
+        over = jnp.maximum(d - hc.t1_dc, 0.0)
+        u = jnp.minimum(jnp.maximum(d, 0.0), hc.t1_dc)
+    else:  # the interior nodes rounded; c, clipped to [0, L] (rounded), needs no clip at the ends
+        dc = hc.t1_dc[..., :-1] if hc.t1_dc.shape[-1] > 1 else hc.t1_dc  # uniform: one
+        over = jnp.concatenate([ramp(d[..., :-1] - dc, w), jnp.zeros_like(d[..., :1])], axis=-1)
+        u = jnp.concatenate([d[..., :1], ramp(d[..., 1:], w)], axis=-1) - over
+    e = hc.a1 + jnp.sum(hc.t1_slope * u, axis=-1)
+    integral = hc.a1 * c + jnp.sum(hc.t1_slope * (0.5 * u * u + hc.t1_dc * over), axis=-1)
+    return e, integral
+
+
 def _peak_work(a, e, c, length, k):
     """Crush work of a peak beyond the plateau's [J]: (a^2 - e^2) / (2k) + a c (1 - c / 2L)."""
     return (a * a - e * e) / (2.0 * k) + a * c * (1.0 - c / (2.0 * length))
@@ -189,7 +227,12 @@ def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> Honeycom
     else:
         x_max = x_max_prev + ramp(x - x_max_prev, w)
         c_1, c_2 = _crushed(x_max, hc.x_pk1, hc.L1, w), _crushed(x_max, hc.x_pk2, hc.L2, w)
-    e1 = hc.a1 - hc.a1 * c_1 / hc.L1  # strength left over F1 (the peak fades as it crushes)
+    if hc.t1_c is None:
+        e1 = hc.a1 - hc.a1 * c_1 / hc.L1  # strength left over F1 (the peak fades as it crushes)
+        work1 = _peak_work(hc.a1, e1, c_1, hc.L1, hc.k_b1)
+    else:  # the tabulated excess
+        e1, int1 = _table(c_1, hc, w)
+        work1 = (hc.a1 * hc.a1 - e1 * e1) / (2.0 * hc.k_b1) + int1
     e2 = hc.a2 - hc.a2 * c_2 / hc.L2
     cap1 = hc.x_L1 + e1 / hc.k_b1  # elastic capacity of stage 1: strength / k_b1
     cap2 = dy3 * (1.0 - hc.q) + e2 / hc.k_u  # of stage 2: (F2 - F1 + e2) / k_u
@@ -224,7 +267,7 @@ def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> Honeycom
     if hc.bonded:
         force = force + hc.k_b1 * yt
         elastic = elastic + 0.5 * hc.k_b1 * yt**2
-    crush = (hc.F1 * p1 + _peak_work(hc.a1, e1, c_1, hc.L1, hc.k_b1)
+    crush = (hc.F1 * p1 + work1
              + hc.q * (hc.F1 * rise + 0.5 * hc.k_b3 * rise**2)
              + hc.F2 * p2 + _peak_work(hc.a2, e2, c_2, hc.L2, hc.k_u))
     return HoneycombOut(force, x_max, elastic, crush, x_p)
