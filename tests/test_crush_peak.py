@@ -52,6 +52,19 @@ def _run(hc, xs, w=0.0):
     _, out = jax.lax.scan(step, jnp.float64(0.0), jnp.asarray(xs))
     return [np.asarray(a) for a in out]
 
+def _assert_ledger_closes(hc, xs):
+    """Along the stroke path ``xs``: the work of the force (trapezoid) equals elastic + crush
+    energy (closed forms), crush never decreases and the plastic set never shrinks. Returns
+    the force, elastic and crush energy and plastic set along the path."""
+    f, el, cr, ps = _run(hc, xs)
+    work = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(xs)]))
+    scale = el[-1] + cr[-1]
+    np.testing.assert_allclose(work, el + cr, rtol=0, atol=2e-9 * scale)
+    assert np.all(np.diff(cr) >= -1e-9 * scale)
+    assert np.all(np.diff(ps) >= -1e-15)
+    return f, el, cr, ps
+
+
 
 def _hash(arrays):
     m = hashlib.sha256()
@@ -246,12 +259,7 @@ def test_work_of_the_force_is_stored_plus_crushed_along_any_history(case):
     hc = _hc(**CASES[case])
     xs = _path(0.0, 0.003, 0.0005, 0.009, -0.002 if CASES[case].get("bonded") else 0.001,
                0.065, 0.061, 0.0715, 0.07, 0.12)
-    f, el, cr, ps = _run(hc, xs)
-    work = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(xs)]))
-    scale = el[-1] + cr[-1]
-    np.testing.assert_allclose(work, el + cr, rtol=0, atol=2e-9 * scale)
-    assert np.all(np.diff(cr) >= -1e-9 * scale)
-    assert np.all(np.diff(ps) >= -1e-15)
+    _assert_ledger_closes(hc, xs)
 
 
 def test_unloading_ratio_sets_the_recovery_after_the_secondary_stage():
@@ -447,12 +455,7 @@ def test_work_of_the_force_with_an_excess_table_is_stored_plus_crushed(case):
     hc = _hc_table(**kw)
     xs = _path(0.0, 0.0025, 0.0005, 0.004, 0.0, 0.009, -0.002 if kw.get("bonded") else 0.001,
                0.065, 0.061, 0.0715, 0.07, 0.12)
-    f, el, cr, ps = _run(hc, xs)
-    work = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(xs)]))
-    scale = el[-1] + cr[-1]
-    np.testing.assert_allclose(work, el + cr, rtol=0, atol=2e-9 * scale)
-    assert np.all(np.diff(cr) >= -1e-9 * scale)
-    assert np.all(np.diff(ps) >= -1e-15)
+    f, el, cr, ps = _assert_ledger_closes(hc, xs)
     # the excess's own work, integrated independently: crush at the end of the primary stage
     # less the plateau's, against the area between the virgin curve and F1 ...
     i = np.argmax(xs >= 0.0575)  # past the table, still on the primary plateau
