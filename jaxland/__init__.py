@@ -42,8 +42,8 @@ def use_batch_fusion() -> bool:
     trajectory (Monte Carlo, design; ``jaxland montecarlo`` and ``jaxland design`` call it).
     Without it, every kernel that reads a value recomputes the elementwise work behind it; with
     it, one kernel computes the value for all of them. A vmapped step then costs less than half
-    (quarter) or about 0.6x (3-D model), but a landing that saves a trajectory costs up to 3x
-    more, and a fit about 8x (docs/performance.md), so it is not on by default. Call it right
+    (quarter) or about 0.6x (3-D model), but a landing that saves a trajectory costs many times
+    more and a fit about 8x (measured in docs/performance.md), so it is not on by default. Call it right
     after ``import jaxland``, before any JAX work: the option is read when XLA's backend starts.
     Returns whether it is on (False: the backend had started without it)."""
     flags = _os.environ.get("XLA_FLAGS", "")

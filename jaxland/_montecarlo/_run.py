@@ -152,9 +152,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     chunk = int(math.ceil(chunk / n_dev) * n_dev)
     mesh = Mesh(np.array(devices), ("batch",))
     batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
-    # one compiled program rather than a dozen eager operations, each compiled on its own
-    limit = float(jax.jit(lambda v: stable_step(v, method=spec.method,
-                                                model=MODELS[model]))(vehicle))
+    limit = float(stable_step(vehicle, method=spec.method, model=MODELS[model]))
     if spec.dt > limit:
         raise ConfigError("montecarlo.dt_s", spec.dt,
                           f"exceeds the a-priori stability limit {limit:.3g} s of "

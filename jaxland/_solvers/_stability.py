@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
+import jax
 import numpy as np
 
 from .._models import AbstractModel, QuarterModel
@@ -12,6 +14,9 @@ from ._base import AbstractIntegrator
 from ._names import integrator
 
 
+# compiled as one program: called eagerly (the front doors check a step before running), its
+# dozen small operations would each be compiled on their own
+@functools.partial(jax.jit, static_argnames=("method", "impulse", "model"))
 def stable_step(vehicle: Vehicle, *, honeycomb_force=None, normal_force=None,
                 bottomed: bool = False, method: str | AbstractIntegrator = "euler",
                 impulse=None, model: AbstractModel = QuarterModel()):
