@@ -65,7 +65,7 @@ class Track(eqx.Module):
     """Bookkeeping carried alongside the state."""
 
     peaks: dict  # running maxima of the model's peak_values
-    event_times: Array  # (N_EVENTS,) s, contact on/off times (NaN past n_events)
+    event_times: Array  # (Solver.event_log,) s, contact on/off times (NaN past n_events)
     n_events: Array  # int32, contact changes so far
     contact: Array  # bool, in contact at the last step
     residual_max: Array  # J, worst |ledger residual|
