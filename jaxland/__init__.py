@@ -43,8 +43,9 @@ def use_batch_fusion() -> bool:
     Without it, every kernel that reads a value recomputes the elementwise work behind it; with
     it, one kernel computes the value for all of them. A vmapped step then costs less than half
     (quarter) or about 0.6x (3-D model), but a landing that saves a trajectory costs many times
-    more and a fit about 8x (measured in docs/performance.md), so it is not on by default. Call it right
-    after ``import jaxland``, before any JAX work: the option is read when XLA's backend starts.
+    more and a fit about 8x (measured in docs/performance.md), so it is not on by default.
+    Call it right after ``import jaxland``, before any JAX work: the option is read when XLA's
+    backend starts.
     Returns whether it is on (False: the backend had started without it)."""
     flags = _os.environ.get("XLA_FLAGS", "")
     if _BATCH_FUSION in flags:
