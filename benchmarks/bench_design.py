@@ -133,7 +133,7 @@ def conditioning() -> dict:
     z = jnp.asarray(prob.z0)
 
     def outcomes(z):
-        per = prob._per_scene(prob.vehicle_at(z))
+        per = prob._per_scene(prob.vehicle_at(z), prob.scenes)
         return {k: per[k] for k in prob.outcomes}
 
     val, jac = jax.jit(lambda z: (outcomes(z), jax.jacfwd(outcomes)(z)))(z)

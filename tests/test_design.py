@@ -107,8 +107,8 @@ class _Injected(DesignProblem):
     most) made to wiggle 1 um on a uN scale of F1: its derivative (~1e3 m per unit z) dwarfs
     the true response of a stroke."""
 
-    def _per_scene(self, veh):
-        per = super()._per_scene(veh)
+    def _per_scene(self, veh, scenes):
+        per = super()._per_scene(veh, scenes)
         wiggle = 1e-6 * jnp.sin(1e6 * veh.honeycomb.F1)
         worst = jnp.argmax(per["max_stroke_m"])
         return dict(per, max_stroke_m=per["max_stroke_m"].at[worst].add(wiggle))
@@ -132,6 +132,38 @@ def test_an_ill_conditioned_design_scene_is_flagged_and_kept_out_of_the_gradient
     row = 2  # the stroke constraint
     assert np.max(np.abs(jac_i[row])) < 2.0 * np.max(np.abs(jac[row]))
     np.testing.assert_array_equal(jac_i[:row], jac[:row])  # objective and mass untouched
+
+
+def test_design_scenes_split_over_devices_give_the_one_device_evaluation(robust_problem,
+                                                                         tmp_path):
+    """The design scenes are split over the local devices (``DesignProblem``): with 3 CPU
+    devices the 4 scenes are padded to 6 and the copies dropped, so the measures, their
+    Jacobian and the per-scene outcomes are the one-device ones (quarter model, a well-posed
+    scene set: to round-off)."""
+    import subprocess
+    import sys
+    import textwrap
+
+    z0 = robust_problem.z0 + np.array([0.1, -0.2, 0.15])
+    code = textwrap.dedent(f"""
+        import copy, numpy as np, jax
+        jax.config.update("jax_num_cpu_devices", 3)
+        from jaxland import DesignProblem, design_spec_from_dict
+        prob = DesignProblem(design_spec_from_dict({ROBUST!r}))
+        assert len(jax.local_devices()) == 3 and prob._padded == 6
+        vec, jac, per = prob.evaluate(np.array({z0.tolist()!r}))
+        np.savez("{tmp_path}/split.npz", vec=vec, jac=jac, **per)
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    got = np.load(tmp_path / "split.npz")
+    vec, jac, per = robust_problem.evaluate(z0)
+    np.testing.assert_allclose(got["vec"], vec, rtol=1e-9)
+    np.testing.assert_allclose(got["jac"], jac, rtol=1e-7, atol=1e-9 * np.abs(jac).max())
+    for k, v in per.items():
+        assert got[k].shape == v.shape, k
+        np.testing.assert_allclose(got[k], v, rtol=1e-9, err_msg=k)
 
 
 def test_risk_measures_against_direct_definitions():

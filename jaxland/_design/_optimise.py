@@ -104,7 +104,7 @@ class DesignResult:
                               threshold_si=c.threshold, measure=c.measure, level=c.level,
                               scale_si=c.scale) for c in spec.constraints],
             scenes=dict(n=spec.n_scenes, seed=spec.scene_seed, dt_s=spec.dt,
-                        t_end_s=spec.t_end,
+                        t_end_s=spec.t_end, devices=prob.devices,
                         dispersion={k: vars(v) for k, v in spec.montecarlo.dispersion.items()},
                         fixed=spec.montecarlo.fixed),
             iterations=len(self.history) - 1,

@@ -10,6 +10,7 @@ import statistics
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._config import paper_vehicle, validate_vehicle
 from .._errors import ConfigError
@@ -123,6 +124,7 @@ class DesignProblem:
         scene_spec = MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed, n=spec.n_scenes,
                                     seed=spec.scene_seed, dt=spec.dt, t_end=spec.t_end,
                                     model=self.model)
+        self._scene_spec = scene_spec
         n_legs = self.vehicle.n_legs
         check_fixed(scene_spec, n_legs)
         draws = [draw(scene_spec, jnp.arange(spec.n_scenes), n_legs)]
@@ -130,8 +132,9 @@ class DesignProblem:
                   for seed, idx in self.added]  # sample_scenes' draws, joined
         self.scene_inputs = {k: np.concatenate([np.asarray(d[k]) for d in draws])
                              for k in draws[0]}
-        count = spec.n_scenes + sum(len(idx) for _, idx in self.added)
-        self.scenes = Scene.batch(**scene_fields(scene_spec, self.scene_inputs, count, n_legs))
+        self.count = spec.n_scenes + sum(len(idx) for _, idx in self.added)
+        self.scenes = Scene.batch(**scene_fields(scene_spec, self.scene_inputs, self.count,
+                                                 n_legs))
         self.scenes.validate(self.vehicle.n_legs)
         self._check_bounds()
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
@@ -139,6 +142,7 @@ class DesignProblem:
                              for v in self.variables}, check=True)
         self._fn = jax.jit(self._measures)
         self._jac = jax.jit(self._measures_and_jac)
+        self._padded, self._inputs = self._device_inputs()
 
     # --- variables
     def _check_bounds(self):
@@ -252,9 +256,28 @@ class DesignProblem:
         return apply_design(self.vehicle, self.from_z(z), self.cells)
 
     # --- outcomes
-    def _per_scene(self, veh):
+    def _device_inputs(self) -> tuple[int, dict]:
+        """The scenes' drawn inputs split over the local devices along the scenes: each device
+        runs its share of the landings and their tangents, and the measures gather them.
+        Padded to a multiple of the device count with copies of the last scene, which
+        ``_measures`` drops. Returns (padded count, inputs)."""
+        devices = jax.local_devices()
+        self.devices = len(devices)  # the optimiser's path depends on it through rounding
+        padded = -(-self.count // len(devices)) * len(devices)
+        rows = np.minimum(np.arange(padded), self.count - 1)
+        sharding = NamedSharding(Mesh(np.array(devices), ("scenes",)), PartitionSpec("scenes"))
+        return padded, jax.device_put({k: jnp.asarray(v[rows])
+                                       for k, v in self.scene_inputs.items()}, sharding)
+
+    def scenes_of(self, inputs: dict) -> Scene:
+        """The ``Scene.batch`` of the device inputs (traced or concrete) with the spec's fixed
+        inputs."""
+        return Scene.batch(**scene_fields(self._scene_spec, inputs, self._padded,
+                                          self.vehicle.n_legs))
+
+    def _per_scene(self, veh, scenes: Scene):
         model = MODELS[self.model]
-        _, s = landings(veh, self.scenes, self.solver, model)
+        _, s = landings(veh, scenes, self.solver, model)
         legmax = model.leg_max
 
         out = dict(peak_body_accel_mps2=s["peak_body_accel_mps2"],
@@ -267,10 +290,12 @@ class DesignProblem:
             out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]
         return out
 
-    def _measures(self, z):
-        """(measures [objective measure, gear mass, g_1..g_m], per-scene outcomes)."""
+    def _measures(self, z, inputs: dict):
+        """(measures [objective measure, gear mass, g_1..g_m], per-scene outcomes) over the
+        scenes of the drawn ``inputs`` (``_device_inputs``: the padding dropped here)."""
         veh = self.vehicle_at(z)
-        per = self._per_scene(veh)
+        per = {k: v[:self.count]
+               for k, v in self._per_scene(veh, self.scenes_of(inputs)).items()}
         guarded = dict(per, **{k: guard_ill_conditioned(per[k]) for k in self.outcomes})
         ob = self.spec.objective
         vec = [risk_measure(guarded["peak_body_accel_mps2"], ob.measure, ob.level),
@@ -280,12 +305,12 @@ class DesignProblem:
             vec.append(risk_measure(bad, c.measure, c.level) / c.scale)
         return jnp.stack(vec), per
 
-    def _measures_and_jac(self, z):
+    def _measures_and_jac(self, z, inputs: dict):
         """Measures, their Jacobian (ill-conditioned scenes guarded: ``guard_ill_conditioned``)
         and the per-scene outcomes, with ``ill_conditioned``: per scene, whether any outcome's
         raw derivative (of the outcomes the measures read) is ill-conditioned."""
         def f(z):
-            vec, per = self._measures(z)
+            vec, per = self._measures(z, inputs)
             return (vec, {k: per[k] for k in self.outcomes}), (vec, per)
 
         (jac, jac_per), (vec, per) = jax.jacfwd(f, has_aux=True)(z)
@@ -298,10 +323,10 @@ class DesignProblem:
         ``measures`` = [objective's risk measure, gear mass proxy [kg], g_1 .. g_m]."""
         z = jnp.asarray(z, jnp.float64)
         if jacobian:
-            vec, jac, per = self._jac(z)
+            vec, jac, per = self._jac(z, self._inputs)
             jac = np.asarray(jac)
         else:
-            vec, per = self._fn(z)
+            vec, per = self._fn(z, self._inputs)
             jac = None
         return np.asarray(vec), jac, {k: np.asarray(v) for k, v in per.items()}
 

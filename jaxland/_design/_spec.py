@@ -158,7 +158,7 @@ class DesignSpec:
     dt: float = spec_field(1e-5, toml="dt_s", check=POSITIVE)
     t_end: float = spec_field(0.5, toml="t_end_s", check=POSITIVE)
     model: str = spec_field("auto", toml="model", check=MODEL_CHOICE)
-    # fixed-step method of the design landings (the verification uses montecarlo.method)
+    # fixed-step method of the design landings (the verification runs euler at montecarlo.dt_s)
     method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
     learning_rate: float = spec_field(0.1, toml="learning_rate", check=POSITIVE)
     outer_every: int = spec_field(10, toml="outer_every", check=_COUNT)

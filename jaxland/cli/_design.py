@@ -44,7 +44,8 @@ def _cmd_design(args) -> int:
     from .._design import design_verified, load_design_spec, optimise_design
 
     out = out_dir(args.out)
-    use_cpu_cores(args.devices)  # before any JAX work: the verification shards over them
+    use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
+    # verification Monte Carlo are split over them
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     spec = load_design_spec(args.spec)
     if args.iterations is not None:
@@ -136,6 +137,7 @@ def add_subcommands(subparsers) -> None:
     d.add_argument("--no-plots", action="store_true", help="skip the figures")
     d.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")
     d.add_argument("--devices", type=int, default=None,
-                   help="CPU devices the verification Monte Carlo shards over (default: one "
-                        "per core)")
+                   help="CPU devices the design scenes and the verification Monte Carlo are "
+                        "split over (default: one per core; the optimiser's path depends on "
+                        "the count through rounding)")
     d.set_defaults(func=_cmd_design)
