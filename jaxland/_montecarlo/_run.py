@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -87,6 +88,20 @@ def _chunk(spec, vehicle, solver, model, inputs, count):
     return out
 
 
+# One compiled chunk per (spec, settings, chunk size), the vehicle an argument: a design's
+# verification runs the baseline and the design through the same program.
+_COMPILED: dict = {}
+
+
+def _compiled_chunk(spec, solver, model, count):
+    key = (repr(spec), solver, model, count)
+    if key not in _COMPILED:
+        _COMPILED.clear()  # one entry: a program holds its compiled code and constants
+        _COMPILED[key] = jax.jit(
+            lambda vehicle, ins: _chunk(spec, vehicle, solver, model, ins, count))
+    return _COMPILED[key]
+
+
 @dataclass
 class MonteCarloResult:
     """Per-sample inputs and outcomes (numpy), failure reasons, and the summary."""
@@ -165,7 +180,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     check_fixed(spec, vehicle.n_legs)
     # One compiled program per chunk: the scenes from the drawn inputs, the landings, the
     # outcomes per sample and the envelope check; the host only copies the results out.
-    run = jax.jit(lambda ins: _chunk(spec, vehicle, solver, model, ins, chunk))
+    run = functools.partial(_compiled_chunk(spec, solver, model, chunk), vehicle)
     outputs: dict = {}
     inputs: dict = {}
     label = progress if isinstance(progress, str) else "montecarlo"
