@@ -40,21 +40,22 @@ def test_early_stop_spec_key():
 
 
 def test_a_second_vehicle_reuses_the_compiled_chunk_with_its_own_outcomes():
-    """A design's verification runs the baseline and the design through one compiled chunk
-    (the vehicle is its argument): the second vehicle's outcomes are its own, sample by
-    sample those of a Monte Carlo compiled for it alone, and the program is not recompiled."""
+    """``share_program``: a design's verification runs the baseline and the design through
+    one compiled chunk (the vehicle is its argument): the second vehicle's outcomes are its
+    own, sample by sample those of a Monte Carlo compiled for it alone (the vehicle a
+    constant), and the program is not recompiled."""
     from jaxland._montecarlo import _run
 
     spec = MonteCarloSpec(**dict(SPEC, n=3, t_end=0.2))
     paper = jl.paper_vehicle()
     stiff = jl.vehicle_from_dict({"honeycomb": {"F1_N": 1.2 * float(paper.honeycomb.F1)}})
-    first = run_montecarlo(spec, paper, progress=False)
-    second = run_montecarlo(spec, stiff, progress=False)
+    first = run_montecarlo(spec, paper, progress=False, share_program=True)
+    second = run_montecarlo(spec, stiff, progress=False, share_program=True)
     (program,) = _run._COMPILED.values()
     assert program._cache_size() == 1
     _run._COMPILED.clear()
     alone = run_montecarlo(spec, stiff, progress=False)
     a1, a2 = first.outputs["peak_body_accel_mps2"], second.outputs["peak_body_accel_mps2"]
     assert np.all(np.abs(a2 - a1) > 0.01 * a1)  # every sample saw the stiffer honeycomb
-    for k, v in alone.outputs.items():
-        np.testing.assert_allclose(second.outputs[k], v, rtol=1e-12, atol=0, err_msg=k)
+    for k, v in alone.outputs.items():  # up to how XLA compiles either program
+        np.testing.assert_allclose(second.outputs[k], v, rtol=1e-9, atol=0, err_msg=k)

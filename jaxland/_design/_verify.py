@@ -109,10 +109,10 @@ def verify_design(result: DesignResult, *, n: int | None = None, seed: int | Non
     if seed == spec.scene_seed:
         raise ConfigError("seed", seed, "must differ from design.scene_seed (fresh samples)")
     vspec = _verification_spec(result, n, seed)
-    before = run_montecarlo(vspec, result.baseline,
+    before = run_montecarlo(vspec, result.baseline, share_program=True,
                             progress=progress and "verification, before (baseline)"
                             ) if before else None
-    after = run_montecarlo(vspec, result.vehicle,
+    after = run_montecarlo(vspec, result.vehicle, share_program=True,
                            progress=progress and "verification, after (design)")
     result.mc_before, result.mc_after = before, after
     result.verification = dict(
@@ -226,7 +226,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         if ver["before"] is None:  # the baseline on the same fresh samples as the last round
             vspec = _verification_spec(result, n, ver["seed"])
             result.mc_before = run_montecarlo(
-                vspec, result.baseline,
+                vspec, result.baseline, share_program=True,
                 progress=mc_progress and "verification, before (baseline)")
             ver["before"] = _judge(result.mc_before, result.baseline, spec)
         last = ver["after"]
