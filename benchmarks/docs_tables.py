@@ -626,6 +626,17 @@ def design_step() -> str:
                    "10 mm stroke, 0.1 m margin)"], rows)
 
 
+def design_wall() -> str:
+    w = _load("design.json")["paper_gear_design"]["wall"]
+    return _table(["iterations", "devices", "first evaluation incl. compilation [s]",
+                   "per iteration [s]", "optimisation [s]",
+                   "verification, 2 Monte Carlos [s]", "total [s]"],
+                  [[f"{w['iterations']}", f"{w['devices']}",
+                    f"{w['first_evaluation_incl_compile_s']:.1f}", f"{w['per_iteration_s']:.2f}",
+                    f"{w['optimisation_wall_s']:.1f}", f"{w['verification_wall_s']:.1f}",
+                    f"**{w['total_wall_s']:.1f}**"]])
+
+
 def design_variables() -> str:
     d = _load("design.json")["paper_gear_design"]
     rows = [[x["name"], f"[{x['low']:.4g}, {x['high']:.4g}] ({x['scale']})", f"{x['start']:.4g}",
@@ -657,6 +668,7 @@ TABLES = {
     "calibration-offset-coverage": calibration_offset_coverage,
     "design-verification": design_verification,
     "design-variables": design_variables,
+    "design-wall": design_wall,
     "design-step": design_step,
 }
 
