@@ -161,6 +161,11 @@ COVERAGE_CASES = {
         peak_mode="physical", fit_extra=("peak1", "L_peak1")),
     "physical bump peak, fitted with the peak and its rise": dict(
         peak_mode="physical", fit_extra=("peak1", "L_peak1", "L_rise1")),
+    # the rig's other physical shapes (+20 %): a jump decaying exponentially; a fold ripple
+    "physical exp peak, fitted with the linear peak": dict(
+        peak_mode="physical", peak_shape="exp", fit_extra=("peak1", "L_peak1")),
+    "physical folds peak, fitted with the linear peak": dict(
+        peak_mode="physical", peak_shape="folds", fit_extra=("peak1", "L_peak1")),
 }
 Z95 = 1.959964
 
@@ -189,7 +194,7 @@ def coverage(n_seeds: int, height: float = 0.2) -> dict:
                 r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)], params=params)
             rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values[:n].tolist(),
                              se=r.std_errors[:n].tolist(), se_hac=r.std_errors_hac[:n].tolist(),
-                             se_total=r.std_errors_total[:n].tolist(),
+                             se_total=r.std_errors_total[:n].tolist(), **_form_row(r, n),
                              sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
                              misfit_warned=bool(r.diagnostics["misfit"])))
             print(f"[coverage] {label}, seed {seed}: {w:.1f} s, rho1 "
@@ -202,6 +207,22 @@ def coverage(n_seeds: int, height: float = 0.2) -> dict:
               f" hac {c['coverage_of_truth']['hac_all']:.2f} trusted "
               f"{c['coverage_of_truth']['trusted_all']:.2f}", flush=True)
     return out
+
+
+def _form_row(r, n: int) -> dict:
+    """The peak-shape (model-form) term of a fit's first ``n`` parameters: the total standard
+    error without it, the best-supported form and its values, the plausible forms."""
+    mf = r.diagnostics.get("model_form")
+    if mf is None:
+        return dict(model_form=False)
+    term = np.array([mf["spread"][p] for p in r.names[:n]])
+    best = mf["forms"][mf["best_supported"]]
+    return dict(model_form=True,
+                se_total_without_form=np.sqrt(np.maximum(
+                    r.std_errors_total[:n] ** 2 - term ** 2, 0.0)).tolist(),
+                form_term=term.tolist(), best_form=mf["best_supported"],
+                plausible_forms=mf["plausible"], failed_forms=mf["failed"],
+                best_form_values=[best["values"][p] for p in r.names[:n]])
 
 
 def coverage_summary(case: dict, names) -> dict:
@@ -219,6 +240,10 @@ def coverage_summary(case: dict, names) -> dict:
     kinds = [("classical", se), ("hac", seh), ("trusted", trusted)]
     if all("se_total" in r_ for r_ in rows):  # the trusted error with the channel spread
         kinds.append(("total", np.array([r_["se_total"] for r_ in rows])))
+    form = all(r_.get("model_form") for r_ in rows)
+    if form:  # the total without the peak-shape term: the interval before it
+        kinds.append(("total_without_form",
+                      np.array([r_["se_total_without_form"] for r_ in rows])))
 
     def cov(ref):
         out = {}
@@ -232,6 +257,22 @@ def coverage_summary(case: dict, names) -> dict:
     if len(kinds) > 3:
         extra["mean_se_total_rel"] = dict(zip(names, (kinds[3][1].mean(axis=0)
                                                       / p_true).tolist()))
+    extra["model_form"] = form
+    if form:
+        ratio = kinds[3][1] / kinds[4][1]
+        extra["width_ratio_form"] = dict(
+            median=float(np.median(ratio)), max=float(np.max(ratio)),
+            per_param_median=dict(zip(names, np.median(ratio, axis=0).tolist())))
+        best = np.array([r_["best_form_values"] for r_ in rows])
+        err = best / p_true[None] - 1
+        extra["best_form"] = dict(
+            counts={f: sum(r_["best_form"] == f for r_ in rows)
+                    for f in dict.fromkeys(r_["best_form"] for r_ in rows)},
+            seeds_within_3pct_five=int(np.sum(np.all(np.abs(err[:, :5]) <= 0.03, axis=1))),
+            mean_rel_error=dict(zip(names, err.mean(axis=0).tolist())))
+        nominal = v / p_true[None] - 1
+        extra["seeds_within_3pct_five"] = int(np.sum(np.all(np.abs(nominal[:, :5]) <= 0.03,
+                                                            axis=1)))
     return dict(
         **extra,
         bias_of_pseudo_truth_rel=dict(zip(names, (p_pseudo / p_true - 1).tolist())),
@@ -378,7 +419,8 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
                     misfit_warned=bool(r.diagnostics["misfit"]),
                     channel_shift_rel={c: None if d is None else
                                        {p: d[p] / float(t) for p, t in zip(base, p_true)}
-                                       for c, d in r.diagnostics["channel_spread"].items()})
+                                       for c, d in r.diagnostics["channel_spread"].items()},
+                    **_recovery_form(r, base, p_true))
 
     for shape in vr.PEAK_SHAPES:
         # the noise-free record weighted as the noisy ones (by the rig's noise, not the
@@ -409,6 +451,22 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
 RECOVERY_CHECKED = ("k", "gamma", "D_b", "k_b1", "F1")  # the issue's five
 
 
+def _recovery_form(r, base, p_true) -> dict:
+    """The peak-shape term's part of a recovery row: the best-supported form, its values'
+    error against the truth, the z against the total error without the term."""
+    row = _form_row(r, len(base))
+    if not row["model_form"]:
+        return dict(model_form=False)
+    v = r.values[:len(base)]
+    return dict(model_form=True, best_form=row["best_form"],
+                plausible_forms=row["plausible_forms"], failed_forms=row["failed_forms"],
+                best_form_rel_error=dict(zip(base, (np.array(row["best_form_values"])
+                                                    / p_true - 1).tolist())),
+                z_total_without_form=dict(zip(base, ((v - p_true) / np.array(
+                    row["se_total_without_form"])).tolist())),
+                form_term_rel=dict(zip(base, (np.array(row["form_term"]) / p_true).tolist())))
+
+
 def peak_recovery_summary(rec: dict) -> dict:
     """Per shape: how many seeds meet the issue's two targets on the five checked parameters
     (each within 3 % of the truth; the truth within 2 standard errors of each, HAC and
@@ -435,7 +493,23 @@ def peak_recovery_summary(rec: dict) -> dict:
         sem_rel_error=dict(zip(RECOVERY_CHECKED,
                                (err.std(axis=0, ddof=1) / np.sqrt(len(runs))).tolist())),
         spread_rel=dict(zip(RECOVERY_CHECKED, err.std(axis=0, ddof=1).tolist())),
-        mean_se_hac_rel=dict(zip(RECOVERY_CHECKED, np.abs(se).mean(axis=0).tolist())))
+        mean_se_hac_rel=dict(zip(RECOVERY_CHECKED, np.abs(se).mean(axis=0).tolist())),
+        **_recovery_form_summary(runs))
+
+
+def _recovery_form_summary(runs) -> dict:
+    """Seeds meeting the targets with the best-supported form's values (3 %), and with the
+    total error without the peak-shape term (2 SE); which forms were best."""
+    if not all(r_.get("model_form") for r_ in runs):
+        return {}
+    err = np.array([[r_["best_form_rel_error"][p] for p in RECOVERY_CHECKED] for r_ in runs])
+    z0 = np.array([[r_["z_total_without_form"][p] for p in RECOVERY_CHECKED] for r_ in runs])
+    return dict(
+        best_form_counts={f: sum(r_["best_form"] == f for r_ in runs)
+                          for f in dict.fromkeys(r_["best_form"] for r_ in runs)},
+        seeds_within_3pct_best_form=int(np.sum(np.all(np.abs(err) <= 0.03, axis=1))),
+        mean_rel_error_best_form=dict(zip(RECOVERY_CHECKED, err.mean(axis=0).tolist())),
+        seeds_within_2se_total_without_form=int(np.sum(np.all(np.abs(z0) <= 2.0, axis=1))))
 
 
 FIT_TIME_CASES = {
