@@ -38,6 +38,13 @@ benchmarks/results/bench_fit.json):
    channels and the stroke want different k_b1), and the HAC error, the scatter about the
    wrong model's best fit, does not see it. ``std_errors_total`` is the trusted error with the
    largest shift of each parameter added in quadrature: the interval to quote under misfit.
+7. **Peak shape** (``model_form_spread``), whenever the fit has the primary crush peak: the
+   final stage refitted from the optimum with the peak in each of its other forms (the law's
+   linear fall, the law's built-up peak, an exponential decay: ``PEAK_FORMS``). A peak shape
+   the law lacks biases every channel alike, so the residuals can look clean and the channels
+   agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
+   the best) bracket that bias, and the largest shift among them is added in quadrature to
+   ``std_errors_total``. A form the data reject adds nothing.
 """
 
 from __future__ import annotations
@@ -814,6 +821,17 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     if forms_thread is not None:
         forms_thread.join()
         mform = model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"])
+        best = mform["best_supported"]
+        if form not in mform["plausible"]:
+            how = {"rise": "add L_rise1 to the parameters",
+                   "exp": "fit with peak_form='exp' (--peak-form exp)",
+                   "linear": "fit without L_rise1 and peak_form"}[best]
+            warnings.warn(
+                f"the data reject the crush peak's {form} form: the {best} form fits them "
+                f"better by a misfit-adjusted AIC of {mform['forms'][form]['daic_adjusted']:.3g}"
+                f" (limit {DAIC_PLAUSIBLE:g}); std_error_total spans the forms the data "
+                f"support ({', '.join(mform['plausible'])}); to report the {best} form's "
+                f"values, {how}", MisfitWarning, stacklevel=2)
     form_term = (np.array([mform["spread"][n] for n in names]) if mform is not None
                  else np.zeros_like(values))
     if unc["misfit"]:

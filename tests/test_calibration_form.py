@@ -8,6 +8,8 @@ rig's physical bump, a peak that builds up (the law's linear peak mis-shapes it:
 must widen k_b1's interval to the built-up form's estimate).
 """
 
+import argparse
+import json
 import warnings
 
 import numpy as np
@@ -23,6 +25,7 @@ from calibration._parameters import (
     peak_form_vehicle,
     set_values,
 )
+from calibration.cli import add_subcommands
 
 PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
 KW = dict(windows=(0.01, 0.03), refine_window_s=0.1)
@@ -120,3 +123,23 @@ def test_bad_peak_form_and_model_form_are_refused_by_name():
                       (dict(params=PARAMS, model_form="yes"), "model_form")):
         with pytest.raises(cal_fit.jl.ConfigError, match=field):
             cal.fit(drop, **kw)
+
+
+def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=5, artefacts=dict(peak_mode="physical"))
+    vr.write_nominal(tmp_path)
+    out = tmp_path / "fit"
+    args = parser.parse_args(
+        ["fit", str(toml), "--params", ",".join(PARAMS), "--windows", "0.01,0.03",
+         "--refine-window-s", "0.1", "--no-plots", "--quiet", "--out", str(out)])
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
+    assert "peak shape: fitted as linear" in text and "best supported: rise" in text
+    rep = json.loads((out / "fit_report.json").read_text())
+    assert rep["interval_reported"] == "std_error_total"
+    assert rep["misfit"]["model_form"]["best_supported"] == "rise"
+    k_b1 = rep["parameters"]["k_b1"]
+    assert k_b1["std_error_total"] > 2.0 * max(k_b1["std_error"], k_b1["std_error_hac"])
