@@ -166,12 +166,34 @@ COVERAGE_CASES = {
         peak_mode="physical", peak_shape="exp", fit_extra=("peak1", "L_peak1")),
     "physical folds peak, fitted with the linear peak": dict(
         peak_mode="physical", peak_shape="folds", fit_extra=("peak1", "L_peak1")),
+    # --compare-models: the model the data support (no peak, or the linear peak with its
+    # peak-shape term) is the one reported
+    "representable, --compare-models": dict(crush_peak=0.0, compare=True),
+    "physical crush peak (+10 %, 1 mm), --compare-models": dict(
+        crush_peak=0.0, truth_peak=(1.1, 1e-3), compare=True),
+    "physical bump peak, --compare-models": dict(peak_mode="physical", compare=True),
 }
 Z95 = 1.959964
 
 
-def coverage(n_seeds: int, height: float = 0.2) -> dict:
-    """Coverage of the 95 % intervals over ``n_seeds`` noise seeds per ``COVERAGE_CASES``."""
+def _fit_or_compare(drops, params, compare: bool):
+    """``_fit``, or with ``compare`` the fit ``--compare-models`` reports (the peak model where
+    the data support the peak, else the one without)."""
+    if not compare:
+        return _fit(drops, params=params)
+    from calibration._compare import compare_models
+
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cal.IdentifiabilityWarning)
+        cmp = compare_models(drops, params)
+    chosen = "peak" if cmp["comparison"]["peak_supported"] else "no_peak"
+    return cmp["_results"][chosen], time.perf_counter() - t0
+
+
+def coverage(n_seeds: int, height: float = 0.2, only: str | None = None) -> dict:
+    """Coverage of the 95 % intervals over ``n_seeds`` noise seeds per ``COVERAGE_CASES``
+    (``only``: the cases whose label contains it)."""
     truth = vr.truth_vehicle()
     names = cal.DEFAULT_PARAMS
     p_true = get_values(truth, names)
@@ -179,19 +201,24 @@ def coverage(n_seeds: int, height: float = 0.2) -> dict:
                params=list(names), cases={})
     n = len(names)
     for label, rig in COVERAGE_CASES.items():
-        kw = {k: v for k, v in rig.items() if k not in ("truth_peak", "fit_extra")}
+        if only and only not in label:
+            continue
+        compare = bool(rig.get("compare"))
+        kw = {k: v for k, v in rig.items() if k not in ("truth_peak", "fit_extra", "compare")}
         if "truth_peak" in rig:
             kw["vehicle"] = set_values(truth, ("peak1", "L_peak1"), np.array(rig["truth_peak"]))
         params = names + tuple(rig.get("fit_extra", ()))  # the coverage: of the first n
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", cal.MisfitWarning)
-            pseudo, _ = _fit([vr.drop_test(height, noise=None, **kw)], params=params)
+            pseudo, _ = _fit_or_compare([vr.drop_test(height, noise=None, **kw)], params,
+                                        compare)
         p_pseudo = pseudo.values[:n]
         rows = []
         for seed in range(n_seeds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", cal.MisfitWarning)
-                r, w = _fit([vr.drop_test(height, seed=1000 + seed, **kw)], params=params)
+                r, w = _fit_or_compare([vr.drop_test(height, seed=1000 + seed, **kw)], params,
+                                       compare)
             rows.append(dict(seed=1000 + seed, wall_s=w, values=r.values[:n].tolist(),
                              se=r.std_errors[:n].tolist(), se_hac=r.std_errors_hac[:n].tolist(),
                              se_total=r.std_errors_total[:n].tolist(), **_form_row(r, n),
@@ -214,7 +241,8 @@ def _form_row(r, n: int) -> dict:
     error without it, the best-supported form and its values, the plausible forms."""
     mf = r.diagnostics.get("model_form")
     if mf is None:
-        return dict(model_form=False)
+        return dict(model_form=False, se_total_without_form=r.std_errors_total[:n].tolist(),
+                    best_form="no peak", best_form_values=r.values[:n].tolist())
     term = np.array([mf["spread"][p] for p in r.names[:n]])
     best = mf["forms"][mf["best_supported"]]
     return dict(model_form=True,
@@ -240,7 +268,7 @@ def coverage_summary(case: dict, names) -> dict:
     kinds = [("classical", se), ("hac", seh), ("trusted", trusted)]
     if all("se_total" in r_ for r_ in rows):  # the trusted error with the channel spread
         kinds.append(("total", np.array([r_["se_total"] for r_ in rows])))
-    form = all(r_.get("model_form") for r_ in rows)
+    form = any(r_.get("model_form") for r_ in rows)
     if form:  # the total without the peak-shape term: the interval before it
         kinds.append(("total_without_form",
                       np.array([r_["se_total_without_form"] for r_ in rows])))
@@ -258,6 +286,7 @@ def coverage_summary(case: dict, names) -> dict:
         extra["mean_se_total_rel"] = dict(zip(names, (kinds[3][1].mean(axis=0)
                                                       / p_true).tolist()))
     extra["model_form"] = form
+    extra["model_form_fraction"] = float(np.mean([bool(r_.get("model_form")) for r_ in rows]))
     if form:
         ratio = kinds[3][1] / kinds[4][1]
         extra["width_ratio_form"] = dict(
@@ -632,7 +661,7 @@ def main_coverage(args) -> int:
     elif args.fit_time:
         result = fit_time(args.quick)
     else:
-        result = coverage(3 if args.quick else args.coverage)
+        result = coverage(3 if args.quick else args.coverage, only=args.coverage_cases)
     if args.quick:  # never overwrite the committed results
         path = ROOT / "out" / "bench_fit_quick.json"
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -640,6 +669,12 @@ def main_coverage(args) -> int:
     else:
         path = Path(args.out) / "bench_fit.json"
         data = json.loads(path.read_text()) if path.exists() else {}
+        if key == "coverage" and args.coverage_cases and "coverage" in data:
+            if data["coverage"]["n_seeds"] != result["n_seeds"]:
+                raise SystemExit("--coverage-cases: the stored cases have "
+                                 f"{data['coverage']['n_seeds']} seeds, not {result['n_seeds']}")
+            cases = dict(data["coverage"]["cases"], **result["cases"])  # kept in their order
+            result["cases"] = {k: cases[k] for k in COVERAGE_CASES if k in cases}
         data[key] = result
     from calibration._report import atomic_write_text
 
@@ -659,6 +694,9 @@ def main(argv=None) -> int:
     ap.add_argument("--coverage", type=int, default=0, metavar="N",
                     help="only the interval-coverage study over N noise seeds (into "
                          "bench_fit.json's 'coverage')")
+    ap.add_argument("--coverage-cases", metavar="TEXT", default=None,
+                    help="with --coverage: only the cases whose label contains TEXT, merged "
+                         "into the stored coverage (same seed count)")
     ap.add_argument("--quick", action="store_true",
                     help="with --coverage: 3 seeds, written to out/bench_fit_quick.json")
     ap.add_argument("--coverage-summary", action="store_true",
