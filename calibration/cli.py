@@ -67,9 +67,7 @@ class _Progress:
               f"{extra}  {rec['wall_s']:6.1f} s", file=sys.stderr, flush=True)
 
 
-_INTERVAL_TEXT = {"std_error": "classical (std_error)",
-                  "std_error_hac": "HAC (std_error_hac)",
-                  "std_error_total": "total (std_error_total): the trusted one"}
+_INTERVAL_TEXT = {"std_error": "classical (std_error)", "std_error_hac": "HAC (std_error_hac)"}
 
 
 def _cmd_fit(args) -> int:
@@ -161,9 +159,12 @@ def _cmd_fit(args) -> int:
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
           + ("  MISFIT: trust the HAC standard errors widened by the channel spread (total)"
              if diag["misfit"] else ""))
-    print("  interval reported: " + _INTERVAL_TEXT[diag["interval"]]
-          + (" + channel spread" if diag["misfit"] else "")
-          + (" + peak-shape term" if diag["model_form"] is not None else ""))
+    trusted = _INTERVAL_TEXT[diag["trust"]]
+    print("  interval reported: " + (
+        f"total (std_error_total) = {trusted}"
+        + (" + channel spread" if diag["misfit"] else "")
+        + (" + peak-shape term" if diag["model_form"] is not None else "")
+        if diag["interval"] == "std_error_total" else trusted))
     mf = diag["model_form"]
     if mf is not None:
         other = ", ".join(f"{k} (dAIC {f['daic_adjusted']:+.3g}"
