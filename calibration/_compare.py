@@ -62,14 +62,19 @@ def _chi2(result) -> float:
 
 def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
     """Fit without and with the primary crush peak; JSON-ready comparison (see the module
-    docstring). ``fit_kw`` go to both fits."""
-    params = tuple(p for p in params if p not in PEAK_PARAMS)
+    docstring). ``fit_kw`` go to both fits (``peak_form`` to the peak model's only; L_rise1
+    in ``params`` goes to the peak model). The peak model's fit carries the peak-shape term
+    in its total standard errors (``fit``'s ``model_form``)."""
+    rise = ("L_rise1",) if "L_rise1" in params else ()  # the peak built up: its model's
+    params = tuple(p for p in params if p not in PEAK_PARAMS + rise)
+    peak_form = fit_kw.pop("peak_form", None)
     results = {}
-    for label, names in (("no_peak", params), ("peak", params + PEAK_PARAMS)):
+    for label, names in (("no_peak", params), ("peak", params + PEAK_PARAMS + rise)):
+        kw = dict(fit_kw, peak_form=peak_form) if label == "peak" else fit_kw
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentifiabilityWarning)
             warnings.simplefilter("ignore", MisfitWarning)
-            results[label] = fit(drops, names, **fit_kw)
+            results[label] = fit(drops, names, **kw)
     out = {}
     for label, res in results.items():
         d = res.diagnostics
@@ -80,6 +85,7 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
             params=list(res.names), values=dict(zip(res.names, res.values.tolist())),
             std_errors_hac=dict(zip(res.names, res.std_errors_hac.tolist())),
             std_errors_total=dict(zip(res.names, res.std_errors_total.tolist())),
+            interval_reported=d["interval"], model_form=d["model_form"],
             chi2=chi2, n_params=k, n_obs=n, aic=chi2 + 2 * k, bic=chi2 + k * math.log(n),
             residual_variance_factor=d["residual_variance_factor"],
             residual_lag1_autocorr=d["residual_lag1_autocorr"], misfit=d["misfit"],

@@ -38,6 +38,13 @@ benchmarks/results/bench_fit.json):
    channels and the stroke want different k_b1), and the HAC error, the scatter about the
    wrong model's best fit, does not see it. ``std_errors_total`` is the trusted error with the
    largest shift of each parameter added in quadrature: the interval to quote under misfit.
+7. **Peak shape** (``model_form_spread``), whenever the fit has the primary crush peak: the
+   final stage refitted from the optimum with the peak in each of its other forms (the law's
+   linear fall, the law's built-up peak, an exponential decay: ``PEAK_FORMS``). A peak shape
+   the law lacks biases every channel alike, so the residuals can look clean and the channels
+   agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
+   the best) bracket that bias, and the largest shift among them is added in quadrature to
+   ``std_errors_total``. A form the data reject adds nothing.
 """
 
 from __future__ import annotations
@@ -58,8 +65,12 @@ from ._optim import lbfgs, levenberg_marquardt
 from ._parameters import (
     DEFAULT_PARAMS,
     PARAMS,
+    PEAK_FORMS,
+    SHAPE_PARAMS,
+    START_IF_OFF,
     check_names,
     get_values,
+    peak_form_vehicle,
     set_values,
     switch_on,
 )
@@ -197,8 +208,11 @@ class FitResult:
                        std_error_hac="same unit as the value; HAC sandwich, Bartlett window "
                                      "(holds under misfit: autocorrelated residuals)",
                        std_error_total="same unit as the value; the trusted standard error "
-                                       "and, under misfit, the channel spread added in "
-                                       "quadrature (misfit.channel_spread)"),
+                                       "and, under misfit, the channel spread "
+                                       "(misfit.channel_spread), and with a crush peak in the "
+                                       "fit the peak-shape term (misfit.model_form.spread), "
+                                       "added in quadrature"),
+            interval_reported=self.diagnostics.get("interval"),
         )
 
     def to_json(self, path) -> Path:
@@ -412,6 +426,142 @@ def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: i
     return spread, shifts
 
 
+def peak_form_of(names, peak_form: str | None) -> str | None:
+    """The primary crush peak's form a fit of ``names`` uses (None: the fit has no peak)."""
+    if "peak1" not in names:
+        return None
+    if peak_form == "exp":
+        return "exp"
+    return "rise" if "L_rise1" in names else "linear"
+
+
+def _form_names(names, form: str) -> tuple:
+    base = tuple(n for n in names if n != "L_rise1")
+    return base + ("L_rise1",) if form == "rise" else base
+
+
+def _chi2(problem: CalibrationProblem, theta) -> float:
+    """Sum of squared noise-weighted residuals (plain least squares) of ``problem``."""
+    return 2.0 * problem.robust(None).loss(theta)
+
+
+# A peak form enters the model-form term when its AIC, misfit-adjusted (divided by the
+# best form's long-run variance factor, as in ``_compare``), lies within DAIC_PLAUSIBLE of
+# the best form's: Burnham & Anderson's "essentially no support" beyond 10.
+DAIC_PLAUSIBLE = 10.0
+
+
+def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
+    """(problem, vehicle) of ``problem``'s fit with the primary peak in form ``alt``, its
+    values those of ``vehicle`` (the rise, where it is new, at its start)."""
+    names = _form_names(problem.names, alt)
+    veh = peak_form_vehicle(vehicle, "linear") if alt != "rise" else vehicle
+    if alt == "rise" and veh.honeycomb.peak_rise1 is None:
+        veh = _rise_start(veh, names)
+    prob = CalibrationProblem(
+        problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
+        dt=problem.solver.dt, save_dt=problem.solver.save_dt, integrator=problem.integrator,
+        smoothing_m=problem.solver.smoothing_m, smoothing_N=problem.solver.smoothing_N,
+        fit_touchdown=problem.fit_touchdown, channels=problem.channels,
+        peak_form="exp" if alt == "exp" else None)
+    return prob, veh
+
+
+def precompile_forms(problem: CalibrationProblem, form: str):
+    """A thread that compiles the other peak forms' functions (``model_form_spread``) while
+    the fit runs (XLA compiles without the interpreter lock); join it before the spread."""
+    import threading
+
+    def work():
+        try:
+            for alt in PEAK_FORMS:
+                if alt != form:
+                    prob, veh = _form_problem(problem, problem.vehicle, alt)
+                    prob.compile(prob.theta_from(veh))
+        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
+            pass  # the spread itself records a form that fails
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    return t
+
+
+def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=None,
+                      max_iter: int = 60, rho1: float = 0.0) -> dict:
+    """How far the fitted values move when the primary crush peak takes another of its forms
+    (``PEAK_FORMS``), among the forms the data support: the final window refitted from
+    ``theta``'s values in each other form (same drops, channels, window and Huber
+    threshold). Per form: its values, chi^2 (plain least squares), AIC = chi^2 + 2 x its
+    fitted parameters, dAIC_adjusted = (AIC - the least AIC) / the best form's long-run
+    variance factor s^2 (1 + rho1) / (1 - rho1) (``rho1``: the lag-1 residual
+    autocorrelation), whether it is plausible (dAIC_adjusted <= DAIC_PLAUSIBLE) and its shift
+    against this fit (None where the refit failed). ``spread``: per parameter the largest
+    absolute shift over the plausible forms (this fit's own form included, shift 0), 0 on
+    the peak's own parameters, whose meaning differs between forms (``SHAPE_PARAMS``);
+    ``best_supported``: the form of least AIC."""
+    names = problem.names
+    values = problem.values(theta)
+    n_t = len(problem.drops) if problem.fit_touchdown else 0
+    base = set_values(problem.vehicle, names, values)
+    forms = {form: dict(values=dict(zip(names, values.tolist())), chi2=_chi2(problem, theta),
+                        n_params=len(names) + n_t, refit=False,
+                        shift=dict.fromkeys(names, 0.0))}
+    w = problem.active_window_s
+    for alt in PEAK_FORMS:
+        if alt == form:
+            continue
+        try:
+            prob, veh = _form_problem(problem, base, alt)
+            sub = prob.windowed(w)
+            th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
+            th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=max_iter,
+                                           ftol=FTOL)
+            v = sub.values(th)
+            if not np.all(np.isfinite(v)):
+                raise np.linalg.LinAlgError("non-finite values")
+        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
+            forms[alt] = None
+            continue
+        shift = [0.0 if (n in SHAPE_PARAMS or n not in prob.names)
+                 else float(v[prob.names.index(n)] - values[i]) for i, n in enumerate(names)]
+        forms[alt] = dict(values=dict(zip(prob.names, v.tolist())), chi2=_chi2(sub, th),
+                          n_params=len(prob.names) + n_t, refit=True,
+                          shift=dict(zip(names, shift)))
+    done = {k: f for k, f in forms.items() if f is not None}
+    for f in done.values():
+        f["aic"] = f["chi2"] + 2 * f["n_params"]
+    best = min(done, key=lambda k: done[k]["aic"])
+    n_obs = problem.n_obs
+    s2 = done[best]["chi2"] / max(n_obs - done[best]["n_params"], 1)
+    rho = min(max(rho1, 0.0), 0.99)
+    inflation = max(s2, 1.0) * (1.0 + rho) / (1.0 - rho)
+    spread = np.zeros(len(names))
+    for f in done.values():
+        f["daic_adjusted"] = (f["aic"] - done[best]["aic"]) / inflation
+        f["plausible"] = bool(f["daic_adjusted"] <= DAIC_PLAUSIBLE)
+        if f["plausible"]:
+            spread = np.maximum(spread, np.abs([f["shift"][n] for n in names]))
+    return dict(form=form, forms=forms, spread=dict(zip(names, spread.tolist())),
+                best_supported=best, misfit_inflation=inflation,
+                daic_plausible=DAIC_PLAUSIBLE,
+                plausible=[k for k, f in done.items() if f["plausible"]],
+                failed=[k for k, f in forms.items() if f is None],
+                applies_to=[n for n in names if n not in SHAPE_PARAMS])
+
+
+def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
+    """``vehicle`` with the rise switched on at its ``START_IF_OFF`` length, or where that
+    lies outside its bounds, in the middle of them."""
+    veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
+    from ._parameters import _bounds
+
+    vals = get_values(veh, names)
+    lo, hi = (float(b) for b in _bounds("L_rise1", names, vals, veh))
+    if not lo < START_IF_OFF["L_rise1"] < hi:
+        veh = set_values(vehicle, ("L_rise1",), [0.5 * (lo + hi)])
+    return veh
+
+
 def _disagreement(names, shifts, se) -> str:
     """'; the channels disagree most on P: without C it moves by X (Y x its HAC standard
     error)' for the largest shift in units of ``se``, the HAC errors (called under misfit
@@ -476,7 +626,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         max_iter: int = 60,
         dt: float = 1e-5, save_dt: float = 2e-5, integrator: str = INTEGRATOR,
         smoothing_m: float | None = None, smoothing_N: float | None = None,
-        fit_touchdown: bool = True, channels=None, progress=None) -> FitResult:
+        fit_touchdown: bool = True, channels=None, peak_form: str | None = None,
+        model_form: bool | str = "auto", progress=None) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -507,6 +658,13 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         ``SMOOTHING[integrator]`` (1e-6 m and 10 N for verlet, 0 otherwise)
     fit_touchdown : fit each drop's touchdown time (else use the detected one)
     channels : channels to fit (default: all present)
+    peak_form : the primary crush peak's form when peak1 is fitted: None (the law's: linear,
+        or built up when L_rise1 is fitted) or ``"exp"`` (``PEAK_FORMS``)
+    model_form : the peak-shape (model-form) term of the uncertainty: ``"auto"`` (default)
+        computes it when the fit has the primary crush peak (peak1 fitted), True / False
+        force it on (with the peak) or off. On: the values are refitted in each other peak
+        form (``model_form_spread``) and the largest shift of each parameter is added in
+        quadrature to ``std_errors_total``
     progress : called with a dict after every iteration (``stage``, ``iteration``, ``loss``...)
 
     Warns ``IdentifiabilityWarning`` (and lists it in ``FitResult.warnings``) for each parameter
@@ -551,13 +709,23 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         refine = min(float(refine_window_s), shortest - 0.006)
         if refine > windows[-1]:
             stages_w.append(refine)
+    if peak_form is not None and (peak_form != "exp" or "peak1" not in names
+                                  or "L_rise1" in names):
+        raise jl.ConfigError("peak_form", peak_form, "must be None or 'exp' (with peak1 "
+                             "fitted, without L_rise1)")
+    if model_form not in ("auto", True, False):
+        raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
+    form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
     # one problem (one compilation) for every stage: the windows are masks
     problem = CalibrationProblem(drops, names, vehicle=start_vehicle, window_s=stages_w[-1],
                                  pre_s=PRE_S, dt=dt, save_dt=save_dt, integrator=integrator,
                                  smoothing_m=smoothing_m, smoothing_N=smoothing_N,
-                                 fit_touchdown=fit_touchdown, channels=channels)
+                                 fit_touchdown=fit_touchdown, channels=channels,
+                                 peak_form=peak_form)
     theta0 = problem.theta_from()
+    forms_thread = (precompile_forms(problem, form)
+                    if form is not None and model_form is not False else None)
     problem.compile(theta0)
     history, stages = [], []
     n_ms = len(windows) - 1 if len(windows) > 1 else 0  # stages run from every start
@@ -649,6 +817,23 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         warnings.warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
                       "leaves out how far those channels pull the fit (channel_spread_failed "
                       "in the report)", MisfitWarning, stacklevel=2)
+    mform = None
+    if forms_thread is not None:
+        forms_thread.join()
+        mform = model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"])
+        best = mform["best_supported"]
+        if form not in mform["plausible"]:
+            how = {"rise": "add L_rise1 to the parameters",
+                   "exp": "fit with peak_form='exp' (--peak-form exp)",
+                   "linear": "fit without L_rise1 and peak_form"}[best]
+            warnings.warn(
+                f"the data reject the crush peak's {form} form: the {best} form fits them "
+                f"better by a misfit-adjusted AIC of {mform['forms'][form]['daic_adjusted']:.3g}"
+                f" (limit {DAIC_PLAUSIBLE:g}); std_error_total spans the forms the data "
+                f"support ({', '.join(mform['plausible'])}); to report the {best} form's "
+                f"values, {how}", MisfitWarning, stacklevel=2)
+    form_term = (np.array([mform["spread"][n] for n in names]) if mform is not None
+                 else np.zeros_like(values))
     if unc["misfit"]:
         worst = "; ".join(
             f"{w['drop']}: {w['channel']} {_window_text(*w['window_s'])} "
@@ -666,11 +851,13 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         touchdown_std_errors_s=unc["t_se"], residual_rms=final.channel_rms(theta),
         sigma2=unc["sigma2"], n_obs=final.n_obs, dof=unc["dof"],
         std_errors_hac=unc["se_hac"], covariance_hac=unc["cov_hac"],
-        std_errors_total=np.sqrt(trusted**2 + spread**2),
+        std_errors_total=np.sqrt(trusted**2 + spread**2 + form_term**2),
         diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
             "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
             worst_window=unc["where"],
             trust=trust,
+            interval=("std_error_total" if (unc["misfit"] or mform is not None) else trust),
+            model_form=mform,
             filtered_noise_lag1_autocorr=final.noise_lag1,
             channel_spread={g: None if v is None else dict(zip(names, v.tolist()))
                             for g, v in shifts.items()},
@@ -687,6 +874,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                                       smoothing_N=smoothing_N),
                       pre_touchdown_s=PRE_S, fit_touchdown=fit_touchdown,
                       channels=list(final.channels), max_iter=max_iter,
+                      peak_form=form, model_form=model_form,
                       model="quarter (jaxland.landing), from touchdown",
                       channel_map={c: CHANNELS[base_channel(c)][1] for c in final.channels},
                       filter_cfc={d.name: dict(d.filters) for d in drops if d.filters} or None,

@@ -32,8 +32,8 @@ import numpy as np
 import jaxland as jl
 
 __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_IF_OFF",
-           "check_names", "get_values", "set_values", "switch_on", "to_unconstrained",
-           "from_unconstrained"]
+           "PEAK_FORMS", "SHAPE_PARAMS", "peak_form_vehicle", "check_names", "get_values",
+           "set_values", "switch_on", "to_unconstrained", "from_unconstrained"]
 
 # name -> (getter, unit, TOML key, transform, description)
 PARAMS = {
@@ -75,6 +75,16 @@ PARAMS = {
 START_IF_OFF = {"peak1": 1.2, "peak2": 1.2, "unload": 1.1, "L_rise1": 1e-3}
 PEAK_PARAMS = ("peak1", "L_peak1")  # the crush-peak model's extra parameters (model selection)
 _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None field
+# The primary crush peak's forms, each a different shape for the same two numbers (peak1: the
+# peak's height over F1; L_peak1: how fast it goes): ``linear``, the law's linear fall over
+# L_peak1; ``rise``, the law's peak built up over L_rise1 before that fall; ``exp``, an
+# excess (peak1 - 1) F1 exp(-c / L_peak1) of the crush c past the onset, tabulated
+# (``Honeycomb.excess1``) over EXP_SPAN decay lengths at EXP_POINTS nodes (exp(-8): 3e-4 of
+# the peak is cut off at the table's end). The exp form starts with the linear form's slope
+# (peak1 - 1) F1 / L_peak1, so the linear form's bounds hold for it.
+PEAK_FORMS = ("linear", "rise", "exp")
+SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
+EXP_SPAN, EXP_POINTS = 8.0, 97
 DEFAULT_PARAMS = ("k", "gamma", "D_b", "k_b1", "F1", "F2")
 OPTIONAL_PARAMS = tuple(n for n in PARAMS if n not in DEFAULT_PARAMS)
 
@@ -107,6 +117,26 @@ def set_values(vehicle: jl.Vehicle, names, values) -> jl.Vehicle:
     getters = tuple(PARAMS[n][0] for n in names)
     return eqx.tree_at(lambda v: tuple(g(v) for g in getters), vehicle,
                        tuple(jnp.asarray(x, dtype=jnp.float64) for x in values), **_NONE)
+
+
+def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
+    """``vehicle`` with its primary peak (peak_ratio1, peak_length1, peak_rise1) in ``form``
+    (``PEAK_FORMS``); jit-safe. ``linear`` switches the rise off; ``rise`` keeps it (the
+    vehicle must have one); ``exp`` replaces the linear peak by its exponential table."""
+    hc = vehicle.honeycomb
+    if form == "rise":
+        return vehicle
+    if form == "linear":
+        return eqx.tree_at(lambda v: v.honeycomb.peak_rise1, vehicle, None, **_NONE)
+    if form != "exp":
+        raise jl.ConfigError("peak_form", form, "must be one of " + ", ".join(PEAK_FORMS))
+    u = jnp.arange(EXP_POINTS, dtype=jnp.float64) * (EXP_SPAN / EXP_POINTS)  # c_j / L_peak1
+    table = (jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0) * jnp.exp(-u)
+    return eqx.tree_at(
+        lambda v: (v.honeycomb.peak_ratio1, v.honeycomb.peak_rise1, v.honeycomb.excess1,
+                   v.honeycomb.excess_length1), vehicle,
+        (None, None, table, EXP_SPAN * jnp.asarray(hc.peak_length1, dtype=jnp.float64)),
+        **_NONE)
 
 
 def switch_on(vehicle: jl.Vehicle, names) -> jl.Vehicle:

@@ -39,7 +39,14 @@ from jaxland import FIXED_STEP_METHODS
 
 from ._data import CHANNELS, LEG_COLUMN, DropTest, base_channel
 from ._filter import IDENTITY, filtfilt_jax, filtfilt_np, noise_gain, settle_time_s, white_lag1
-from ._parameters import check_names, from_unconstrained, set_values, to_unconstrained
+from ._parameters import (
+    PEAK_FORMS,
+    check_names,
+    from_unconstrained,
+    peak_form_vehicle,
+    set_values,
+    to_unconstrained,
+)
 
 __all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator"]
 
@@ -75,12 +82,14 @@ def _vehicle_key(vehicle):
                           for x in leaves)
 
 
-def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False):
+def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None):
     """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels
-    (and whether a CFC filter acts); compiled once and shared (data, speeds, windows and
-    filter coefficients are arguments)."""
+    (and whether a CFC filter acts, and the primary peak's form: None, the vehicle's own);
+    compiled once and shared (data, speeds, windows and filter coefficients are
+    arguments)."""
     key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
-           solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered)
+           solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered,
+           peak_form)
     if key in _COMPILED:
         return _COMPILED[key]
     model_cols = tuple(CHANNELS[base_channel(c)][1] for c in channels)
@@ -89,6 +98,8 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False):
     def residual(theta, speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs):
         z = theta[:n_z]
         veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle))
+        if peak_form is not None:
+            veh = peak_form_vehicle(veh, peak_form)
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
         traj, summary = jl.landings(veh, scenes, solver, "quarter")
         shift = theta[n_z:] * MS if fit_t0 else jnp.zeros_like(speeds)
@@ -137,14 +148,21 @@ class CalibrationProblem:
         hard switches)
     fit_touchdown : fit one touchdown-time shift per drop (else use the detected touchdown)
     channels : channels to fit (default: every channel any drop has)
+    peak_form : the primary crush peak's form (``PEAK_FORMS``; None: the vehicle's own law).
+        ``exp`` reads peak1 and L_peak1 as an exponential peak's height and decay length
     """
 
     def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
                  window_s: float = 0.1, pre_s: float = 0.005, dt: float = 1e-5,
                  save_dt: float = 2e-5, integrator: str = "euler", smoothing_m: float = 0.0,
-                 smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None):
+                 smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None,
+                 peak_form: str | None = None):
         from ._parameters import DEFAULT_PARAMS
 
+        if peak_form is not None and peak_form not in PEAK_FORMS:
+            raise jl.ConfigError("peak_form", peak_form, "must be one of "
+                                 + ", ".join(PEAK_FORMS))
+        self.peak_form = peak_form
         if isinstance(drops, DropTest):
             drops = [drops]
         drops = list(drops)
@@ -187,6 +205,7 @@ class CalibrationProblem:
         # model time span: the window plus room for the touchdown shift
         method, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
                                                             smoothing_N)
+        self.integrator = method
         self.solver = jl.Solver(dt=dt, t_end=self.window_s + self.margin_s + 0.005,
                                 save_dt=save_dt,
                                 method=method, smoothing_m=smoothing_m,
@@ -238,7 +257,7 @@ class CalibrationProblem:
         # the fitted values are replaced inside: key the compiled code on the fixed ones only
         canonical = set_values(self.vehicle, self.names, np.full(len(self.names), 0.5))
         self._res, self._jac = _compiled(canonical, self.names, self.solver, channels,
-                                         self.fit_touchdown, self.filtered)
+                                         self.fit_touchdown, self.filtered, peak_form)
 
     def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
@@ -287,8 +306,12 @@ class CalibrationProblem:
         return np.asarray(_COMPILED[key](jnp.asarray(theta[: self.n_z], dtype=jnp.float64)))
 
     def vehicle_at(self, theta) -> jl.Vehicle:
-        """The vehicle with the fitted parameters at ``theta`` (validated)."""
-        return jl.validate_vehicle(set_values(self.vehicle, self.names, self.values(theta)))
+        """The vehicle with the fitted parameters at ``theta``, its peak in the problem's
+        form (validated)."""
+        veh = set_values(self.vehicle, self.names, self.values(theta))
+        if self.peak_form is not None:
+            veh = peak_form_vehicle(veh, self.peak_form)
+        return jl.validate_vehicle(veh)
 
     def touchdown_times(self, theta) -> np.ndarray:
         """Each drop's touchdown time on its record's axis [s] at ``theta``."""

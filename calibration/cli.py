@@ -67,6 +67,9 @@ class _Progress:
               f"{extra}  {rec['wall_s']:6.1f} s", file=sys.stderr, flush=True)
 
 
+_INTERVAL_TEXT = {"std_error": "classical (std_error)", "std_error_hac": "HAC (std_error_hac)"}
+
+
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
@@ -94,7 +97,9 @@ def _cmd_fit(args) -> int:
                   refine_window_s=refine, robust=robust, method=args.method,
                   max_iter=args.max_iter, dt=args.dt, integrator=integrator,
                   smoothing_m=smoothing_m, smoothing_N=smoothing_n,
-                  progress=_Progress(args.quiet))
+                  progress=_Progress(args.quiet), model_form=not args.no_model_form)
+    if args.peak_form == "exp":
+        fit_kw["peak_form"] = "exp"
     cmp = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", _fit.IdentifiabilityWarning)
@@ -154,13 +159,28 @@ def _cmd_fit(args) -> int:
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
           + ("  MISFIT: trust the HAC standard errors widened by the channel spread (total)"
              if diag["misfit"] else ""))
+    trusted = _INTERVAL_TEXT[diag["trust"]]
+    print("  interval reported: " + (
+        f"total (std_error_total) = {trusted}"
+        + (" + channel spread" if diag["misfit"] else "")
+        + (" + peak-shape term" if diag["model_form"] is not None else "")
+        if diag["interval"] == "std_error_total" else trusted))
+    mf = diag["model_form"]
+    if mf is not None:
+        other = ", ".join(f"{k} (dAIC {f['daic_adjusted']:+.3g}"
+                          + (")" if f["plausible"] else ", not supported)")
+                          for k, f in mf["forms"].items() if f is not None and k != mf["form"])
+        print(f"  peak shape: fitted as {mf['form']}; other forms, misfit-adjusted: {other}"
+              + (f"; failed: {', '.join(mf['failed'])}" if mf["failed"] else "")
+              + f"; best supported: {mf['best_supported']}")
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 
         flag = "" if result.identified[i] else "   NOT IDENTIFIED"
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
               f"(HAC +/- {result.std_errors_hac[i]:.2g}"
-              + (f", total +/- {result.std_errors_total[i]:.2g}" if diag["misfit"] else "")
+              + (f", total +/- {result.std_errors_total[i]:.2g}"
+                 if diag["interval"] == "std_error_total" else "")
               + f") {PARAMS[n][1]}  "
               f"(start {result.start_values[i]:.6g}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
@@ -237,6 +257,15 @@ def add_subcommands(subparsers) -> None:
                         "L_peak1), report which the data support (likelihood ratio adjusted "
                         "for misfit, AIC, BIC) and where each misfits (model_comparison.json, "
                         "figures/model_comparison.png); the supported model is the fit written")
+    f.add_argument("--peak-form", choices=("law", "exp"), default="law",
+                   help="the fitted crush peak's form (with peak1, L_peak1): law, the law's "
+                        "linear fall (built up over L_rise1 when that is fitted), or exp, an "
+                        "exponential decay of length L_peak1 (default law)")
+    f.add_argument("--no-model-form", action="store_true",
+                   help="leave out the peak-shape (model-form) term, on by default when the "
+                        "fit has the crush peak: the values refitted in the peak's other forms "
+                        "(linear, built up, exponential) and the largest shift among those the "
+                        "data support added to the total standard error")
     f.add_argument("--out", default="out/fit", help="output folder (default out/fit)")
     f.add_argument("--no-plots", action="store_true", help="skip the figures")
     f.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")

@@ -163,6 +163,16 @@ def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
     assert f"disagree most on {name}: without {channel}" in str(rig_fits["artefact"][1][0].message)
 
 
+def test_without_a_peak_in_the_fit_there_is_no_peak_shape_term(rig_fits):
+    """The peak-shape term needs the crush peak in the fit: none of these fits has it, so
+    none refits other forms, and the report's interval is the trusted one where it warns of
+    no misfit, the total one (channel spread) where it does."""
+    for res, warned in rig_fits.values():
+        assert res.diagnostics["model_form"] is None and res.settings["peak_form"] is None
+        kind = "std_error_total" if warned else res.diagnostics["trust"]
+        assert res.diagnostics["interval"] == kind == res.report()["interval_reported"]
+
+
 def test_failed_channel_refits_are_named_and_the_total_falls_back(monkeypatch):
     """When the refits without a channel fail, the fit says so by name, records them, and the
     total error is the trusted (HAC) error: never NaN, never silently narrower (fails when the

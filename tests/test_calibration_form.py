@@ -1,0 +1,145 @@
+"""The peak-shape (model-form) term of the uncertainty (issue 12): a fit with the crush peak is
+refitted in the peak's other forms, and the largest shift among the forms the data support
+widens the total standard error.
+
+Two fits share the compiled functions (module scope, short windows): a drop whose truth has
+the law's own linear peak (the data are representable: the term must stay small) and the
+rig's physical bump, a peak that builds up (the law's linear peak mis-shapes it: the term
+must widen k_b1's interval to the built-up form's estimate).
+"""
+
+import argparse
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import calibration as cal
+from calibration import _fit as cal_fit, virtual_rig as vr
+from calibration._parameters import (
+    EXP_POINTS,
+    EXP_SPAN,
+    SHAPE_PARAMS,
+    get_values,
+    peak_form_vehicle,
+    set_values,
+)
+from calibration.cli import add_subcommands
+
+PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
+KW = dict(windows=(0.01, 0.03), refine_window_s=0.1)
+
+
+@pytest.fixture(scope="module")
+def form_fits():
+    law = set_values(vr.truth_vehicle(), ("peak1", "L_peak1"), np.array([1.1, 1e-3]))
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out["law's peak"] = cal.fit(vr.drop_test(0.2, seed=5, crush_peak=0.0, vehicle=law),
+                                    PARAMS, **KW)
+        out["bump"] = cal.fit(vr.drop_test(0.2, seed=5, peak_mode="physical"), PARAMS, **KW)
+    return out
+
+
+def _trusted(res):
+    return res.std_errors_hac if res.diagnostics["trust"] == "std_error_hac" else \
+        res.std_errors
+
+
+def _channel_spread(res):
+    shifts = [v for v in res.diagnostics["channel_spread"].values() if v is not None]
+    if not shifts:
+        return np.zeros(len(res.names))
+    return np.max([[abs(s[n]) for n in res.names] for s in shifts], axis=0)
+
+
+def test_the_peak_shape_term_is_added_to_the_total_error(form_fits):
+    for res in form_fits.values():
+        mf = res.diagnostics["model_form"]
+        assert mf is not None and res.diagnostics["interval"] == "std_error_total"
+        term = np.array([mf["spread"][n] for n in res.names])
+        expect = np.sqrt(_trusted(res) ** 2 + _channel_spread(res) ** 2 + term ** 2)
+        np.testing.assert_allclose(res.std_errors_total, expect, rtol=1e-12)
+        # the term is the largest shift over the plausible forms, none from the others,
+        # and none on the peak's own parameters (their meaning differs between forms)
+        plausible = [f for f in mf["forms"].values() if f is not None and f["plausible"]]
+        largest = np.max([[abs(f["shift"][n]) for n in res.names] for f in plausible], axis=0)
+        np.testing.assert_allclose(term, largest, rtol=0, atol=0)
+        assert all(term[res.names.index(n)] == 0.0 for n in SHAPE_PARAMS if n in res.names)
+
+
+def test_the_term_stays_small_where_the_laws_peak_is_the_truth(form_fits):
+    res = form_fits["law's peak"]
+    mf = res.diagnostics["model_form"]
+    assert mf["form"] == "linear" and not mf["failed"]
+    term = np.array([mf["spread"][n] for n in cal.DEFAULT_PARAMS])
+    # every form that fits this record as well moves the values by less than their scatter
+    assert np.all(term <= 1.0 * _trusted(res)[:len(cal.DEFAULT_PARAMS)])
+
+
+def test_the_term_widens_k_b1_to_the_better_form_on_a_mis_shaped_peak(form_fits):
+    res = form_fits["bump"]
+    mf = res.diagnostics["model_form"]
+    i = res.names.index("k_b1")
+    # the peak that builds up fits the bump far better than the linear fall
+    assert mf["best_supported"] == "rise" and "rise" in mf["plausible"]
+    assert mf["forms"]["linear"]["daic_adjusted"] > cal_fit.DAIC_PLAUSIBLE
+    term = mf["spread"]["k_b1"]
+    assert term > 2.0 * _trusted(res)[i]  # the shape moves k_b1 beyond its scatter
+    assert res.std_errors_total[i] > 2.0 * _trusted(res)[i]
+    # ... and the widened interval reaches the truth, which the trusted one misses
+    truth = get_values(vr.truth_vehicle(), ("k_b1",))[0]
+    assert abs(res.values[i] - truth) > 1.96 * _trusted(res)[i]
+    assert abs(res.values[i] - truth) <= 1.96 * res.std_errors_total[i]
+    # a refitted form the data reject does not widen anything (the exp form moves k_b1
+    # further than the term)
+    rejected = [f for f in mf["forms"].values()
+                if f is not None and f["refit"] and not f["plausible"]]
+    assert rejected
+    for f in rejected:
+        assert any(abs(f["shift"][n]) > mf["spread"][n] for n in res.names)
+
+
+def test_the_exp_form_is_an_exponential_peak_of_the_same_height_and_slope():
+    veh = set_values(vr.truth_vehicle(), ("peak1", "L_peak1"), np.array([1.2, 1.5e-3]))
+    hc = peak_form_vehicle(veh, "exp").honeycomb
+    assert hc.peak_ratio1 is None and hc.peak_rise1 is None
+    table, length = np.asarray(hc.excess1), float(hc.excess_length1)
+    assert table.shape == (EXP_POINTS,) and length == pytest.approx(EXP_SPAN * 1.5e-3)
+    c = np.arange(EXP_POINTS) * length / EXP_POINTS  # the table's nodes [m]
+    np.testing.assert_allclose(table, 0.2 * np.exp(-c / 1.5e-3), rtol=1e-12)
+    # the linear form takes a built-up peak's rise off; the rise form keeps it
+    risen = set_values(veh, ("L_rise1",), [1e-3])
+    assert peak_form_vehicle(risen, "linear").honeycomb.peak_rise1 is None
+    assert float(peak_form_vehicle(risen, "rise").honeycomb.peak_rise1) == 1e-3
+
+
+def test_bad_peak_form_and_model_form_are_refused_by_name():
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    for kw, field in ((dict(params=cal.DEFAULT_PARAMS, peak_form="exp"), "peak_form"),
+                      (dict(params=PARAMS, peak_form="cosine"), "peak_form"),
+                      (dict(params=PARAMS, model_form="yes"), "model_form")):
+        with pytest.raises(cal_fit.jl.ConfigError, match=field):
+            cal.fit(drop, **kw)
+
+
+def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=5, artefacts=dict(peak_mode="physical"))
+    vr.write_nominal(tmp_path)
+    out = tmp_path / "fit"
+    args = parser.parse_args(
+        ["fit", str(toml), "--params", ",".join(PARAMS), "--windows", "0.01,0.03",
+         "--refine-window-s", "0.1", "--no-plots", "--quiet", "--out", str(out)])
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
+    assert "peak shape: fitted as linear" in text and "best supported: rise" in text
+    rep = json.loads((out / "fit_report.json").read_text())
+    assert rep["interval_reported"] == "std_error_total"
+    assert rep["misfit"]["model_form"]["best_supported"] == "rise"
+    k_b1 = rep["parameters"]["k_b1"]
+    assert k_b1["std_error_total"] > 2.0 * max(k_b1["std_error"], k_b1["std_error_hac"])
