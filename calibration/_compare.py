@@ -65,12 +65,13 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
     docstring). ``fit_kw`` go to both fits (``peak_form`` to the peak model's only; L_rise1
     in ``params`` goes to the peak model). The peak model's fit carries the peak-shape term
     in its total standard errors (``fit``'s ``model_form``)."""
-    rise = ("L_rise1",) if "L_rise1" in params else ()  # the peak built up: its model's
+    rise = ("L_rise1",) if "L_rise1" in params else ()  # the built-up peak joins the peak
     params = tuple(p for p in params if p not in PEAK_PARAMS + rise)
     peak_form = fit_kw.pop("peak_form", None)
     results = {}
     for label, names in (("no_peak", params), ("peak", params + PEAK_PARAMS + rise)):
-        kw = dict(fit_kw, peak_form=peak_form) if label == "peak" else fit_kw
+        kw = (dict(fit_kw, peak_form=peak_form) if label == "peak" else
+              {k: v for k, v in fit_kw.items() if k != "model_form"})  # no peak: no term
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentifiabilityWarning)
             warnings.simplefilter("ignore", MisfitWarning)

@@ -445,8 +445,8 @@ def _chi2(problem: CalibrationProblem, theta) -> float:
     return 2.0 * problem.robust(None).loss(theta)
 
 
-# A peak form enters the model-form term when its AIC, misfit-adjusted (divided by the
-# best form's long-run variance factor, as in ``_compare``), lies within DAIC_PLAUSIBLE of
+# A peak form enters the model-form term when its AIC, misfit-adjusted (divided by a
+# long-run variance factor, as in ``_compare``), lies within DAIC_PLAUSIBLE of
 # the best form's: Burnham & Anderson's "essentially no support" beyond 10.
 DAIC_PLAUSIBLE = 10.0
 
@@ -492,13 +492,14 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     (``PEAK_FORMS``), among the forms the data support: the final window refitted from
     ``theta``'s values in each other form (same drops, channels, window and Huber
     threshold). Per form: its values, chi^2 (plain least squares), AIC = chi^2 + 2 x its
-    fitted parameters, dAIC_adjusted = (AIC - the least AIC) / the best form's long-run
-    variance factor s^2 (1 + rho1) / (1 - rho1) (``rho1``: the lag-1 residual
-    autocorrelation), whether it is plausible (dAIC_adjusted <= DAIC_PLAUSIBLE) and its shift
-    against this fit (None where the refit failed). ``spread``: per parameter the largest
-    absolute shift over the plausible forms (this fit's own form included, shift 0), 0 on
-    the peak's own parameters, whose meaning differs between forms (``SHAPE_PARAMS``);
-    ``best_supported``: the form of least AIC."""
+    fitted parameters, dAIC_adjusted = (AIC - the least AIC) / the long-run variance factor
+    max(s^2, 1) (1 + rho1) / (1 - rho1) (s^2: the best form's residual variance factor;
+    ``rho1``: the lag-1 residual autocorrelation of the fit in ``form``), whether it is
+    plausible (dAIC_adjusted <= DAIC_PLAUSIBLE) and its shift against this fit (None where
+    the refit failed). ``spread``: per parameter the largest absolute shift over the
+    plausible forms (this fit's own form included, shift 0), 0 on the peak's own parameters,
+    whose meaning differs between forms (``SHAPE_PARAMS``); ``best_supported``: the form of
+    least AIC."""
     names = problem.names
     values = problem.values(theta)
     n_t = len(problem.drops) if problem.fit_touchdown else 0
@@ -709,12 +710,20 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         refine = min(float(refine_window_s), shortest - 0.006)
         if refine > windows[-1]:
             stages_w.append(refine)
-    if peak_form is not None and (peak_form != "exp" or "peak1" not in names
-                                  or "L_rise1" in names):
-        raise jl.ConfigError("peak_form", peak_form, "must be None or 'exp' (with peak1 "
-                             "fitted, without L_rise1)")
+    if peak_form is not None:
+        if peak_form != "exp":
+            raise jl.ConfigError("peak_form", peak_form, "must be None or 'exp'")
+        if "peak1" not in names:
+            raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
+                                 "parameters")
+        if "L_rise1" in names:
+            raise jl.ConfigError("peak_form", peak_form, "cannot be combined with L_rise1 "
+                                 "(the built-up form)")
     if model_form not in ("auto", True, False):
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
+    if model_form is True and "peak1" not in names:
+        raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
+                             "parameters (the term spans the crush peak's forms)")
     form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
     # one problem (one compilation) for every stage: the windows are masks
@@ -821,6 +830,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     if forms_thread is not None:
         forms_thread.join()
         mform = model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"])
+        if mform["failed"]:
+            warnings.warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
+                          "form failed, so std_error_total leaves out how far that form "
+                          "moves the values (misfit.model_form.failed in the report)",
+                          MisfitWarning, stacklevel=2)
         best = mform["best_supported"]
         if form not in mform["plausible"]:
             how = {"rise": "add L_rise1 to the parameters",

@@ -97,7 +97,8 @@ def _cmd_fit(args) -> int:
                   refine_window_s=refine, robust=robust, method=args.method,
                   max_iter=args.max_iter, dt=args.dt, integrator=integrator,
                   smoothing_m=smoothing_m, smoothing_N=smoothing_n,
-                  progress=_Progress(args.quiet), model_form=not args.no_model_form)
+                  progress=_Progress(args.quiet),
+                  model_form=False if args.no_model_form else "auto")
     if args.peak_form == "exp":
         fit_kw["peak_form"] = "exp"
     cmp = None

@@ -1,4 +1,4 @@
-"""The peak-shape (model-form) term of the uncertainty (issue 12): a fit with the crush peak is
+"""The peak-shape (model-form) term of the uncertainty: a fit with the crush peak is
 refitted in the peak's other forms, and the largest shift among the forms the data support
 widens the total standard error.
 
@@ -118,11 +118,15 @@ def test_the_exp_form_is_an_exponential_peak_of_the_same_height_and_slope():
 
 def test_bad_peak_form_and_model_form_are_refused_by_name():
     drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
-    for kw, field in ((dict(params=cal.DEFAULT_PARAMS, peak_form="exp"), "peak_form"),
-                      (dict(params=PARAMS, peak_form="cosine"), "peak_form"),
-                      (dict(params=PARAMS, model_form="yes"), "model_form")):
-        with pytest.raises(cal_fit.jl.ConfigError, match=field):
+    for kw, rule in ((dict(params=cal.DEFAULT_PARAMS, peak_form="exp"), "needs peak1"),
+                     (dict(params=PARAMS + ("L_rise1",), peak_form="exp"), "L_rise1"),
+                     (dict(params=PARAMS, peak_form="cosine"), "None or 'exp'"),
+                     (dict(params=PARAMS, model_form="yes"), "'auto', True or False"),
+                     (dict(params=cal.DEFAULT_PARAMS, model_form=True), "needs peak1")):
+        field = next(k for k in ("peak_form", "model_form") if k in kw)
+        with pytest.raises(cal_fit.jl.ConfigError, match=field) as err:
             cal.fit(drop, **kw)
+        assert rule in str(err.value), (kw, str(err.value))
 
 
 def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
