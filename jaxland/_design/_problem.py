@@ -113,7 +113,7 @@ class DesignProblem:
         self.vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
         self.model = spec.resolved_model()
         # only the running maxima _per_scene reads (the always-kept forces and acceleration,
-        # and the 3-D margin) and no contact-time log: less to trace, the same numbers
+        # and the 3-D margin) and no contact-time log (less to trace)
         self.solver = Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end,
                              method=spec.method, event_log=0,
                              peaks=("peak_margin_deficit_m",) if self.model == "full" else ()
@@ -146,6 +146,8 @@ class DesignProblem:
                              for v in self.variables}, check=True)
         self._fn = jax.jit(self._measures)
         self._jac = jax.jit(self._measures_and_jac)
+        # the scenes' devices: the optimiser's path depends on their count through rounding
+        self.devices = min(len(jax.local_devices()), self.count)
         self._padded, self._inputs = self._device_inputs()
 
     # --- variables
@@ -265,8 +267,7 @@ class DesignProblem:
         runs its share of the landings and their tangents, and the measures gather them.
         Padded to a multiple of the device count with copies of the last scene, which
         ``_measures`` drops. Returns (padded count, inputs)."""
-        devices = jax.local_devices()
-        self.devices = len(devices)  # the optimiser's path depends on it through rounding
+        devices = jax.local_devices()[:self.devices]
         padded = -(-self.count // len(devices)) * len(devices)
         rows = np.minimum(np.arange(padded), self.count - 1)
         sharding = NamedSharding(Mesh(np.array(devices), ("scenes",)), PartitionSpec("scenes"))
