@@ -68,6 +68,7 @@ from ._parameters import (
     PEAK_FORMS,
     SHAPE_PARAMS,
     START_IF_OFF,
+    _bounds,
     check_names,
     get_values,
     peak_form_vehicle,
@@ -554,8 +555,6 @@ def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
     """``vehicle`` with the rise switched on at its ``START_IF_OFF`` length, or where that
     lies outside its bounds, in the middle of them."""
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
-    from ._parameters import _bounds
-
     vals = get_values(veh, names)
     lo, hi = (float(b) for b in _bounds("L_rise1", names, vals, veh))
     if not lo < START_IF_OFF["L_rise1"] < hi:

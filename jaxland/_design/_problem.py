@@ -148,7 +148,7 @@ class DesignProblem:
         self._jac = jax.jit(self._measures_and_jac)
         # the scenes' devices: the optimiser's path depends on their count through rounding
         self.devices = min(len(jax.local_devices()), self.count)
-        self._padded, self._inputs = self._device_inputs()
+        self._inputs = self._device_inputs()
 
     # --- variables
     def _check_bounds(self):
@@ -262,17 +262,20 @@ class DesignProblem:
         return apply_design(self.vehicle, self.from_z(z), self.cells)
 
     # --- outcomes
-    def _device_inputs(self) -> tuple[int, dict]:
+    @property
+    def _padded(self) -> int:
+        """The scene count rounded up to a multiple of the devices."""
+        return -(-self.count // self.devices) * self.devices
+
+    def _device_inputs(self) -> dict:
         """The scenes' drawn inputs split over the local devices along the scenes: each device
         runs its share of the landings and their tangents, and the measures gather them.
-        Padded to a multiple of the device count with copies of the last scene, which
-        ``_measures`` drops. Returns (padded count, inputs)."""
+        Padded to ``_padded`` with copies of the last scene, which ``_measures`` drops."""
         devices = jax.local_devices()[:self.devices]
-        padded = -(-self.count // len(devices)) * len(devices)
-        rows = np.minimum(np.arange(padded), self.count - 1)
+        rows = np.minimum(np.arange(self._padded), self.count - 1)
         sharding = NamedSharding(Mesh(np.array(devices), ("scenes",)), PartitionSpec("scenes"))
-        return padded, jax.device_put({k: jnp.asarray(v[rows])
-                                       for k, v in self.scene_inputs.items()}, sharding)
+        return jax.device_put({k: jnp.asarray(v[rows]) for k, v in self.scene_inputs.items()},
+                              sharding)
 
     def scenes_of(self, inputs: dict) -> Scene:
         """The ``Scene.batch`` of the device inputs (traced or concrete) with the spec's fixed
