@@ -117,6 +117,46 @@ def design_step() -> dict:
                      "constraint scale: 10 mm, 0.1 m)", reference="euler, dt 1e-5 s", runs=rows)
 
 
+_SPLIT_RUN = """
+import json, sys, time, tomllib
+import jax
+jax.config.update("jax_num_cpu_devices", int(sys.argv[1]))
+import jaxland as jl
+jl.use_batch_fusion()
+from jaxland import DesignProblem, design_spec_from_dict
+prob = DesignProblem(design_spec_from_dict(tomllib.loads(open(sys.argv[2]).read())))
+t = time.perf_counter()
+prob.evaluate(prob.z0)
+first = time.perf_counter() - t
+runs = []
+for _ in range(3):
+    t, c = time.perf_counter(), time.process_time()
+    prob.evaluate(prob.z0)
+    runs.append((time.perf_counter() - t, time.process_time() - c))
+wall, cpu = min(runs)
+print(json.dumps(dict(devices=prob.devices, first_evaluation_s=first, iteration_wall_s=wall,
+                      iteration_cpu_s=cpu)))
+"""
+
+
+def device_split() -> dict:
+    """One iteration of the paper-gear spec (measures and forward-mode Jacobian of its 24
+    scenes) with the scenes on 1 and on 2 CPU devices, each in a fresh process as
+    ``jaxland design`` runs it (batch fusion on), one after the other: the best of 3 in wall
+    and CPU time after the first (compiling) evaluation."""
+    import subprocess
+    import sys
+
+    spec = str(ROOT / "examples/design_paper_gear.toml")
+    rows = []
+    for devices in (1, 2):
+        out = subprocess.run([sys.executable, "-c", _SPLIT_RUN, str(devices), spec],
+                             capture_output=True, text=True, check=True,
+                             env=dict(os.environ, JAXLAND_CACHE_DIR=""))
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    return dict(rows=rows, load_average_1min=os.getloadavg()[0])
+
+
 def conditioning() -> dict:
     """The paper-gear spec's design scenes at the baseline: per outcome the measures read, each
     scene's largest raw derivative along one unconstrained coordinate z over the scenes' median
@@ -260,7 +300,8 @@ def wall_times(report: dict) -> dict:
 
 
 STUDIES = dict(gradient_modes=forward_vs_reverse, convergence=convergence,
-               smooth_max=smooth_max_bias, design_step=design_step, conditioning=conditioning)
+               smooth_max=smooth_max_bias, design_step=design_step, conditioning=conditioning,
+               device_split=device_split)
 
 
 def main(argv=None) -> None:
@@ -285,7 +326,7 @@ def main(argv=None) -> None:
         if args.only in (None, name):
             result[name] = study()
     rep = Path(args.report)
-    if rep.exists():
+    if rep.exists() and args.only in (None, "report"):
         result["paper_gear_design"] = table(json.loads(rep.read_text()))
         result["paper_gear_design"]["command"] = (
             "jaxland design examples/design_paper_gear.toml --out out/design-paper")

@@ -655,6 +655,14 @@ def design_wall() -> str:
                    "set-up and judging [s]", "total [s]"], rows)
 
 
+def design_devices() -> str:
+    d = _load("design.json")["device_split"]
+    rows = [[f"{r['devices']}", f"{r['first_evaluation_s']:.1f}", f"{r['iteration_wall_s']:.2f}",
+             f"{r['iteration_cpu_s']:.2f}"] for r in d["rows"]]
+    return _table(["devices", "first evaluation, with compilation [s]",
+                   "one iteration, wall [s]", "one iteration, CPU [s]"], rows)
+
+
 def design_variables() -> str:
     d = _load("design.json")["paper_gear_design"]
     rows = [[x["name"], f"[{x['low']:.4g}, {x['high']:.4g}] ({x['scale']})", f"{x['start']:.4g}",
@@ -687,6 +695,7 @@ TABLES = {
     "design-verification": design_verification,
     "design-variables": design_variables,
     "design-wall": design_wall,
+    "design-devices": design_devices,
     "design-step": design_step,
 }
 

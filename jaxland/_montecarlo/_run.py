@@ -162,7 +162,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     ``progress``: a progress line on stderr (a string: the line's label). ``share_program``:
     the vehicle is an argument of the compiled chunk, kept for the next run of the same spec
     with this flag, so that one compilation serves several vehicles (a design's verification);
-    otherwise the vehicle is a constant of the program (the shared one runs 5-9 % slower)."""
+    otherwise the vehicle is a constant of the program, which steps faster than the shared one."""
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     model = spec.resolved_model()
     solver = mc_solver(spec, model, spec.dt, spec.method)
