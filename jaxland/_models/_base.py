@@ -14,6 +14,7 @@ methods and runs with every integrator that its capabilities allow:
 - ``evaluate`` -> an ``Evaluation``: accelerations, the state with its memories advanced, the
   named outputs, the dissipation powers, the energy stores and the dissipation channels;
 - ``drift`` -> positions from new velocities;
+- ``kinetic_energy`` -> the ledger's kinetic energy at any velocities;
 - ``oscillator`` -> the stiffest, lightest oscillator, from which each integrator states its
   stability limit.
 
@@ -134,6 +135,11 @@ class AbstractModel(eqx.Module):
         """Forces and accelerations at ``state``. ``kick`` [s]: when given, the strut damping
         is implicit, evaluated at the stroke rate after a velocity kick of that length;
         ``None`` is explicit."""
+
+    @abc.abstractmethod
+    def kinetic_energy(self, vehicle: Vehicle, derived, v) -> Array:
+        """Kinetic energy [J] at the velocities ``v`` (the ledger's ``kinetic_J``): diagonal
+        in the velocities."""
 
     @abc.abstractmethod
     def drift(self, q, v, dt):

@@ -352,8 +352,7 @@ class FullModel(AbstractModel):
         )
         if second:
             new = eqx.tree_at(lambda x: x.t_force, new, safe_hypot(tc.force[0], tc.force[1]))
-        kinetic = 0.5 * (m * jnp.sum(vb * vb) + jnp.sum(inertia * w_b * w_b)
-                         + m2 * jnp.sum(vf * vf))
+        kinetic = self.kinetic_energy(vehicle, derived, s.v)
         potential = g * (m * p[2] + m2 * jnp.sum(feet[:, 2]))
         stores = dict(
             kinetic_J=kinetic,
@@ -395,6 +394,12 @@ class FullModel(AbstractModel):
         )
         rate_power = jnp.stack([jnp.sum(st.damping_power), jnp.sum(nc.damping_power)])
         return Evaluation(accel, new, record, rate_power, stores, dissipated)
+
+    def kinetic_energy(self, vehicle: Vehicle, derived: FullDerived, v):
+        """``AbstractModel.kinetic_energy``: body translation and rotation, and the feet."""
+        vb, w_b, vf = v
+        return 0.5 * (vehicle.m_body * jnp.sum(vb * vb) + jnp.sum(derived.inertia * w_b * w_b)
+                      + vehicle.m_foot * jnp.sum(vf * vf))
 
     def accel_record(self, acc):
         a = acc[0]

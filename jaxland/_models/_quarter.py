@@ -200,7 +200,7 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
         contact = nc.force > 0.0
         buffering = hco.force > BUFFERING_THRESHOLD_N
         phase = jnp.where(contact, jnp.where(buffering, 2.0, 3.0), jnp.where(buffering, 4.0, 1.0))
-        kinetic = 0.5 * (m_q * vz_b**2 + m_f * (vr_f**2 + vz_f**2))
+        kinetic = self.kinetic_energy(vehicle, derived, s.v)
         potential = g * (m_q * z_b + m_f * z_f)
         stores = dict(
             kinetic_J=kinetic,
@@ -241,6 +241,10 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
         )
         rate_power = jnp.stack([st.damping_power, nc.damping_power])
         return Evaluation(accel, new, record, rate_power, stores, dissipated)
+
+    def kinetic_energy(self, vehicle: Vehicle, derived: QuarterDerived, v):
+        """``AbstractModel.kinetic_energy``: the body's quarter share and the foot."""
+        return 0.5 * (derived.m_quarter * v[0]**2 + vehicle.m_foot * (v[1]**2 + v[2]**2))
 
     def accel_record(self, acc):
         """Named acceleration outputs [m/s^2] from the generalised accelerations."""

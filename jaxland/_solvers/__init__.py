@@ -15,6 +15,7 @@ from ._fixed import (
     AbstractFixedStep as AbstractFixedStep,
     Euler as Euler,
     EulerImplicit as EulerImplicit,
+    Leapfrog as Leapfrog,
     Verlet as Verlet,
 )
 from ._impulse import Impulse as Impulse

@@ -196,8 +196,9 @@ def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict
 
 
 def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
-    """The fixed-step driver: ``integrator.step`` in a scan over the steps of one save
-    interval, inside a scan over the save points.
+    """The fixed-step driver: ``integrator.step_carried`` (a step, and what the method carries
+    to the next one) in a scan over the steps of one save interval, inside a scan over the
+    save points.
 
     The outputs at a saved state carry the forces as the next step applies them (with the
     method's implicit-damping ``record_kick``). Evaluating the saved state once more is cheaper
@@ -208,9 +209,11 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
     veh, derived, dt = st.vehicle, st.derived, solver.dt
 
     def body(carry, _, check=True):
-        s, track = carry
-        s1, ev = integrator.step(model, veh, s, scene, derived, dt)
-        return (s1, track.update(model, s, ev, st.energy0, st.energy_scale, check)), None
+        s, track, carried = carry
+        s1, (s_at, ev), carried = integrator.step_carried(model, veh, s, scene, derived, dt,
+                                                          carried)
+        return (s1, track.update(model, s_at, ev, st.energy0, st.energy_scale, check),
+                carried), None
 
     def steps(carry, n):
         return run_steps(body, carry, n, solver.ledger_every)
@@ -224,11 +227,12 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
         out = save_point(carry[0])
         return steps(carry, solver.save_every), out
 
-    carry0 = (st.state0, Track.start(st.peaks0, solver.event_log))
+    carry0 = (st.state0, Track.start(st.peaks0, solver.event_log),
+              integrator.start(model, veh, st.state0, scene, derived))
     if solver.early_stop:
         traj = jax.tree.map(lambda x: x[None], save_point(st.state0))
         return traj, _run_until_settled(model, st, scene, solver, steps, carry0)
-    (s_end, track), traj = jax.lax.scan(save_block, carry0,
+    (s_end, track, _), traj = jax.lax.scan(save_block, carry0,
                                         jnp.arange(solver.n_saves, dtype=jnp.float64))
     return traj, summary(model, s_end, track, st, scene)
 
@@ -271,12 +275,12 @@ def _run_until_settled(model, st: Setup, scene, solver, steps, carry0) -> dict:
     def step_block(c):
         carry, k, _ = c
         carry = steps(carry, block)
-        s, track = carry
+        s, track = carry[:2]
         done = settled(model, st.vehicle, st.derived, scene, s, track.peaks,
                        track.n_events > 0, track.tip_time < 0.0, m_diag)
         return carry, k + 1, done
 
-    (s_end, track), _, done = jax.lax.while_loop(
+    (s_end, track, _), _, done = jax.lax.while_loop(
         cond, step_block, (carry, jnp.zeros((), jnp.int32), jnp.zeros((), bool)))
     out = summary(model, s_end, track, st, scene)
     out["settled_time_s"] = jnp.where(done, s_end.t, jnp.nan)

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from .._errors import ConfigError
 from ._base import AbstractIntegrator
-from ._fixed import Euler, EulerImplicit, Verlet
+from ._fixed import Euler, EulerImplicit, Leapfrog, Verlet
 from ._impulse import Impulse
 from ._tsit5 import Tsit5
 
 INTEGRATORS: dict[str, type[AbstractIntegrator]] = {
-    cls.name: cls for cls in (Euler, EulerImplicit, Verlet, Impulse, Tsit5)}
+    cls.name: cls for cls in (Euler, EulerImplicit, Verlet, Leapfrog, Impulse, Tsit5)}
 METHODS = tuple(INTEGRATORS)
-FIXED_STEP_METHODS = ("euler", "euler_implicit", "verlet")
+FIXED_STEP_METHODS = ("euler", "euler_implicit", "verlet", "leapfrog")
 # option names as the CLI and simulate() spell them -> the integrator's field
 _OPTION_FIELDS = {"impulse": "dI", "rtol": "rtol", "atol": "atol", "max_steps": "max_steps",
                   "adjoint": "adjoint"}

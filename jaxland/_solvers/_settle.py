@@ -67,12 +67,11 @@ def check_steps(dt: float) -> int:
 
 def mass_diagonal(model, vehicle, state, scene, derived):
     """The diagonal of the mass matrix [kg, kg m^2] in the flattened velocities: twice the
-    kinetic energy at each unit velocity (both models' kinetic energy is diagonal)."""
+    kinetic energy at each unit velocity (a model's kinetic energy is diagonal)."""
     v_flat, unravel = ravel_pytree(state.v)
 
     def kinetic(v):
-        s = eqx.tree_at(lambda x: x.v, state, unravel(v))
-        return model.evaluate(vehicle, s, scene, derived).stores["kinetic_J"]
+        return model.kinetic_energy(vehicle, derived, unravel(v))
 
     return 2.0 * jax.vmap(kinetic)(jnp.eye(v_flat.shape[0], dtype=v_flat.dtype))
 
