@@ -89,13 +89,19 @@ DEFAULT = ("euler", 1e-5)  # the spec's default method and step
 def throughput(args, out: Path) -> dict:
     """In one session: each model at the spec's default step on 1 and 2 devices, at the step
     the step study chose (montecarlo_step.json) on 1 and 2 devices, and with ``--before`` that
-    tree at the chosen step on one device, next to this tree again."""
+    tree at its own study's chosen step on one device, next to this tree again."""
     sizes = {"quarter": args.quarter_n, "full": args.full_n}
     step_file = out / "montecarlo_step.json"
     if not step_file.exists():
         step_file = RESULTS / "montecarlo_step.json"
-    chosen = {m: (r["chosen"]["method"], r["chosen"]["dt_s"])
-              for m, r in json.loads(step_file.read_text())["models"].items() if r.get("chosen")}
+    def choices(path):
+        return {m: (r["chosen"]["method"], r["chosen"]["dt_s"])
+                for m, r in json.loads(path.read_text())["models"].items() if r.get("chosen")}
+
+    chosen = choices(step_file)
+    # the earlier tree at its own study's choice (it may lack this tree's methods)
+    chosen_before = (choices(Path(args.before) / "benchmarks" / "results" / "montecarlo_step.json")
+                     if args.before else {})
     rows, compare = [], []
     for model, n in sizes.items():
         for devices in (1, 2):
@@ -104,7 +110,7 @@ def throughput(args, out: Path) -> dict:
             for devices in (1, 2):
                 rows.append(run(model, n, devices, *chosen[model]))
             if args.before:  # the earlier tree, then this one again, one device each
-                compare.append(run(model, n, 1, *chosen[model], tree=args.before))
+                compare.append(run(model, n, 1, *chosen_before[model], tree=args.before))
                 compare.append(run(model, n, 1, *chosen[model]))
     load = os.getloadavg()[0]
 
@@ -195,7 +201,8 @@ def cli_cache(out: Path, quick: bool) -> dict:
 
 STEP_METHODS = {"euler": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 8e-5, 1e-4, 1.25e-4),
                 "euler_implicit": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4),
-                "verlet": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4)}
+                "verlet": (1e-5, 2e-5, 2.5e-5, 4e-5, 5e-5, 1e-4),
+                "leapfrog": (1e-5, 2e-5, 2.5e-5, 3.2e-5, 4e-5, 5e-5, 6.25e-5)}
 REFERENCE = ("verlet", 2.5e-6)  # the converged reference; checked against euler at that step
 STEP_TOL = 1e-3  # largest relative error of an outcome accepted
 STEP_KEYS = ("max_stroke_m", "peak_strut_force_N", "peak_normal_force_N",
@@ -235,7 +242,9 @@ def _outcomes(model, spec, method, dt, perturb=0.0):
     scenes, _ = jl.sample_scenes(spec, 0, spec.n)
     if perturb:
         scenes = dataclasses.replace(scenes, sink_speed=scenes.sink_speed * (1.0 + perturb))
-    solver = jl.Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method).validate()
+    from jaxland._montecarlo._run import mc_solver
+
+    solver = mc_solver(spec, model, dt, method)  # the landings as jaxland montecarlo runs them
     v = jl.paper_vehicle()
     t0 = time.perf_counter()
     s = jax.device_get(jax.jit(lambda sc: jl.landings(v, sc, solver, model)[1])(scenes))
@@ -350,6 +359,9 @@ def main() -> None:
         print(json.dumps(cli_cache(out, args.quick), indent=2))
         return
     if args.step_study:
+        import jaxland as jl
+
+        jl.use_batch_fusion()  # compiled as jaxland montecarlo compiles them
         report = step_study(("quarter", "full"), args.step_n)
         write_json(out / "montecarlo_step.json", report, indent=2)
         plot_steps(report, out)
