@@ -322,6 +322,20 @@ def performance_montecarlo() -> str:
                    "target, 2 devices [landings/s]"], rows)
 
 
+def performance_montecarlo_large() -> str:
+    """The full 3-D Monte Carlo at the issue's size, 10^4 landings, at the chosen step on two
+    devices (``large`` in bench_montecarlo.json)."""
+    b = _load("bench_montecarlo.json")["large"]
+    t = b["target"]
+    rows = [[r["model"], f"{r['method']}, {r['dt_s']:g}", str(r["n"]), str(r["devices"]),
+             f"{r['wall_s']:.1f}", f"{r['landings_per_s']:.1f}", str(r["n_retried"]),
+             f"{t['n']} in <= {t['wall_s']:g} s: {'met' if b['met'] else 'not met'}"]
+            for r in b["runs"]]
+    return _table(["model", "method, dt [s]", "n [-]", "devices [-]",
+                   "wall, with compilation [s]", "throughput [landings/s]",
+                   "samples retried [-]", "target"], rows)
+
+
 def numba_side_by_side() -> str:
     """One quarter landing in jaxland with each bookkeeping against the numba loop of the same
     scheme (numba_side_by_side.json)."""
@@ -687,6 +701,7 @@ TABLES = {
     "montecarlo-step": montecarlo_step,
     "calibration-fit": calibration_fit,
     "calibration-fit-time": calibration_fit_time,
+    "performance-montecarlo-large": performance_montecarlo_large,
     "calibration-peak-recovery": calibration_peak_recovery,
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
