@@ -300,9 +300,9 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     paper's 0.2 m drop) with ``method`` (an integrator, ``jaxland.Euler()`` ..., or its name:
     "euler", "euler_implicit", "verlet", "leapfrog", "impulse", "tsit5") at step ``dt`` [s]
     for ``t_end`` [s], sampling the trajectory every ``save_dt`` [s] (default: the smallest
-    multiple of dt that is at least 1e-4 s). ``solver_options`` are the named method's options (``impulse``,
-    ``rtol``, ``atol``, ``max_steps``, ``adjoint``) and the switch smoothing (``smoothing_m``,
-    ``smoothing_N``).
+    multiple of dt that is at least 1e-4 s). ``solver_options`` are the named method's options
+    (``impulse``, ``rtol``, ``atol``, ``max_steps``, ``adjoint``) and the switch smoothing
+    (``smoothing_m``, ``smoothing_N``).
 
     ``dt=None`` chooses the step (``default_step``): 1e-5 s, the accuracy default, or the
     method's stability limit for this vehicle times ``STEP_SAFETY`` if that is smaller; if that
