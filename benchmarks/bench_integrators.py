@@ -55,8 +55,8 @@ from jaxland import CLOSURE_LIMIT, Scene, Solver, landing, landings, stable_step
 # "peak buffer force" is the strut load (honeycomb plus damping, what a load cell reads): the
 # honeycomb force alone peaks at its plateau F2 in every run
 METRICS = ("max_stroke_m", "final_stroke_m", "peak_strut_force_N", "peak_normal_force_N")
-COLORS = dict(euler="C0", euler_implicit="C1", verlet="C2", verlet_smooth="C7", impulse="C3",
-              tsit5="C4", numba_euler="k", scipy_LSODA="C5", scipy_Radau="C6")
+COLORS = dict(euler="C0", euler_implicit="C1", verlet="C2", verlet_smooth="C7", leapfrog="C8",
+              impulse="C3", tsit5="C4", numba_euler="k", scipy_LSODA="C5", scipy_Radau="C6")
 SMOOTH = dict(method="verlet", smoothing_m=1e-6, smoothing_N=10.0)  # smoothed fitting option
 
 
@@ -71,6 +71,7 @@ def ladders(vehicle, small=False):
     """method -> list of Solver keyword sets, coarse to fine."""
     lim_e = float(stable_step(vehicle))
     lim_i = float(stable_step(vehicle, method="verlet"))
+    lim_l = float(stable_step(vehicle, method="leapfrog"))
 
     def steps(limit, n):
         top = 2.0 ** math.floor(math.log2(0.9 * limit / 1e-6)) * 1e-6  # binary ladder in us
@@ -82,6 +83,7 @@ def ladders(vehicle, small=False):
         "euler_implicit": [dict(dt=d) for d in steps(lim_i, n + 1)],
         "verlet": [dict(dt=d) for d in steps(lim_i, n + 1)],
         "verlet_smooth": [dict(dt=d, **SMOOTH) for d in steps(lim_i, n + 1)],
+        "leapfrog": [dict(dt=d) for d in steps(lim_l, n)],
         "tsit5": [dict(dt=1e-5, rtol=r, atol=r * 1e-3)
                   for r in (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)[:n]],
     }
@@ -168,6 +170,7 @@ def work_precision(small=False, repeats=5, progress=print):
 
 DEFAULT_SETTINGS = dict(euler=dict(dt=1e-5), euler_implicit=dict(dt=2e-5),
                         verlet=dict(dt=2e-5), verlet_smooth=dict(dt=1e-5, **SMOOTH),
+                        leapfrog=dict(dt=2e-5),
                         impulse=dict(dt=5e-5, impulse=0.05),
                         tsit5=dict(dt=1e-5, rtol=1e-6, atol=1e-9))
 
@@ -235,7 +238,7 @@ def full_model_batch(small=False, progress=print):
     ref, _, _ = run("euler", 2.5e-6, 1)
     rows = []
     for method, dt in (("euler", 1e-5), ("euler_implicit", 2e-5), ("euler_implicit", 4e-5),
-                       ("verlet", 4e-5)):
+                       ("verlet", 4e-5), ("leapfrog", 3.2e-5)):
         out, c_s, r_s = run(method, dt, 1 if small else 3)
         d_stroke = np.abs(out["max_stroke_m"].max(axis=1) / ref["max_stroke_m"].max(axis=1) - 1)
         d_acc = np.abs(out["peak_body_accel_mps2"] / ref["peak_body_accel_mps2"] - 1)
@@ -262,7 +265,7 @@ def stability_map(small=False, progress=print):
     for name, (veh, scene, _) in scenes().items():
         rows = []
         cases = [(m, {}, float(stable_step(veh, method=m)))
-                 for m in ("euler", "euler_implicit", "verlet")]
+                 for m in ("euler", "euler_implicit", "verlet", "leapfrog")]
         cases.append(("impulse", {"impulse": 0.05},
                       float(stable_step(veh, method="impulse", impulse=0.05))))
         for method, kw, theory in cases:
