@@ -51,7 +51,7 @@ def test_every_method_converges_to_the_reference(reference, method, kw, tol):
 @pytest.mark.parametrize("method,inside,outside", [
     ("euler", 0.95, 1.1),  # fails between 1.05 and 1.1 x theory (measured)
     ("verlet", 0.95, 1.1),  # fails between 1.05 and 1.1 x theory
-    ("leapfrog", 0.95, 1.05),  # fails between 1.0 and 1.05 x theory
+    ("leapfrog", 0.95, 1.1),  # fails between 1.05 and 1.1 x theory
     ("euler_implicit", 0.95, 1.5),  # theory is conservative here: fails at 1.35-1.4 x
 ])
 def test_stability_boundary_of_fixed_step_methods(reference, method, inside, outside):
@@ -222,11 +222,11 @@ def test_verlet_is_second_order_on_the_paper_drop():
 
 
 def test_leapfrog_is_second_order_with_one_evaluation_per_step():
-    """The leapfrog (one evaluation per step, the damping at the predicted velocity) keeps
-    second order on the paper drop's first impact, as verlet does: the max stroke's successive
-    changes and the ledger's worst residual as dt halves from 4e-5 s to 5e-6 s shrink at order
-    >= 1.8 (measured: 1.94 and 1.98). Damping read at the half-step velocity instead (one
-    evaluation, no prediction) measured 1.5 and 1.0."""
+    """The leapfrog (one evaluation per step, the strut damping implicit over its second half
+    kick) keeps second order on the paper drop's first impact, as verlet does: the max
+    stroke's successive changes and the ledger's worst residual as dt halves from 4e-5 s to
+    5e-6 s shrink at order >= 1.8 (measured: 1.92 and 1.88). The damping explicit at the
+    half-step velocity instead measured 1.5 and 1.0."""
     dts = np.array([4e-5, 2e-5, 1e-5, 5e-6])
     scene = jl.Scene.from_touchdown_speed(float(SCENE.touchdown_speed(float(VEH.g))))
     runs = [_run("leapfrog", float(dt), scene=scene, t_end=0.2) for dt in dts]
@@ -238,24 +238,3 @@ def test_leapfrog_is_second_order_with_one_evaluation_per_step():
 
     assert order(dts[:-1], np.diff(stroke)) >= 1.8, np.diff(stroke)
     assert order(dts, ledger) >= 1.8, ledger
-
-
-def test_leapfrog_stability_limit_is_its_theory():
-    """On x'' = -omega^2 x - c x' the leapfrog's amplification matrix over (x, v, a) has
-    spectral radius <= 1 exactly up to dt = 2 / (c + sqrt(c^2 + omega^2)), the limit
-    ``stable_step`` states (the paper drop's boundary is pinned above)."""
-    def radius(w, c, dt):
-        y, z = (w * dt) ** 2, c * dt  # scaled: (x, v dt, a dt^2)
-        m = np.array([[1.0, 1.0, 0.5],
-                      [-y / 2, 1 - (y + z) / 2, 0.5 - y / 4 - z / 2],
-                      [-y, -y - z, -y / 2 - z]])
-        return np.max(np.abs(np.linalg.eigvals(m)))
-
-    for w, c in ((1.0, 0.0), (0.0, 1.0), (1.0, 0.5), (1.0, 2.0), (4444.0, 14100.0)):
-        limit = 2.0 / (c + np.sqrt(c * c + w * w))
-        assert radius(w, c, 0.999 * limit) <= 1.0 + 1e-9
-        assert radius(w, c, 1.01 * limit) > 1.0 + 1e-4
-    osc = jl.Oscillator(mass=1.0, stiffness=4.0, strut_damping=0.5, strut_force=2.0,
-                        ground_damping=0.0, ground_force=0.0)
-    np.testing.assert_allclose(float(jl.Leapfrog().stable_step(osc)),
-                               2.0 / (1.0 + np.sqrt(1.0 + 4.0)), rtol=1e-14)

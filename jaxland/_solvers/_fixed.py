@@ -6,9 +6,7 @@ crush, deepest pit, stick point) by their return maps, then kicks and drifts. Fo
 x'' = -omega^2 x - c x' on the model's ``Oscillator`` (foot mass m, springs k, dampers
 c = (D_b F_bh + chi F_n) / m), symplectic Euler is stable while dt^2 omega^2 + 2 dt c <= 4, i.e.
 dt <= (sqrt(c^2 + 4 omega^2) - c) / omega^2 (2/omega without damping, 2/c without stiffness).
-Taking the strut damping implicitly leaves only the (small) ground damping in c. The
-leapfrog, explicit in the damping at a predicted velocity, is stable while
-dt <= 2 / (c + sqrt(c^2 + omega^2)) (``Leapfrog``).
+Taking the strut damping implicitly leaves only the (small) ground damping in c.
 """
 
 from __future__ import annotations
@@ -25,15 +23,10 @@ from ._base import AbstractIntegrator
 from ._loop import advance, kick, run_fixed
 
 
-def _omega2_damping(osc: Oscillator, strut: bool):
+def _limit(osc: Oscillator, strut: bool):
     w2 = osc.stiffness / osc.mass
     c = ((osc.strut_damping * osc.strut_force if strut else 0.0)
          + osc.ground_damping * osc.ground_force) / osc.mass
-    return w2, c
-
-
-def _limit(osc: Oscillator, strut: bool):
-    w2, c = _omega2_damping(osc, strut)
     return jnp.min((jnp.sqrt(c**2 + 4.0 * w2) - c) / w2)
 
 
@@ -137,32 +130,32 @@ def _at_half(s_m, q1, v_half):
 
 
 class Leapfrog(AbstractFixedStep):
-    """Kick-drift-kick leapfrog with one evaluation per step: velocity Verlet whose second
-    evaluation is reused as the next step's first (first same as last). The velocity-dependent
-    forces (strut and ground damping, read at the new positions) take the predicted velocity
-    v* = v_{n+1/2} + dt/2 a_n, within O(dt^2) of v_{n+1}, so the step keeps second order where
-    the forces are smooth at half of Verlet's evaluations. The damping is explicit: for
-    x'' = -omega^2 x - c x' it is stable while dt <= 2 / (c + sqrt(c^2 + omega^2)) (2/omega
-    without damping, 1/c without stiffness; on the paper gear about half of Euler's limit).
-    The dissipation powers are booked as a trapezoid, the slip energy as Verlet's
-    (``AbstractModel.second_order``). Saved records evaluate the saved state at its own
-    velocity; the step applied the damping at v*, within O(dt^2)."""
+    """Kick-drift-kick with one evaluation per step: velocity Verlet whose end-of-step
+    evaluation is also the next step's start (first same as last). That evaluation, at the new
+    positions and the half-step velocity, takes the strut damping implicitly over the second
+    half kick, so the strut's damping force is the one at the step's end velocity, and the next
+    step's first half kick reuses it: a Crank-Nicolson split of the damping over each step
+    (A-stable, the stable step is 2/omega of the springs, as Verlet's) that keeps second order
+    at half of Verlet's evaluations. The ground damping and the gyroscopic torque are read at
+    the half-step velocity, as in Verlet's second evaluation. The dissipation powers are booked
+    as a trapezoid, the slip energy as Verlet books it (``AbstractModel.second_order``)."""
 
     name: ClassVar[str] = "leapfrog"
-    stability_reason: ClassVar[str] = ("stiffest springs and the strut damping, explicit at the "
-                                       "predicted velocity, on the 1 kg foot")
+    stability_reason: ClassVar[str] = EulerImplicit.stability_reason
 
     def stable_step(self, osc):
-        w2, c = _omega2_damping(osc, strut=True)
-        return jnp.min(2.0 / (c + jnp.sqrt(c**2 + w2)))
+        return _limit(osc, strut=False)
+
+    def record_kick(self, dt):
+        return 0.5 * dt
 
     def integrate(self, model, vehicle, scene, solver):
-        """With the model's ``second_order`` evaluation (the slip energy's trapezoid)."""
+        """With the model's ``second_order`` evaluation (``AbstractModel``)."""
         return super().integrate(dataclasses.replace(model, second_order=True), vehicle, scene,
                                  solver)
 
     def start(self, model, vehicle, s0, scene, derived):
-        ev = model.evaluate(vehicle, s0, scene, derived)
+        ev = model.evaluate(vehicle, s0, scene, derived)  # the first half kick's forces
         return ev.accel, ev.power
 
     def step_carried(self, model, vehicle, s, scene, derived, dt, carried):
@@ -170,7 +163,7 @@ class Leapfrog(AbstractFixedStep):
         h = 0.5 * dt
         v_half = kick(s.v, acc, h)
         q1 = model.drift(s.q, v_half, dt)
-        ev = model.evaluate(vehicle, _at_half(s, q1, kick(v_half, acc, h)), scene, derived)
+        ev = model.evaluate(vehicle, _at_half(s, q1, v_half), scene, derived, h)
         v1 = kick(v_half, ev.accel, h)
         s1 = advance(ev.state, s, q1, v1, dt, h * (power + ev.power))
         # the bookkeeping reads the new state: its ledger with the kinetic energy at v1
