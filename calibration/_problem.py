@@ -140,15 +140,17 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
         r = jnp.where(u <= 1.0, r, jnp.sign(r) * huber_c * jnp.sqrt(2.0 * u_safe - 1.0))
         return r, jnp.any(summary["failed"])
 
+    res_jit = jax.jit(residual)
+
     def with_jac(theta, *args):
-        def f(th):
-            r, failed = residual(th, *args)
+        def f(th):  # the jitted residual: its trace is reused (``compile``), its code the same
+            r, failed = res_jit(th, *args)
             return r, (r, failed)
 
         jac, (r, failed) = jax.jacfwd(f, has_aux=True)(theta)
         return r, jac, failed
 
-    fns = (jax.jit(residual), jax.jit(with_jac))
+    fns = (res_jit, jax.jit(with_jac))
     _COMPILED[key] = fns
     return fns
 
@@ -296,6 +298,7 @@ class CalibrationProblem:
             self._res, self._jac = _compiled(self._canonical, self.names, self.solver,
                                              channels, self.fit_touchdown, self.filtered,
                                              peak_form)
+            self._res_jit, self._embed = self._res, lambda theta: theta
             return
         names_u = shared_names(self.names)
         res_u, jac_u = _compiled(set_values(self.vehicle, names_u, np.full(len(names_u), 0.5)),
@@ -319,6 +322,7 @@ class CalibrationProblem:
             return r, j[:, cols], failed
 
         self._res, self._jac = res, jac
+        self._res_jit, self._embed = res_u, embed
 
     def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
@@ -409,6 +413,9 @@ class CalibrationProblem:
 
         th = jnp.asarray(theta, dtype=jnp.float64)
         args = self._args()
+        # the residual traced here first: the Jacobian's trace then reuses its jaxpr instead
+        # of tracing the landing again, while the residual compiles in the second thread
+        self._res_jit.trace(self._embed(th), *args)
         side = threading.Thread(target=lambda: self._res(th, *args)[0].block_until_ready())
         side.start()
         try:
