@@ -293,36 +293,44 @@ class CalibrationProblem:
         self.n_z = len(self.names)
         self.n_theta = self.n_z + (nd if self.fit_touchdown else 0)
         # the fitted values are replaced inside: key the compiled code on the fixed ones only
-        self._canonical = set_values(self.vehicle, self.names, np.full(len(self.names), 0.5))
+        # (the problems of one fit in every peak form share the functions of shared_names)
+        self._z_names = shared_names(self.names) if self.shared_forms else self.names
+        self._canonical = set_values(self.vehicle, self._z_names,
+                                     np.full(len(self._z_names), 0.5))
+        fns = _compiled(self._canonical, self._z_names, self.solver, channels,
+                        self.fit_touchdown, self.filtered,
+                        SHARED if self.shared_forms else peak_form)
+        self._res_jit = fns[0]
         if not self.shared_forms:
-            self._res, self._jac = _compiled(self._canonical, self.names, self.solver,
-                                             channels, self.fit_touchdown, self.filtered,
-                                             peak_form)
-            self._res_jit, self._embed = self._res, lambda theta: theta
+            self._res, self._jac = fns
+            self._embed, self._z_cols = (lambda theta: theta), slice(None)
+            self._z_src = np.arange(self.n_z)
             return
-        names_u = shared_names(self.names)
-        res_u, jac_u = _compiled(set_values(self.vehicle, names_u, np.full(len(names_u), 0.5)),
-                                 names_u, self.solver, channels, self.fit_touchdown,
-                                 self.filtered, SHARED)
         # theta -> the shared functions' theta: each coordinate from its place in theta, the
-        # coordinate this form does not fit from the slot appended after theta (held at 0)
-        n_u, n_s = len(names_u), self.n_theta - self.n_z
+        # coordinate this form does not fit from the slot appended after theta (held at 0);
+        # their Jacobian's columns back in theta's order
+        names_u, n_s = self._z_names, self.n_theta - self.n_z
+        n_u = len(names_u)
         src = np.array([self.names.index(n) if n in self.names else self.n_theta
                         for n in names_u] + [self.n_z + k for k in range(n_s)])
         cols = np.array([names_u.index(n) for n in self.names] + [n_u + k for k in range(n_s)])
+        self._z_cols, self._z_src = cols[:self.n_z], src[:n_u]
+        res_u, jac_u = fns
 
-        def embed(theta):
-            return jnp.concatenate([jnp.asarray(theta, dtype=jnp.float64), jnp.zeros(1)])[src]
+        def embed(theta):  # numpy where theta is known (no small programs to compile)
+            if isinstance(theta, jax.core.Tracer):
+                return jnp.concatenate([theta, jnp.zeros(1, theta.dtype)])[src]
+            return jnp.asarray(np.append(np.asarray(theta, dtype=float), 0.0)[src])
 
         def res(theta, *args):
             return res_u(embed(theta), *args)
 
         def jac(theta, *args):
             r, j, failed = jac_u(embed(theta), *args)
-            return r, j[:, cols], failed
+            return r, (j[:, cols] if isinstance(j, jax.core.Tracer) else np.asarray(j)[:, cols]), \
+                failed
 
-        self._res, self._jac = res, jac
-        self._res_jit, self._embed = res_u, embed
+        self._res, self._jac, self._embed = res, jac, embed
 
     def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
@@ -362,13 +370,26 @@ class CalibrationProblem:
         s = np.zeros(len(self.drops)) if shifts_ms is None else np.asarray(shifts_ms, float)
         return np.concatenate([z, s])
 
+    def _transform(self, jacobian: bool = False):
+        """The jitted z -> values (or its Jacobian) of the compiled functions' parameters,
+        shared by the problems with the same fixed values (the fitted ones are not read)."""
+        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian)
+        if key not in _COMPILED:
+            names, vehicle = self._z_names, self._canonical
+
+            def f(z):
+                return from_unconstrained(z, names, vehicle)
+
+            _COMPILED[key] = jax.jit(jax.jacfwd(f) if jacobian else f)
+        return _COMPILED[key]
+
+    def _z(self, theta) -> np.ndarray:
+        """The compiled functions' parameter coordinates at ``theta`` (numpy)."""
+        return np.append(np.asarray(theta, dtype=float), 0.0)[self._z_src]
+
     def values(self, theta) -> np.ndarray:
         """Physical values of the fitted parameters [SI] at ``theta``."""
-        key = ("values", _vehicle_key(self._canonical), self.names)
-        if key not in _COMPILED:  # jitted: the optimisers call it every iteration
-            names, vehicle = self.names, self._canonical  # its fitted values are not read
-            _COMPILED[key] = jax.jit(lambda z: from_unconstrained(z, names, vehicle))
-        return np.asarray(_COMPILED[key](jnp.asarray(theta[: self.n_z], dtype=jnp.float64)))
+        return np.asarray(self._transform()(self._z(theta)))[self._z_cols]
 
     def vehicle_at(self, theta) -> jl.Vehicle:
         """The vehicle with the fitted parameters at ``theta``, its peak in the problem's
@@ -387,9 +408,8 @@ class CalibrationProblem:
 
     def transform_jacobian(self, theta) -> np.ndarray:
         """d(physical values)/d(theta[:n_z]) (for the delta method)."""
-        z = jnp.asarray(theta[: self.n_z])
-        return np.asarray(jax.jacfwd(lambda zz: from_unconstrained(
-            zz, self.names, self.vehicle))(z))
+        g = np.asarray(self._transform(jacobian=True)(self._z(theta)))
+        return g[self._z_cols][:, self._z_cols]
 
     # ------------------------------------------------------------------------ evaluation
     def _args(self):
