@@ -53,6 +53,7 @@ import json
 import math
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -824,6 +825,14 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # a CFC filter correlates the noise itself: the classical errors never hold then
     trust = "std_error_hac" if unc["misfit"] or final.filtered else "std_error"
     trusted = unc["se_hac"] if trust == "std_error_hac" else unc["se"]
+    forms_job = None
+    if forms:  # the peak-shape refits run in a second thread beside the channel spread's
+        if forms_thread is not None:  # (each refit's time is XLA's, which frees the GIL)
+            forms_thread.join()
+        forms_job = ThreadPoolExecutor(max_workers=1)
+        forms_future = forms_job.submit(model_form_spread, final, theta, form, huber_c,
+                                        max_iter, unc["rho1"])
+        forms_job.shutdown(wait=False)
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
                       if unc["misfit"] else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]
@@ -834,9 +843,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       "in the report)", MisfitWarning, stacklevel=2)
     mform = None
     if forms:
-        if forms_thread is not None:
-            forms_thread.join()
-        mform = model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"])
+        mform = forms_future.result()
         if mform["failed"]:
             warnings.warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
                           "form failed, so std_error_total leaves out how far that form "
