@@ -44,7 +44,9 @@ benchmarks/results/bench_fit.json):
    the law lacks biases every channel alike, so the residuals can look clean and the channels
    agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
    the best) bracket that bias, and the largest shift among them is added in quadrature to
-   ``std_errors_total``. A form the data reject adds nothing.
+   ``std_errors_total``. A form the data reject adds nothing. The fit and its refits in
+   every form share one compiled program (``CalibrationProblem(shared_forms=True)``), and the
+   refits run in a second thread beside the channel spread's.
 """
 
 from __future__ import annotations

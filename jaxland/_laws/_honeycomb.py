@@ -62,7 +62,10 @@ over the plastic set, exact in closed form for the piecewise-linear e:
 
     (a^2 - e^2) / (2 k_b1) + a c + sum_j s_j (u_j^2 / 2 + dc max(c - c_j - dc, 0)),
 
-which for a two-node table (a, 0) over L is the linear peak's work above.
+which for a two-node table (a, 0) over L is the linear peak's work above. A curve that also
+carries the node values e(c_j) and integrals (``HoneycombCurve.t1_e``, ``t1_int``; calibration's
+peak forms) is read, unsmoothed, at the one segment that holds c: e = e_j + s_j (c - c_j) and
+the integral likewise, the same numbers without a sum over every segment.
 
 A peak that builds up (``Honeycomb.peak_rise1`` = L_r, with peak_ratio1): the elastic rise
 ends at F1 (a = 0 at the onset x_L1), the strength rises linearly to r1 F1 over the crush L_r,
