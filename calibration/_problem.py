@@ -327,8 +327,8 @@ class CalibrationProblem:
 
         def jac(theta, *args):
             r, j, failed = jac_u(embed(theta), *args)
-            return r, (j[:, cols] if isinstance(j, jax.core.Tracer) else np.asarray(j)[:, cols]), \
-                failed
+            j = j[:, cols] if isinstance(j, jax.core.Tracer) else np.asarray(j)[:, cols]
+            return r, j, failed
 
         self._res, self._jac, self._embed = res, jac, embed
 
