@@ -44,7 +44,9 @@ benchmarks/results/bench_fit.json):
    the law lacks biases every channel alike, so the residuals can look clean and the channels
    agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
    the best) bracket that bias, and the largest shift among them is added in quadrature to
-   ``std_errors_total``. A form the data reject adds nothing.
+   ``std_errors_total``. A form the data reject adds nothing. The fit and its refits in
+   every form share one compiled program (``CalibrationProblem(shared_forms=True)``), and the
+   refits run in a second thread beside the channel spread's.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ import json
 import math
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -454,7 +457,8 @@ DAIC_PLAUSIBLE = 10.0
 
 def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     """(problem, vehicle) of ``problem``'s fit with the primary peak in form ``alt``, its
-    values those of ``vehicle`` (the rise, where it is new, at its start)."""
+    values those of ``vehicle`` (the rise, where it is new, at its start). Its compiled
+    functions serve every form (``shared_forms``): made once per drops, channels and solver."""
     names = _form_names(problem.names, alt)
     veh = peak_form_vehicle(vehicle, "linear") if alt != "rise" else vehicle
     if alt == "rise" and veh.honeycomb.peak_rise1 is None:
@@ -463,14 +467,15 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
         dt=problem.solver.dt, save_dt=problem.solver.save_dt, integrator=problem.integrator,
         smoothing_m=problem.solver.smoothing_m, smoothing_N=problem.solver.smoothing_N,
-        fit_touchdown=problem.fit_touchdown, channels=problem.channels,
-        peak_form="exp" if alt == "exp" else None)
+        fit_touchdown=problem.fit_touchdown, channels=problem.channels, peak_form=alt,
+        shared_forms=True)
     return prob, veh
 
 
 def precompile_forms(problem: CalibrationProblem, form: str):
-    """A thread that compiles the other peak forms' functions (``model_form_spread``) while
-    the fit runs (XLA compiles without the interpreter lock); join it before the spread."""
+    """A thread that compiles the functions of the other peak forms (``model_form_spread``),
+    for a fit whose own functions do not serve them, while the fit runs (XLA compiles without
+    the interpreter lock); join it before the spread."""
     import threading
 
     def work():
@@ -725,15 +730,20 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                              "parameters (the term spans the crush peak's forms)")
     form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
-    # one problem (one compilation) for every stage: the windows are masks
+    # one problem (one compilation) for every stage: the windows are masks. With the
+    # peak-shape term, its functions serve every peak form (``shared_forms``), so that the
+    # term's refits compile nothing: a second program for the other forms cost about twice
+    # the fit's own compilation in CPU time. Not where the vehicle's rise length stays fixed:
+    # the shared functions cannot hold it at a given length
+    forms = form is not None and model_form is not False
+    shared = forms and ("L_rise1" in names or start_vehicle.honeycomb.peak_rise1 is None)
     problem = CalibrationProblem(drops, names, vehicle=start_vehicle, window_s=stages_w[-1],
                                  pre_s=PRE_S, dt=dt, save_dt=save_dt, integrator=integrator,
                                  smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                                  fit_touchdown=fit_touchdown, channels=channels,
-                                 peak_form=peak_form)
+                                 peak_form=form if shared else peak_form, shared_forms=shared)
     theta0 = problem.theta_from()
-    forms_thread = (precompile_forms(problem, form)
-                    if form is not None and model_form is not False else None)
+    forms_thread = precompile_forms(problem, form) if forms and not shared else None
     problem.compile(theta0)
     history, stages = [], []
     n_ms = len(windows) - 1 if len(windows) > 1 else 0  # stages run from every start
@@ -817,6 +827,14 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # a CFC filter correlates the noise itself: the classical errors never hold then
     trust = "std_error_hac" if unc["misfit"] or final.filtered else "std_error"
     trusted = unc["se_hac"] if trust == "std_error_hac" else unc["se"]
+    forms_job = None
+    if forms:  # the peak-shape refits run in a second thread beside the channel spread's
+        if forms_thread is not None:  # (each refit's time is XLA's, which frees the GIL)
+            forms_thread.join()
+        forms_job = ThreadPoolExecutor(max_workers=1)
+        forms_future = forms_job.submit(model_form_spread, final, theta, form, huber_c,
+                                        max_iter, unc["rho1"])
+        forms_job.shutdown(wait=False)
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
                       if unc["misfit"] else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]
@@ -826,9 +844,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       "leaves out how far those channels pull the fit (channel_spread_failed "
                       "in the report)", MisfitWarning, stacklevel=2)
     mform = None
-    if forms_thread is not None:
-        forms_thread.join()
-        mform = model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"])
+    if forms:
+        mform = forms_future.result()
         if mform["failed"]:
             warnings.warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
                           "form failed, so std_error_total leaves out how far that form "

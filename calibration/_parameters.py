@@ -24,6 +24,8 @@ this transform (delta method).
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -32,7 +34,8 @@ import numpy as np
 import jaxland as jl
 
 __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_IF_OFF",
-           "PEAK_FORMS", "SHAPE_PARAMS", "peak_form_vehicle", "check_names", "get_values",
+           "PEAK_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle", "forms_vehicle",
+           "check_names", "get_values",
            "set_values", "switch_on", "to_unconstrained", "from_unconstrained"]
 
 # name -> (getter, unit, TOML key, transform, description)
@@ -85,6 +88,7 @@ _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None 
 PEAK_FORMS = ("linear", "rise", "exp")
 SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
 EXP_SPAN, EXP_POINTS = 8.0, 97
+FORM_INDEX = {f: i for i, f in enumerate(PEAK_FORMS)}  # the runtime code of ``forms_vehicle``
 DEFAULT_PARAMS = ("k", "gamma", "D_b", "k_b1", "F1", "F2")
 OPTIONAL_PARAMS = tuple(n for n in PARAMS if n not in DEFAULT_PARAMS)
 
@@ -137,6 +141,82 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
                    v.honeycomb.excess_length1), vehicle,
         (None, None, table, EXP_SPAN * jnp.asarray(hc.peak_length1, dtype=jnp.float64)),
         **_NONE)
+
+
+class _FormsHoneycomb(jl.Honeycomb):
+    """``jl.Honeycomb`` whose primary peak (peak_ratio1, peak_length1, peak_rise1) takes the
+    form ``form`` (``FORM_INDEX``: a number, traced under jit). Every form is the law's
+    tabulated excess with EXP_POINTS segments, each of its own width: ``linear`` one falling
+    segment, ``rise`` a rising and a falling one, ``exp`` ``peak_form_vehicle``'s exponential
+    table; the segments a form does not use have width and slope 0 and add exactly 0. So one
+    compiled program serves every form (``forms_vehicle``); the curve is that of the form's
+    own vehicle (``peak_form_vehicle``) up to rounding."""
+
+    form: jnp.ndarray = eqx.field(default=0)
+
+    def curve(self):
+        keep = {f.name: getattr(self, f.name) for f in dataclasses.fields(jl.Honeycomb)}
+        keep["peak_rise1"] = None
+        cv = jl.Honeycomb(**keep).curve()  # the general law with the linear peak
+        n, form, length = EXP_POINTS, jnp.asarray(self.form), self.peak_length1
+
+        def col(x):
+            return jnp.expand_dims(x, -1)
+
+        def segments(*head):  # the form's segments, then n - len(head) of zero width
+            tail = jnp.zeros(jnp.shape(length) + (n - len(head),))
+            return jnp.concatenate([col(h) for h in head] + [tail], axis=-1)
+
+        a = cv.a1  # (r1 - 1) F1
+        zero = jnp.zeros_like(a)
+        is_rise = form == FORM_INDEX["rise"]
+        # the rise's width only where the form has one (a finite divisor in every form)
+        rise = length if self.peak_rise1 is None else jnp.where(is_rise, self.peak_rise1,
+                                                                length)
+        # exp: peak_form_vehicle's table (ratios of F1), then Honeycomb.curve's uniform grid
+        u = jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)
+        e = (col(self.peak_ratio1) - 1.0) * jnp.exp(-u) * col(self.F1)
+        span = EXP_SPAN * length
+        dc = col(span / n)
+        e_next = jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
+        def starts(widths):  # each segment starts where the ones before it end
+            ends = jnp.cumsum(widths, axis=-1)
+            return jnp.concatenate([jnp.zeros_like(ends[..., :1]), ends[..., :-1]], axis=-1)
+
+        tables = {  # (a1, L1, starts c_j, widths, slopes, e(c_j)) of each form
+            "linear": (a, length, starts(segments(length)), segments(length),
+                       segments(-a / length), segments(a)),
+            "rise": (zero, rise + length, starts(segments(rise, length)),
+                     segments(rise, length), segments(a / rise, -a / length),
+                     segments(zero, a)),
+            "exp": (e[..., 0], span, dc * jnp.arange(n, dtype=jnp.float64),
+                    jnp.broadcast_to(dc, e.shape), (e_next - e) / dc, e),
+        }
+
+        def pick(i):  # every form's numbers are finite: no NaN in the unselected branches
+            out = tables["exp"][i]
+            for f in ("rise", "linear"):
+                out = jnp.where(form == FORM_INDEX[f], tables[f][i], out)
+            return out
+
+        a1, widths, e_c = pick(0), pick(3), pick(5)
+        # the integral of e over [0, c_j]: the trapezoids of the segments before (exact)
+        e_end = jnp.concatenate([e_c[..., 1:], jnp.zeros_like(e_c[..., :1])], axis=-1)
+        area = jnp.cumsum(0.5 * (e_c + e_end) * widths, axis=-1)
+        integral = jnp.concatenate([jnp.zeros_like(area[..., :1]), area[..., :-1]], axis=-1)
+        return eqx.tree_at(
+            lambda c: (c.a1, c.x_pk1, c.L1, c.t1_c, c.t1_dc, c.t1_slope, c.t1_e, c.t1_int), cv,
+            (a1, cv.x_L1 + a1 / self.k_b1, pick(1), pick(2), widths, pick(4), e_c, integral),
+            **_NONE)
+
+
+def forms_vehicle(vehicle: jl.Vehicle, form) -> jl.Vehicle:
+    """``vehicle`` (its primary peak on: peak_ratio1, peak_length1, and peak_rise1 where the
+    rise form is wanted) with the peak in the form of code ``form`` (``FORM_INDEX``; a traced
+    number under jit), through ``_FormsHoneycomb``: one compiled landing for every form."""
+    hc = vehicle.honeycomb
+    kw = {f.name: getattr(hc, f.name) for f in dataclasses.fields(jl.Honeycomb)}
+    return eqx.tree_at(lambda v: v.honeycomb, vehicle, _FormsHoneycomb(**kw, form=form))
 
 
 def switch_on(vehicle: jl.Vehicle, names) -> jl.Vehicle:

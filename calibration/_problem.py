@@ -21,6 +21,13 @@ The unknowns are ``theta = (z, dt0)``: the unconstrained model parameters ``z``
 The vehicle is built from ``z`` inside the jitted function; every parameter that is not fitted
 stays a compile-time constant of the landing loop (several times faster on CPU).
 
+With ``shared_forms`` the primary crush peak's form is a runtime argument instead
+(``_parameters.forms_vehicle``): the compiled functions fit the form-independent parameter
+list ``shared_names`` (the problem's, L_rise1 added where absent and placed last) and serve
+the problem in each of ``PEAK_FORMS``, so the peak-shape refits of a fit (``model_form_spread``)
+compile nothing. A problem whose form does not use L_rise1 holds that coordinate at 0 (the
+middle of its bounds; the form ignores its value) and drops its Jacobian column.
+
 The integrator is configurable (``integrator``, ``smoothing_m``, ``smoothing_N``: the
 ``jaxland.Solver`` fields ``method``, ``smoothing_m``, ``smoothing_N``), restricted to the
 fixed-step methods; the compiled functions are keyed on all three.
@@ -40,17 +47,20 @@ from jaxland import FIXED_STEP_METHODS
 from ._data import CHANNELS, LEG_COLUMN, DropTest, base_channel
 from ._filter import IDENTITY, filtfilt_jax, filtfilt_np, noise_gain, settle_time_s, white_lag1
 from ._parameters import (
+    FORM_INDEX,
     PEAK_FORMS,
     check_names,
+    forms_vehicle,
     from_unconstrained,
     peak_form_vehicle,
     set_values,
     to_unconstrained,
 )
 
-__all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator"]
+__all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator", "shared_names"]
 
 MS = 1e-3  # the touchdown shifts are fitted in milliseconds
+SHARED = "shared"  # the compiled functions' peak form: every form, chosen at run time
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
 _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
 # fixed-step methods only: the fit checks dt against their stability limit and samples the
@@ -82,11 +92,17 @@ def _vehicle_key(vehicle):
                           for x in leaves)
 
 
+def shared_names(names) -> tuple:
+    """The parameter list of the compiled functions that serve every peak form
+    (``shared_forms``): ``names`` without L_rise1, then L_rise1."""
+    return tuple(n for n in names if n != "L_rise1") + ("L_rise1",)
+
+
 def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None):
     """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels
-    (and whether a CFC filter acts, and the primary peak's form: None, the vehicle's own);
-    compiled once and shared (data, speeds, windows and filter coefficients are
-    arguments)."""
+    (and whether a CFC filter acts, and the primary peak's form: None, the vehicle's own;
+    SHARED, the form's code ``FORM_INDEX`` as the first data argument); compiled once and
+    shared (data, speeds, windows and filter coefficients are arguments)."""
     key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
            solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered,
            peak_form)
@@ -95,10 +111,15 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
     model_cols = tuple(CHANNELS[base_channel(c)][1] for c in channels)
     n_z = len(names)
 
-    def residual(theta, speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs):
+    def residual(theta, *args):
+        if peak_form == SHARED:
+            form, *args = args
+        speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs = args
         z = theta[:n_z]
         veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle))
-        if peak_form is not None:
+        if peak_form == SHARED:
+            veh = forms_vehicle(veh, form)
+        elif peak_form is not None:
             veh = peak_form_vehicle(veh, peak_form)
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
         traj, summary = jl.landings(veh, scenes, solver, "quarter")
@@ -119,15 +140,17 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
         r = jnp.where(u <= 1.0, r, jnp.sign(r) * huber_c * jnp.sqrt(2.0 * u_safe - 1.0))
         return r, jnp.any(summary["failed"])
 
+    res_jit = jax.jit(residual)
+
     def with_jac(theta, *args):
-        def f(th):
-            r, failed = residual(th, *args)
+        def f(th):  # the jitted residual: its trace is reused (``compile``), its code the same
+            r, failed = res_jit(th, *args)
             return r, (r, failed)
 
         jac, (r, failed) = jax.jacfwd(f, has_aux=True)(theta)
         return r, jac, failed
 
-    fns = (jax.jit(residual), jax.jit(with_jac))
+    fns = (res_jit, jax.jit(with_jac))
     _COMPILED[key] = fns
     return fns
 
@@ -150,19 +173,22 @@ class CalibrationProblem:
     channels : channels to fit (default: every channel any drop has)
     peak_form : the primary crush peak's form (``PEAK_FORMS``; None: the vehicle's own law).
         ``exp`` reads peak1 and L_peak1 as an exponential peak's height and decay length
+    shared_forms : compile functions that serve every peak form (module docstring), shared
+        with the problems of the same drops in the other forms; needs peak1 among ``params``.
+        The form is then ``peak_form``, or None: ``rise`` with L_rise1 among ``params``, else
+        ``linear``
     """
 
     def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
                  window_s: float = 0.1, pre_s: float = 0.005, dt: float = 1e-5,
                  save_dt: float = 2e-5, integrator: str = "euler", smoothing_m: float = 0.0,
                  smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None,
-                 peak_form: str | None = None):
+                 peak_form: str | None = None, shared_forms: bool = False):
         from ._parameters import DEFAULT_PARAMS
 
         if peak_form is not None and peak_form not in PEAK_FORMS:
             raise jl.ConfigError("peak_form", peak_form, "must be one of "
                                  + ", ".join(PEAK_FORMS))
-        self.peak_form = peak_form
         if isinstance(drops, DropTest):
             drops = [drops]
         drops = list(drops)
@@ -170,6 +196,18 @@ class CalibrationProblem:
             raise jl.ConfigError("drops", "[]", "give at least one drop test")
         self.drops = drops
         self.names = check_names(DEFAULT_PARAMS if params is None else params)
+        self.shared_forms = bool(shared_forms)
+        if self.shared_forms:
+            if "peak1" not in self.names:
+                raise jl.ConfigError("shared_forms", shared_forms, "needs peak1 among the "
+                                     "fitted parameters (it shares the crush peak's forms)")
+            rise = "L_rise1" in self.names
+            if peak_form is None:
+                peak_form = "rise" if rise else "linear"
+            if rise != (peak_form == "rise"):
+                raise jl.ConfigError("peak_form", peak_form, "the rise form, and only it, "
+                                     "fits L_rise1")
+        self.peak_form = peak_form
         self.vehicle = drops[0].vehicle if vehicle is None else vehicle
         jl.validate_vehicle(self.vehicle)
         for name, val in (("window_s", window_s), ("pre_s", pre_s)):
@@ -255,9 +293,44 @@ class CalibrationProblem:
         self.n_z = len(self.names)
         self.n_theta = self.n_z + (nd if self.fit_touchdown else 0)
         # the fitted values are replaced inside: key the compiled code on the fixed ones only
-        canonical = set_values(self.vehicle, self.names, np.full(len(self.names), 0.5))
-        self._res, self._jac = _compiled(canonical, self.names, self.solver, channels,
-                                         self.fit_touchdown, self.filtered, peak_form)
+        # (the problems of one fit in every peak form share the functions of shared_names)
+        self._z_names = shared_names(self.names) if self.shared_forms else self.names
+        self._canonical = set_values(self.vehicle, self._z_names,
+                                     np.full(len(self._z_names), 0.5))
+        fns = _compiled(self._canonical, self._z_names, self.solver, channels,
+                        self.fit_touchdown, self.filtered,
+                        SHARED if self.shared_forms else peak_form)
+        self._res_jit = fns[0]
+        if not self.shared_forms:
+            self._res, self._jac = fns
+            self._embed, self._z_cols = (lambda theta: theta), slice(None)
+            self._z_src = np.arange(self.n_z)
+            return
+        # theta -> the shared functions' theta: each coordinate from its place in theta, the
+        # coordinate this form does not fit from the slot appended after theta (held at 0);
+        # their Jacobian's columns back in theta's order
+        names_u, n_s = self._z_names, self.n_theta - self.n_z
+        n_u = len(names_u)
+        src = np.array([self.names.index(n) if n in self.names else self.n_theta
+                        for n in names_u] + [self.n_z + k for k in range(n_s)])
+        cols = np.array([names_u.index(n) for n in self.names] + [n_u + k for k in range(n_s)])
+        self._z_cols, self._z_src = cols[:self.n_z], src[:n_u]
+        res_u, jac_u = fns
+
+        def embed(theta):  # numpy where theta is known (no small programs to compile)
+            if isinstance(theta, jax.core.Tracer):
+                return jnp.concatenate([theta, jnp.zeros(1, theta.dtype)])[src]
+            return jnp.asarray(np.append(np.asarray(theta, dtype=float), 0.0)[src])
+
+        def res(theta, *args):
+            return res_u(embed(theta), *args)
+
+        def jac(theta, *args):
+            r, j, failed = jac_u(embed(theta), *args)
+            j = j[:, cols] if isinstance(j, jax.core.Tracer) else np.asarray(j)[:, cols]
+            return r, j, failed
+
+        self._res, self._jac, self._embed = res, jac, embed
 
     def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
@@ -297,13 +370,26 @@ class CalibrationProblem:
         s = np.zeros(len(self.drops)) if shifts_ms is None else np.asarray(shifts_ms, float)
         return np.concatenate([z, s])
 
+    def _transform(self, jacobian: bool = False):
+        """The jitted z -> values (or its Jacobian) of the compiled functions' parameters,
+        shared by the problems with the same fixed values (the fitted ones are not read)."""
+        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian)
+        if key not in _COMPILED:
+            names, vehicle = self._z_names, self._canonical
+
+            def f(z):
+                return from_unconstrained(z, names, vehicle)
+
+            _COMPILED[key] = jax.jit(jax.jacfwd(f) if jacobian else f)
+        return _COMPILED[key]
+
+    def _z(self, theta) -> np.ndarray:
+        """The compiled functions' parameter coordinates at ``theta`` (numpy)."""
+        return np.append(np.asarray(theta, dtype=float), 0.0)[self._z_src]
+
     def values(self, theta) -> np.ndarray:
         """Physical values of the fitted parameters [SI] at ``theta``."""
-        key = ("values", _vehicle_key(self.vehicle), self.names)
-        if key not in _COMPILED:  # jitted: the optimisers call it every iteration
-            names, vehicle = self.names, self.vehicle
-            _COMPILED[key] = jax.jit(lambda z: from_unconstrained(z, names, vehicle))
-        return np.asarray(_COMPILED[key](jnp.asarray(theta[: self.n_z], dtype=jnp.float64)))
+        return np.asarray(self._transform()(self._z(theta)))[self._z_cols]
 
     def vehicle_at(self, theta) -> jl.Vehicle:
         """The vehicle with the fitted parameters at ``theta``, its peak in the problem's
@@ -322,9 +408,8 @@ class CalibrationProblem:
 
     def transform_jacobian(self, theta) -> np.ndarray:
         """d(physical values)/d(theta[:n_z]) (for the delta method)."""
-        z = jnp.asarray(theta[: self.n_z])
-        return np.asarray(jax.jacfwd(lambda zz: from_unconstrained(
-            zz, self.names, self.vehicle))(z))
+        g = np.asarray(self._transform(jacobian=True)(self._z(theta)))
+        return g[self._z_cols][:, self._z_cols]
 
     # ------------------------------------------------------------------------ evaluation
     def _args(self):
@@ -335,6 +420,8 @@ class CalibrationProblem:
         args = (jnp.asarray(self.speeds), jnp.asarray(self.rel_t), jnp.asarray(self.data),
                 jnp.asarray(self.inv_sigma), jnp.asarray(self.mask),
                 jnp.asarray(self.huber_c, dtype=jnp.float64), jnp.asarray(self.coeffs))
+        if self.shared_forms:  # the peak's form, an argument of the shared functions
+            args = (jnp.asarray(FORM_INDEX[self.peak_form], dtype=jnp.int32), *args)
         self._args_cache = (self.mask, self.huber_c, args)
         return args
 
@@ -346,6 +433,9 @@ class CalibrationProblem:
 
         th = jnp.asarray(theta, dtype=jnp.float64)
         args = self._args()
+        # the residual traced here first: the Jacobian's trace then reuses its jaxpr instead
+        # of tracing the landing again, while the residual compiles in the second thread
+        self._res_jit.trace(self._embed(th), *args)
         side = threading.Thread(target=lambda: self._res(th, *args)[0].block_until_ready())
         side.start()
         try:

@@ -258,6 +258,11 @@ class HoneycombCurve(eqx.Module):
     t1_c: jnp.ndarray | None = None  # m, the segments' starts c_j (last axis: j = 0 .. n-1)
     t1_dc: jnp.ndarray | None = None  # m, their widths (a uniform grid: last axis of length 1)
     t1_slope: jnp.ndarray | None = None  # N/m, the excess's slope on [c_j, c_j + dc]
+    # optional, with the table: the excess at each segment's start e(c_j) [N] and its integral
+    # over [0, c_j] [J]; with them the unsmoothed law reads the one segment that holds c (a
+    # gather) instead of summing over all of them (calibration's peak forms: 97 segments)
+    t1_e: jnp.ndarray | None = None
+    t1_int: jnp.ndarray | None = None
     bonded: bool = eqx.field(static=True, default=False)
     extended: bool = eqx.field(static=True, default=False)
 

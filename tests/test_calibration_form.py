@@ -12,19 +12,27 @@ import argparse
 import json
 import warnings
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import calibration as cal
+import jaxland as jl
 from calibration import _fit as cal_fit, virtual_rig as vr
 from calibration._parameters import (
     EXP_POINTS,
     EXP_SPAN,
+    FORM_INDEX,
+    PEAK_FORMS,
     SHAPE_PARAMS,
+    forms_vehicle,
     get_values,
     peak_form_vehicle,
     set_values,
+    switch_on,
 )
+from calibration._problem import CalibrationProblem
 from calibration.cli import add_subcommands
 
 PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
@@ -147,3 +155,92 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
     assert rep["misfit"]["model_form"]["best_supported"] == "rise"
     k_b1 = rep["parameters"]["k_b1"]
     assert k_b1["std_error_total"] > 2.0 * max(k_b1["std_error"], k_b1["std_error_hac"])
+
+
+def test_the_shared_table_lands_as_each_forms_own_vehicle():
+    """``forms_vehicle`` (one compiled landing for every form, the form a runtime code) lands
+    as the vehicle in that form (``peak_form_vehicle``) up to rounding. Its derivatives are
+    finite in every form, also with a rise length of 0 where the form has no rise, and the
+    rise length moves only the rise form."""
+    veh = set_values(vr.truth_vehicle(), ("peak1", "L_peak1", "L_rise1"),
+                     np.array([1.2, 1.5e-3, 0.8e-3]))
+    solver = jl.Solver(dt=1e-5, t_end=0.05, save_dt=1e-4)
+    scene = jl.Scene(drop_height=0.0, sink_speed=2.2)
+    cols = ("strut_force_N", "stroke_m", "body_az_mps2", "normal_force_N")
+
+    def land(v, code):
+        traj = jl.landing(forms_vehicle(v, code), scene, solver, "quarter")[0]
+        return jnp.stack([traj[c] for c in cols])
+
+    shared = jax.jit(land)
+    refs = []
+    for form in PEAK_FORMS:
+        traj = jl.landing(peak_form_vehicle(veh, form), scene, solver, "quarter")[0]
+        ref = np.stack([np.asarray(traj[c]) for c in cols])
+        refs.append(ref[0])
+        got = np.asarray(shared(veh, jnp.asarray(FORM_INDEX[form])))
+        for c, g, r in zip(cols, got, ref):
+            np.testing.assert_allclose(g, r, rtol=0, atol=1e-9 * np.max(np.abs(r)),
+                                       err_msg=f"{form}: {c}")
+    for i in range(len(refs)):  # the forms themselves land apart (the peak is in the window)
+        for j in range(i):
+            assert np.max(np.abs(refs[i] - refs[j])) > 1e-3 * np.max(np.abs(refs[i]))
+
+    def force_sum(p, code, rise):  # p: (peak1, L_peak1, L_rise1) relative
+        v = set_values(veh, ("peak1", "L_peak1", "L_rise1"),
+                       p * jnp.array([1.2, 1.5e-3, rise]))
+        return jnp.sum(land(v, code)[0])
+
+    grad = jax.jit(jax.grad(force_sum), static_argnums=2)
+    for form in PEAK_FORMS:
+        rise = 0.8e-3 if form == "rise" else 0.0
+        g = np.asarray(grad(jnp.ones(3), jnp.asarray(FORM_INDEX[form]), rise))
+        assert np.all(np.isfinite(g)), (form, g)
+        assert (g[2] != 0.0) == (form == "rise"), (form, g)
+
+
+def test_a_fit_and_its_form_refits_share_one_compiled_program(form_fits):
+    """With the peak-shape term on, the fit's problem and its refits in the other forms use
+    the same compiled functions: the refits compile nothing."""
+    for res in form_fits.values():
+        mf = res.diagnostics["model_form"]
+        assert not mf["failed"] and set(mf["forms"]) == set(PEAK_FORMS)
+        assert res.problem.shared_forms and res.problem.peak_form == mf["form"] == "linear"
+        for alt in PEAK_FORMS:
+            prob, _ = cal_fit._form_problem(res.problem, res.vehicle, alt)
+            assert prob.peak_form == alt
+            assert prob._res_jit is res.problem._res_jit
+
+
+def test_the_shared_jacobian_has_each_forms_own_columns():
+    """A shared problem's Jacobian holds its own parameters' columns in its own order, the
+    rise length's dropped where its form has none: the rise form's with L_rise1 listed
+    before L_peak1 is the one with L_rise1 last, permuted; the linear form's L_peak1 and k_b1
+    columns are the central differences of its residuals."""
+    drop = vr.drop_test(0.2, seed=5, peak_mode="physical")
+    veh = switch_on(set_values(drop.vehicle, ("L_rise1",), [1e-3]), PARAMS)
+    kw = dict(vehicle=veh, window_s=0.1, pre_s=cal_fit.PRE_S, shared_forms=True)
+    names_a = PARAMS[:-1] + ("L_rise1", "L_peak1")
+    names_b = PARAMS + ("L_rise1",)
+    a, b = CalibrationProblem([drop], names_a, **kw), CalibrationProblem([drop], names_b, **kw)
+    assert a._res_jit is b._res_jit and a.peak_form == b.peak_form == "rise"
+    theta_b = b.theta_from(veh, [0.05])
+    perm = [names_b.index(n) for n in names_a] + [len(names_b)]
+    theta_a = theta_b[perm]
+    _, ja, _ = a.residuals_and_jacobian(theta_a)
+    _, jb, _ = b.residuals_and_jacobian(theta_b)
+    np.testing.assert_array_equal(ja, jb[:, perm])
+    np.testing.assert_array_equal(a.values(theta_a), b.values(theta_b)[perm[:-1]])
+
+    lin = CalibrationProblem([drop], PARAMS, **dict(kw, vehicle=peak_form_vehicle(veh,
+                                                                                    "linear")))
+    assert lin._res_jit is b._res_jit and lin.peak_form == "linear"
+    theta = lin.theta_from(None, [0.05])
+    _, jac, _ = lin.residuals_and_jacobian(theta)
+    assert jac.shape[1] == len(PARAMS) + 1
+    for n in ("k_b1", "L_peak1"):
+        i, h = PARAMS.index(n), 1e-6
+        step = np.zeros_like(theta)
+        step[i] = h
+        fd = (lin.residuals(theta + step)[0] - lin.residuals(theta - step)[0]) / (2 * h)
+        assert np.linalg.norm(jac[:, i] - fd) < 1e-3 * np.linalg.norm(fd), n

@@ -632,3 +632,40 @@ def test_rise_length_in_toml_off_by_zero_and_refused_by_name(tmp_path):
                        ({"excess1": [0.1], "peak_rise1_mm": 1.0}, "give either peak_rise1")):
         with pytest.raises(jl.ConfigError, match=needle):
             jl.vehicle_from_dict({"honeycomb": hc})
+
+
+def _with_node_values(cv):
+    """The curve ``cv`` with the optional node values and integrals of its table, computed
+    here by numpy from the segments (``HoneycombCurve.t1_e``, ``t1_int``)."""
+    c0, dc, s = (np.broadcast_to(np.asarray(t, float), cv.t1_c.shape)
+                 for t in (cv.t1_c, cv.t1_dc, cv.t1_slope))
+    e = float(cv.a1) + np.concatenate([[0.0], np.cumsum(s * dc)[:-1]])
+    area = np.concatenate([[0.0], np.cumsum(e * dc + 0.5 * s * dc * dc)[:-1]])
+    return eqx.tree_at(lambda c: (c.t1_e, c.t1_int), cv, (jnp.asarray(e), jnp.asarray(area)),
+                       **_NONE)
+
+
+@pytest.mark.parametrize("table", ["uniform", "rise", "zero-width segments"])
+def test_a_table_read_at_its_segment_is_the_summed_table(table):
+    """With the node values and integrals the law reads the one segment that holds the crush:
+    force, energies and plastic set as the sum over every segment, along load / unload /
+    reload through every node, zero-width segments (equal starts) included."""
+    if table == "uniform":
+        cv = _hc_table(r2=1.2, rho=1.3).curve()
+    elif table == "rise":
+        cv = eqx.tree_at(lambda h: h.peak_rise1, _hc(1.25, None, None, 1.5e-3), 1e-3,
+                         **_NONE).curve()
+    else:  # one falling segment, then segments of width 0 at its end (calibration's forms)
+        cv = _hc(1.3, None, None, 4e-3).curve()
+        z = jnp.zeros(4)
+        cv = eqx.tree_at(
+            lambda c: (c.t1_c, c.t1_dc, c.t1_slope), cv,
+            (jnp.concatenate([jnp.zeros(1), jnp.full(4, cv.L1)]),
+             jnp.concatenate([cv.L1[None], z]), jnp.concatenate([(-cv.a1 / cv.L1)[None], z])),
+            **_NONE)
+    read = _with_node_values(cv)
+    assert cv.t1_e is None and read.t1_e is not None
+    xs = _path(0.0, 0.004, 0.0012, 0.0065, 0.0015, 0.065, 0.061, 0.0715)
+    for a, b in zip(_run(cv, xs), _run(read, xs)):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-9)
+    _assert_ledger_closes(read, xs)

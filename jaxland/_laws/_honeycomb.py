@@ -62,7 +62,10 @@ over the plastic set, exact in closed form for the piecewise-linear e:
 
     (a^2 - e^2) / (2 k_b1) + a c + sum_j s_j (u_j^2 / 2 + dc max(c - c_j - dc, 0)),
 
-which for a two-node table (a, 0) over L is the linear peak's work above.
+which for a two-node table (a, 0) over L is the linear peak's work above. A curve that also
+carries the node values e(c_j) and integrals (``HoneycombCurve.t1_e``, ``t1_int``; calibration's
+peak forms) is read, unsmoothed, at the one segment that holds c: e = e_j + s_j (c - c_j) and
+the integral likewise, the same numbers without a sum over every segment.
 
 A peak that builds up (``Honeycomb.peak_rise1`` = L_r, with peak_ratio1): the elastic rise
 ends at F1 (a = 0 at the onset x_L1), the strength rises linearly to r1 F1 over the crush L_r,
@@ -211,6 +214,25 @@ def _table(c, hc: HoneycombCurve, w: float):
     return e, integral
 
 
+def _table_at(c, hc: HoneycombCurve):
+    """``_table`` (unsmoothed) from the segment that holds c, with the node values and
+    integrals ``t1_e``, ``t1_int``: e = e_j + s_j v and its integral I_j + e_j v + s_j v^2 / 2,
+    v = c - c_j, j the last segment starting at or before c (c in [0, L], so j >= 0; at a
+    zero-width segment's start the later one, whose v is 0). The work per derivative
+    direction does not grow with the table's length."""
+    shape = jnp.broadcast_shapes(jnp.shape(c), hc.t1_c.shape[:-1])
+    n = hc.t1_c.shape[-1]
+    j = jnp.sum(jnp.expand_dims(c, -1) >= hc.t1_c, axis=-1) - 1
+    idx = jnp.broadcast_to(jnp.expand_dims(jnp.clip(j, 0, n - 1), -1), shape + (1,))
+
+    def at(t):
+        return jnp.take_along_axis(jnp.broadcast_to(t, shape + (n,)), idx, axis=-1)[..., 0]
+
+    v = c - at(hc.t1_c)
+    e_j, s_j = at(hc.t1_e), at(hc.t1_slope)
+    return e_j + s_j * v, at(hc.t1_int) + e_j * v + 0.5 * s_j * v * v
+
+
 def _peak_work(a, e, c, length, k):
     """Crush work of a peak beyond the plateau's [J]: (a^2 - e^2) / (2k) + a c (1 - c / 2L)."""
     return (a * a - e * e) / (2.0 * k) + a * c * (1.0 - c / (2.0 * length))
@@ -231,7 +253,8 @@ def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> Honeycom
         e1 = hc.a1 - hc.a1 * c_1 / hc.L1  # strength left over F1 (the peak fades as it crushes)
         work1 = _peak_work(hc.a1, e1, c_1, hc.L1, hc.k_b1)
     else:  # the tabulated excess
-        e1, int1 = _table(c_1, hc, w)
+        e1, int1 = (_table_at(c_1, hc) if hc.t1_e is not None and w == 0.0
+                    else _table(c_1, hc, w))
         work1 = (hc.a1 * hc.a1 - e1 * e1) / (2.0 * hc.k_b1) + int1
     e2 = hc.a2 - hc.a2 * c_2 / hc.L2
     cap1 = hc.x_L1 + e1 / hc.k_b1  # elastic capacity of stage 1: strength / k_b1
