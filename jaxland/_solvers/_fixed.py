@@ -129,7 +129,7 @@ def _at_half(s_m, q1, v_half):
     return eqx.tree_at(lambda x: (x.q, x.v), s_m, (q1, v_half))
 
 
-class Leapfrog(AbstractFixedStep):
+class Leapfrog(Verlet):
     """Kick-drift-kick with one evaluation per step: velocity Verlet whose end-of-step
     evaluation is also the next step's start (first same as last). That evaluation, at the new
     positions and the half-step velocity, takes the strut damping implicitly over the second
@@ -140,19 +140,7 @@ class Leapfrog(AbstractFixedStep):
     the half-step velocity, as in Verlet's second evaluation. The dissipation powers are booked
     as a trapezoid, the slip energy as Verlet books it (``AbstractModel.second_order``)."""
 
-    name: ClassVar[str] = "leapfrog"
-    stability_reason: ClassVar[str] = EulerImplicit.stability_reason
-
-    def stable_step(self, osc):
-        return _limit(osc, strut=False)
-
-    def record_kick(self, dt):
-        return 0.5 * dt
-
-    def integrate(self, model, vehicle, scene, solver):
-        """With the model's ``second_order`` evaluation (``AbstractModel``)."""
-        return super().integrate(dataclasses.replace(model, second_order=True), vehicle, scene,
-                                 solver)
+    name: ClassVar[str] = "leapfrog"  # Verlet's stable step, record kick and evaluation
 
     def start(self, model, vehicle, s0, scene, derived):
         ev = model.evaluate(vehicle, s0, scene, derived)  # the first half kick's forces
