@@ -7,8 +7,8 @@ import functools
 import json
 import math
 import os
-import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -107,31 +107,10 @@ def _compiled_chunk(spec, solver, model, count):
     return fn
 
 
-def _compile_aside(fn, shapes, sharding):
-    """A function that waits for ``fn`` compiled for inputs shaped ``shapes`` (on
-    ``sharding``) in a second thread, and returns the compiled program (XLA compiles without
-    the interpreter lock, so the caller's own work meanwhile costs no wall time on two cores);
-    an error of the compilation is raised there."""
-    specs = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding),
-                         shapes)
-    box: list = []
-
-    def work():
-        try:
-            box.append(fn.lower(specs).compile())
-        except BaseException as err:  # raised in the caller's thread
-            box.append(err)
-
-    thread = threading.Thread(target=work, daemon=True)
-    thread.start()
-
-    def wait():
-        thread.join()
-        if isinstance(box[0], BaseException):
-            raise box[0]
-        return box[0]
-
-    return wait
+def _compile(fn, shapes, sharding):
+    """``fn`` lowered and compiled for inputs shaped like ``shapes``, placed on ``sharding``."""
+    return fn.lower(jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), shapes)).compile()
 
 
 @dataclass
@@ -213,17 +192,25 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     n_proc, rank = jax.process_count(), jax.process_index()
     starts = list(range(0, spec.n, chunk))[rank::n_proc]
     check_fixed(spec, vehicle.n_legs)
+    def inputs_of(start):  # a padded chunk's drawn inputs, on the devices (no wait)
+        return jax.device_put(draw(spec, jnp.arange(start, start + chunk), vehicle.n_legs),
+                              batch_sharding)
+
     # One compiled program per chunk: the scenes from the drawn inputs, the landings, the
     # outcomes per sample and the envelope check; the host only copies the results out.
     t0 = time.perf_counter()  # the wall time counts the compilation, as the run's did
-    idx0 = jnp.arange(starts[0] if starts else 0, (starts[0] if starts else 0) + chunk)
-    compiled = None if share_program else _compile_aside(  # while the first draw compiles
-        jax.jit(lambda ins: _chunk(spec, vehicle, solver, model, ins, chunk)),
-        jax.eval_shape(lambda i: draw(spec, i, vehicle.n_legs), idx0), batch_sharding)
-    first = (jax.device_put(draw(spec, idx0, vehicle.n_legs), batch_sharding)
-             if starts else None)
-    run = (functools.partial(_compiled_chunk(spec, solver, model, chunk), vehicle)
-           if compiled is None else compiled())
+    prepared = {}  # start -> inputs drawn ahead
+    if share_program:
+        run = functools.partial(_compiled_chunk(spec, solver, model, chunk), vehicle)
+    else:  # the chunk compiles in a second thread while the first draw compiles and runs
+        shapes = jax.eval_shape(lambda i: draw(spec, i, vehicle.n_legs), jnp.arange(chunk))
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            compiling = pool.submit(
+                _compile, jax.jit(lambda ins: _chunk(spec, vehicle, solver, model, ins, chunk)),
+                shapes, batch_sharding)
+            if starts:
+                prepared[starts[0]] = inputs_of(starts[0])
+            run = compiling.result()
     outputs: dict = {}
     inputs: dict = {}
     label = progress if isinstance(progress, str) else "montecarlo"
@@ -231,11 +218,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     done = 0
 
     def dispatch(start):  # no wait for the device: returns the chunk's arrays being computed
-        if start == starts[0]:
-            ins = first
-        else:
-            ins = draw(spec, jnp.arange(start, start + chunk), vehicle.n_legs)  # padded chunk
-            ins = jax.device_put(ins, batch_sharding)
+        ins = prepared.pop(start) if start in prepared else inputs_of(start)
         return start, ins, run(ins)
 
     pending = [dispatch(starts[0])] if starts else []
