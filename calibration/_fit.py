@@ -827,14 +827,13 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # a CFC filter correlates the noise itself: the classical errors never hold then
     trust = "std_error_hac" if unc["misfit"] or final.filtered else "std_error"
     trusted = unc["se_hac"] if trust == "std_error_hac" else unc["se"]
-    forms_job = None
     if forms:  # the peak-shape refits run in a second thread beside the channel spread's
         if forms_thread is not None:  # (each refit's time is XLA's, which frees the GIL)
             forms_thread.join()
-        forms_job = ThreadPoolExecutor(max_workers=1)
-        forms_future = forms_job.submit(model_form_spread, final, theta, form, huber_c,
-                                        max_iter, unc["rho1"])
-        forms_job.shutdown(wait=False)
+        pool = ThreadPoolExecutor(max_workers=1)
+        forms_future = pool.submit(model_form_spread, final, theta, form, huber_c, max_iter,
+                                   unc["rho1"])
+        pool.shutdown(wait=False)
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
                       if unc["misfit"] else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]
