@@ -4,6 +4,7 @@ by side) and the choice of the Monte Carlo step.
 
     python benchmarks/bench_montecarlo.py [--quarter-n 20000] [--full-n 128] [--before TREE]
     python benchmarks/bench_montecarlo.py --step-study [--step-n 32]
+    python benchmarks/bench_montecarlo.py --step-check 128
     python benchmarks/bench_montecarlo.py --cache
     python benchmarks/bench_montecarlo.py --quick
 
@@ -322,6 +323,54 @@ def step_study(models, n: int) -> dict:
     return report
 
 
+def step_check(n: int, out: Path) -> dict:
+    """The 3-D model's chosen step (montecarlo_step.json) and the spec's default step checked
+    on ``n`` samples, more than the study ran, against both converged runs (verlet and euler at
+    the reference step): per outcome, the worst per-sample error where the two agree within a
+    tenth of the tolerance (the sample with the largest), the samples that miss the tolerance
+    there, the samples on which the two converged runs themselves disagree, and the mean and
+    median errors next to the converged runs' own. Writes montecarlo_step_check.json."""
+    import numpy as np
+
+    step_file = out / "montecarlo_step.json"
+    if not step_file.exists():
+        step_file = RESULTS / "montecarlo_step.json"
+    chosen = json.loads(step_file.read_text())["models"]["full"]["chosen"]
+    spec = _spec("full", n)
+    ref = _outcomes("full", spec, *REFERENCE)
+    other = _outcomes("full", spec, "euler", REFERENCE[1])
+    rows = []
+    for method, dt in ((chosen["method"], chosen["dt_s"]), DEFAULT):
+        got = _outcomes("full", spec, method, dt)
+        per = {}
+        for k in STEP_KEYS:
+            agree = np.abs(other[k] - ref[k]) <= 0.1 * STEP_TOL * np.abs(ref[k])
+            rel = np.abs(got[k] - ref[k]) / np.abs(ref[k])
+            worst = int(np.argmax(np.where(agree, rel, -1.0)))
+            per[k] = dict(
+                worst_where_converged_agree=float(rel[worst]), worst_sample=worst,
+                over_tolerance=np.flatnonzero(agree & (rel > STEP_TOL)).tolist(),
+                converged_disagree=np.flatnonzero(~agree).tolist(),
+                ensemble_rel_error={f.__name__: float(abs(f(got[k]) / f(ref[k]) - 1.0))
+                                    for f in (np.mean, np.median)},
+                converged_ensemble_rel_error={f.__name__: float(abs(f(other[k]) / f(ref[k])
+                                                                    - 1.0))
+                                              for f in (np.mean, np.median)})
+        rows.append(dict(method=method, dt_s=dt, outcomes=per, classification_kept=bool(
+            np.array_equal(got["tipped"], ref["tipped"])
+            and np.array_equal(got["bottomed"], ref["bottomed"])
+            and np.array_equal(got["result"], ref["result"]))))
+        print(rows[-1], flush=True)
+    report = dict(n=n, spec="examples/montecarlo_dispersed.toml", tolerance=STEP_TOL,
+                  reference=dict(method=REFERENCE[0], dt_s=REFERENCE[1]),
+                  second_converged=dict(method="euler", dt_s=REFERENCE[1]),
+                  agree_within=0.1 * STEP_TOL, chosen_step_file=str(
+                      step_file.relative_to(ROOT) if ROOT in step_file.parents else step_file),
+                  rows=rows)
+    write_json(out / "montecarlo_step_check.json", report, indent=2)
+    return report
+
+
 def plot_steps(report: dict, out: Path) -> None:
     from matplotlib.figure import Figure
 
@@ -358,6 +407,8 @@ def main() -> None:
     ap.add_argument("--before", default=None, help="an earlier checkout to run side by side")
     ap.add_argument("--step-study", action="store_true")
     ap.add_argument("--step-n", type=int, default=32)
+    ap.add_argument("--step-check", type=int, default=0, metavar="N",
+                    help="check the 3-D chosen step on N samples (montecarlo_step_check.json)")
     ap.add_argument("--cache", action="store_true",
                     help="the CLI run twice with one compilation cache (cli_cache.json)")
     add_out_args(ap)
@@ -368,6 +419,12 @@ def main() -> None:
         args.quarter_n, args.full_n, args.step_n, args.full_n_large = 64, 4, 4, 0
     if args.cache:
         print(json.dumps(cli_cache(out, args.quick), indent=2))
+        return
+    if args.step_check:
+        import jaxland as jl
+
+        jl.use_batch_fusion()
+        step_check(4 if args.quick else args.step_check, out)
         return
     if args.step_study:
         import jaxland as jl

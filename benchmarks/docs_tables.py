@@ -403,6 +403,31 @@ def montecarlo_step() -> str:
                    "worst mean/median error there [-]", "chosen (cheapest)"], rows)
 
 
+def montecarlo_step_check() -> str:
+    """The 3-D chosen step and the default step on more samples than the study ran, against
+    both converged runs (montecarlo_step_check.json)."""
+    b = _load("montecarlo_step_check.json")
+    rows = []
+    for r in b["rows"]:
+        for k, o in r["outcomes"].items():
+            if k == "peak_honeycomb_force_N" and not o["worst_where_converged_agree"]:
+                continue  # on its plateau in every sample: exact at any step
+            rows.append([
+                f"{r['method']}, {r['dt_s']:g}", k,
+                f"{_g(o['worst_where_converged_agree'], 2)} (sample {o['worst_sample']})",
+                ", ".join(map(str, o["over_tolerance"])) or "none",
+                str(len(o["converged_disagree"])),
+                f"{_g(o['ensemble_rel_error']['mean'], 2)} / "
+                f"{_g(o['ensemble_rel_error']['median'], 2)}",
+                f"{_g(o['converged_ensemble_rel_error']['mean'], 2)} / "
+                f"{_g(o['converged_ensemble_rel_error']['median'], 2)}"])
+    return _table([
+        "method, dt [s]", "outcome", "worst per-sample error where the converged runs agree [-]",
+        f"samples over {b['tolerance']:g} there",
+        f"samples whose converged runs differ by more than {b['agree_within']:g} [-]",
+        "mean / median error [-]", "converged runs' own mean / median difference [-]"], rows)
+
+
 # --- calibration (bench_fit.json) ---------------------------------------------------------------
 
 def calibration_fit() -> str:
@@ -699,6 +724,7 @@ TABLES = {
     "performance-montecarlo": performance_montecarlo,
     "performance-montecarlo-side-by-side": montecarlo_side_by_side,
     "montecarlo-step": montecarlo_step,
+    "montecarlo-step-check": montecarlo_step_check,
     "calibration-fit": calibration_fit,
     "calibration-fit-time": calibration_fit_time,
     "performance-montecarlo-large": performance_montecarlo_large,
