@@ -251,6 +251,25 @@ def test_coordinates_run_onto_their_bounds_still_give_a_valid_vehicle(k_scale):
         assert set(at_bound(names, vals, veh)) == {names[i] for i in bounded}
 
 
+def test_a_value_at_a_bound_is_reported_as_such_not_as_left_at_its_start():
+    """The column of a value on a bound vanishes because the transform is flat there: the
+    report says it ended at the rule's limit (which side, the range), not that the data
+    ignore it and it stayed at its start."""
+    names = ("k", "F1", "peak1", "L_peak1")
+    veh = switch_on(jl.paper_vehicle(), names)
+    z = to_unconstrained(veh, names)
+    z[3] = -40.0  # L_peak1 onto its lower bound: the steepest fall the rule allows
+    vals = np.asarray(from_unconstrained(jnp.asarray(z), names, veh))
+    bound = at_bound(names, vals, veh)
+    assert bound == ("L_peak1",)
+    unc = dict(se=np.array([1.0, 1.0, 1e-3, 0.0]), zero=np.array([False, False, False, True]),
+               col_rel=np.array([1.0, 1.0, 1.0, 1e-20]))
+    ok, msgs = cal_fit._identifiability(names, vals, unc, bound)
+    assert ok.tolist() == [True, True, True, False] and msgs == []
+    msg = cal_fit._bound_message("L_peak1", names, vals, veh)
+    assert "lower bound" in msg and "standard errors" in msg and "not the data's" in msg
+
+
 def test_off_extensions_read_as_one_and_are_switched_on_by_set_values():
     veh = jl.paper_vehicle()
     assert get_values(veh, ("peak1", "unload")).tolist() == [1.0, 1.0]
