@@ -223,7 +223,8 @@ def coverage(n_seeds: int, height: float = 0.2, only: str | None = None) -> dict
                              se=r.std_errors[:n].tolist(), se_hac=r.std_errors_hac[:n].tolist(),
                              se_total=r.std_errors_total[:n].tolist(), **_form_row(r, n),
                              sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
-                             misfit_warned=bool(r.diagnostics["misfit"])))
+                             misfit_warned=bool(r.diagnostics["misfit"]),
+                             at_bound=r.diagnostics["at_bound"]))
             print(f"[coverage] {label}, seed {seed}: {w:.1f} s, rho1 "
                   f"{rows[-1]['rho1']:.2f}", flush=True)
         out["cases"][label] = dict(rig=rig, truth=dict(zip(names, p_true.tolist())),
@@ -446,6 +447,7 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
                     z_classical=dict(zip(base, ((v - p_true) / r.std_errors[:n]).tolist())),
                     sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
                     misfit_warned=bool(r.diagnostics["misfit"]),
+                    at_bound=r.diagnostics["at_bound"],
                     channel_shift_rel={c: None if d is None else
                                        {p: d[p] / float(t) for p, t in zip(base, p_true)}
                                        for c, d in r.diagnostics["channel_spread"].items()},

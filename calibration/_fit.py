@@ -72,6 +72,7 @@ from ._parameters import (
     SHAPE_PARAMS,
     START_IF_OFF,
     _bounds,
+    at_bound,
     check_names,
     get_values,
     peak_form_vehicle,
@@ -186,6 +187,7 @@ class FitResult:
                 std_error_total=num(self.std_errors_total[i])
                 if self.std_errors_total is not None else None,
                 start=num(self.start_values[i]), identified=bool(self.identified[i]),
+                at_bound=n in self.diagnostics.get("at_bound", ()),
                 config_key=PARAMS[n][2], description=PARAMS[n][4])
         return dict(
             parameters=params,
@@ -230,6 +232,8 @@ class FitResult:
                 + ", ".join(d.source for d in self.drops),
                 "# fitted: " + ", ".join(
                     f"{n} = {v:.6g} +/- {s:.2g} {PARAMS[n][1]}" if ok else
+                    f"{n} = {v:.6g} {PARAMS[n][1]} (AT A BOUND OF THE VEHICLE'S RULES)"
+                    if n in self.diagnostics.get("at_bound", ()) else
                     f"{n} = {v:.6g} {PARAMS[n][1]} (NOT IDENTIFIED: left at its start)"
                     for n, v, s, ok in zip(self.names, self.values, self.std_errors,
                                            self.identified)), ""]
@@ -567,6 +571,20 @@ def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
     return veh
 
 
+def _bound_message(n, names, values, vehicle) -> str:
+    """What a value at a bound of its transform (``at_bound``) means, for the report."""
+    i = names.index(n)
+    lo, hi = ((0.0, 1.0) if PARAMS[n][3] == "logit"
+              else (float(b) for b in _bounds(n, names, values, vehicle)))
+    side = "lower" if values[i] - lo < hi - values[i] else "upper"
+    return (f"{n} = {values[i]:.6g} {PARAMS[n][1]} ended at the {side} bound of its range "
+            f"({lo:.6g}, {hi:.6g}) set by the vehicle's rules (jaxland.validate_vehicle): the "
+            "value is the rule's limit, not the data's, and its standard errors (through a "
+            "flat transform there) do not hold; the data ask for more than the model allows "
+            + ("(a crush peak sharper or higher than the law's rules: the fit reproduces the "
+               "peak's work, not its shape)" if n in SHAPE_PARAMS else "here"))
+
+
 def _disagreement(names, shifts, se) -> str:
     """'; the channels disagree most on P: without C it moves by X (Y x its HAC standard
     error)' for the largest shift in units of ``se``, the HAC errors (called under misfit
@@ -602,12 +620,18 @@ def robust_threshold(problem: CalibrationProblem, theta, k: float) -> float:
     return k * max(1.4826 * float(np.median(np.abs(r))), 1.0)
 
 
-def _identifiability(names, values, unc) -> tuple[np.ndarray, list]:
+def _identifiability(names, values, unc, bound=()) -> tuple[np.ndarray, list]:
+    """Which parameters the data identify, and a message for each that they do not. A value
+    at a bound (``bound``) is not identified either, and its own message (``_bound_message``)
+    says why: its column vanishes because the transform is flat there, not because the data
+    ignore it."""
     ok = np.ones(len(names), bool)
     msgs = []
     for i, n in enumerate(names):
         rel = unc["se"][i] / abs(values[i]) if values[i] else math.inf
-        if unc["zero"][i]:
+        if n in bound:
+            ok[i] = False
+        elif unc["zero"][i]:
             ok[i] = False
             what = "F2 - F1 (F2 is fitted as its excess over F1)" if n == "F2" else "it"
             msgs.append(f"{n} is not identified by the data: the residuals do not depend on it "
@@ -813,7 +837,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             f"the fit found no usable minimum ({err}): the model does not follow the record "
             "at all; check the drop test's metadata against the record (drop_height_m, "
             "sink_speed_mps or touchdown_speed_mps, sensor_leg, units)") from None
-    identified, msgs = _identifiability(names, values, unc)
+    bound = at_bound(names, values, final.vehicle)
+    identified, msgs = _identifiability(names, values, unc, bound)
+    msgs += [_bound_message(n, names, values, final.vehicle) for n in bound]
     for m in msgs:
         warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
     # the misfit test needs a measured noise level: on noise-free records (every channel's
@@ -883,7 +909,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         std_errors_total=np.sqrt(trusted**2 + spread**2 + form_term**2),
         diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
             "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
-            worst_window=unc["where"],
+            worst_window=unc["where"], at_bound=list(bound),
             trust=trust,
             interval=("std_error_total" if (unc["misfit"] or mform is not None) else trust),
             model_form=mform,

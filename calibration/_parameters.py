@@ -2,7 +2,8 @@
 keeps it physical while the optimiser works on an unconstrained number.
 
 * Positive parameters are fitted as ``log(p)`` (never clipped).
-* ``gamma`` in (0, 1) as ``logit(gamma)``.
+* ``gamma`` in (0, 1) as ``logit(gamma)`` (held below 1 - ``BOUND_MARGIN``, where the
+  sigmoid rounds to 1, the rule's open end).
 * ``F2`` as ``log(F2 - F1)``: the secondary plateau always exceeds the primary (the vehicle's
   validity rule), whatever the optimiser tries.
 * The honeycomb's crush-peak ratios, their decay lengths, the primary's rise length and the
@@ -14,7 +15,13 @@ keeps it physical while the optimiser works on an unconstrained number.
   largest peak those leave room for), and r1 F1 < F2; L_rise1 between (r1 - 1) F1 / k_b1 (a
   build-up slower than the elastic rise) and the room L_peak1 leaves before x_L2. A sharper
   measured peak than the rule allows ends the fit at the bound (the peak's work, not its
-  shape), never at an invalid vehicle. Off in the starting vehicle (ratio 1, the paper's law)
+  shape), never at an invalid vehicle: every bound a rule sets is moved inside by
+  ``BOUND_MARGIN`` (1e-9) of that rule's own scale (the slope k / 2, the plateau's end x_L2 or
+  x_L4, F2, the stiffest stage), far above float64 rounding (1e-16) and far below anything
+  measurable (L_peak1's upper bound also leaves ``RISE_ROOM``, 1e-4 of the room, to
+  L_rise1), so that a value the optimiser drives onto a bound, where the rule holds with
+  equality, still passes the rule after rounding (``at_bound`` names such values). Off in the
+  starting vehicle (ratio 1, the paper's law)
   the ratios start from ``START_IF_OFF`` (1.2: the middle of the pre-crushed honeycomb's
   1.0-1.3 x range; 1.1 for the unloading ratio; a rise length that is off starts at 1 mm).
 
@@ -35,7 +42,7 @@ import jaxland as jl
 
 __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_IF_OFF",
            "PEAK_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle", "forms_vehicle",
-           "check_names", "get_values",
+           "check_names", "get_values", "at_bound", "BOUND_MARGIN",
            "set_values", "switch_on", "to_unconstrained", "from_unconstrained"]
 
 # name -> (getter, unit, TOML key, transform, description)
@@ -88,6 +95,13 @@ _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None 
 PEAK_FORMS = ("linear", "rise", "exp")
 SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
 EXP_SPAN, EXP_POINTS = 8.0, 97
+# how far inside each rule-set bound the transform keeps a value, in units of the rule's own
+# scale (module docstring): rounding (1e-16) cannot cross it, no measurement can see it
+BOUND_MARGIN = 1e-9
+# the part of the primary plateau's room that L_peak1's upper bound leaves for L_rise1 beyond
+# the elastic rise (a rise no longer than (r1 - 1) F1 / k_b1 is refused): its interval then
+# stays open, at least 6 um on the paper vehicle, whatever L_peak1 is
+RISE_ROOM = 1e-4
 FORM_INDEX = {f: i for i, f in enumerate(PEAK_FORMS)}  # the runtime code of ``forms_vehicle``
 DEFAULT_PARAMS = ("k", "gamma", "D_b", "k_b1", "F1", "F2")
 OPTIONAL_PARAMS = tuple(n for n in PARAMS if n not in DEFAULT_PARAMS)
@@ -242,34 +256,61 @@ def _value(m, names, values, vehicle):
 
 def _bounds(n, names, values, vehicle):
     """(lo, hi) of a crush-peak or unloading parameter from the vehicle's rules (hi None: no
-    upper bound), given the other values (fitted or the vehicle's)."""
+    upper bound), given the other values (fitted or the vehicle's); each bound that a rule
+    sets lies ``BOUND_MARGIN`` of the rule's scale inside it (module docstring)."""
     def v(m):
         return _value(m, names, values, vehicle)
 
+    m = BOUND_MARGIN
     hc = vehicle.honeycomb
     if n == "L_rise1":  # the build-up (r1 - 1) F1 / L_r < k_b1; the rise and fall end in x_L2
         a = (v("peak1") - 1.0) * v("F1")
-        return a / v("k_b1"), hc.x_L2 - v("F1") / v("k_b1") - v("L_peak1")
+        return (a / v("k_b1") * (1.0 + m),
+                hc.x_L2 - v("F1") / v("k_b1") - v("L_peak1") - m * hc.x_L2)
     if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
-        return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3")
+        return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3") * (1.0 - m)
     first = n in ("peak1", "L_peak1")
     ratio, length, force, k_el = (("peak1", "L_peak1", "F1", "k_b1") if first
                                   else ("peak2", "L_peak2", "F2", "k_b3"))
-    # the plateau's room: from its start (x_L1, x_L3) to its end (x_L2, x_L4)
+    # the plateau's room: from its start (x_L1, x_L3) to its end (x_L2, x_L4), less the margin
+    end = hc.x_L2 if first else hc.x_L4
     room = (hc.x_L2 - v("F1") / v("k_b1") if first
-            else hc.x_L4 - hc.x_L2 - (v("F2") - v("F1")) / v("k_b3"))
+            else hc.x_L4 - hc.x_L2 - (v("F2") - v("F1")) / v("k_b3")) - m * end
     if n in ("peak1", "peak2"):  # bound the peak a = (r - 1) F
         if length in names:  # the length's interval below must stay open
             a_hi = 0.999 * room / (2.0 / v("k") + 1.0 / v(k_el))
         else:  # the fixed length: falling slope a / L <= k / 2, the peak ends in the room
             L = hc.peak_length1 if first else hc.peak_length2
-            a_hi = jnp.minimum(0.5 * v("k") * L, v(k_el) * (room - L))
+            a_hi = jnp.minimum(0.5 * v("k") * L * (1.0 - m), v(k_el) * (room - L))
         if first:  # r1 F1 < F2: the primary's peak stays below the secondary plateau
-            a_hi = jnp.minimum(a_hi, v("F2") - v("F1"))
+            a_hi = jnp.minimum(a_hi, v("F2") - v("F1") - m * v("F2"))
         return 1.0, 1.0 + a_hi / v(force)
     a = (v(ratio) - 1.0) * v(force)
-    # falling slope a / L <= k / 2; the peak's rise a / k_el and decay L end in the room
-    return 2.0 * a / v("k"), room - a / v(k_el)
+    # falling slope a / L <= k / 2; the peak's rise a / k_el and decay L end in the room, and
+    # the primary's leaves RISE_ROOM of it, so that L_rise1's interval stays open at any L
+    return (2.0 * a / v("k") * (1.0 + m),
+            room - a / v(k_el) - (RISE_ROOM * room if first else 0.0))
+
+
+def at_bound(names, values, vehicle, rel: float = 1e-6) -> tuple[str, ...]:
+    """The bounded parameters (gamma in (0, 1); ``_bounds``: crush peaks, rise, unloading
+    ratio) whose value lies within ``rel`` of its interval's width from a bound (the
+    transform's slope is then below ``rel``: |z| > 13.8 for the default): the optimiser ran
+    to the limit of the vehicle's rules there, so the value is the rule's, not the data's, and
+    the delta-method standard error through the flat transform says nothing about it."""
+    values = np.asarray(values, dtype=float)
+    out = []
+    for i, n in enumerate(names):
+        kind = PARAMS[n][3]
+        if kind == "logit":
+            lo, hi = 0.0, 1.0
+        elif kind in ("over1", "length", "rise"):
+            lo, hi = (float(b) for b in _bounds(n, names, values, vehicle))
+        else:
+            continue
+        if min(values[i] - lo, hi - values[i]) <= rel * (hi - lo):
+            out.append(n)
+    return tuple(out)
 
 
 _STAGE = {"log": 0, "logit": 0, "gap": 1, "over1": 2, "length": 3, "rise": 4}  # in order
@@ -324,8 +365,8 @@ def from_unconstrained(z, names, vehicle: jl.Vehicle):
                 continue
             if kind == "log":
                 out[i] = jnp.exp(z[i])
-            elif kind == "logit":
-                out[i] = 1.0 / (1.0 + jnp.exp(-z[i]))
+            elif kind == "logit":  # below 1 (the rule's open end) where the sigmoid rounds
+                out[i] = jnp.minimum(1.0 / (1.0 + jnp.exp(-z[i])), 1.0 - BOUND_MARGIN)
             elif kind == "gap":
                 out[i] = _f1_of(names, out, vehicle) + jnp.exp(z[i])
             else:

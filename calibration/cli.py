@@ -177,7 +177,8 @@ def _cmd_fit(args) -> int:
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 
-        flag = "" if result.identified[i] else "   NOT IDENTIFIED"
+        flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
+                else "" if result.identified[i] else "   NOT IDENTIFIED")
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
               f"(HAC +/- {result.std_errors_hac[i]:.2g}"
               + (f", total +/- {result.std_errors_total[i]:.2g}"

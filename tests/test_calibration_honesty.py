@@ -6,8 +6,10 @@ exact (linear least squares with AR(1) noise), independently of jaxland; the war
 data with and without an artefact the model lacks.
 """
 
+import itertools
 import warnings
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ import calibration as cal
 import jaxland as jl
 from calibration import _fit as cal_fit, virtual_rig as vr
 from calibration._parameters import (
+    at_bound,
     from_unconstrained,
     get_values,
     set_values,
@@ -224,6 +227,47 @@ def test_rise_length_round_trips_and_any_coordinates_give_a_valid_vehicle():
         a = (float(hc.peak_ratio1) - 1) * float(hc.F1)
         assert a / float(hc.peak_rise1) < float(hc.k_b1)
         assert float(hc.x_L1 + hc.peak_rise1 + hc.peak_length1) < float(hc.x_L2)
+
+
+@pytest.mark.parametrize("k_scale", [1.0, 1.13, 1.3, 1.77, 2.9])
+def test_coordinates_run_onto_their_bounds_still_give_a_valid_vehicle(k_scale):
+    """An optimiser that drives a bounded coordinate to +/- infinity ends on the bound, where
+    the vehicle's rule holds with equality: the transform keeps a margin, so rounding cannot
+    cross the rule (a falling slope of k / 2 to rounding was refused at the end of a fit), and
+    ``at_bound`` names every such value. Several ground stiffnesses vary the rounding."""
+    names = ("k", "gamma", "k_b1", "F1", "F2", "k_b3", "peak1", "L_peak1", "L_rise1", "peak2",
+             "L_peak2", "unload")
+    veh = switch_on(jl.paper_vehicle(), names)
+    veh = set_values(veh, ("k",), [k_scale * float(veh.ground.k)])
+    z0 = to_unconstrained(veh, names)
+    values = jax.jit(lambda z: from_unconstrained(z, names, veh))
+    bounded = [i for i, n in enumerate(names) if n in ("gamma", "peak1", "L_peak1", "L_rise1",
+                                                       "peak2", "L_peak2", "unload")]
+    for signs in itertools.product((-40.0, 40.0), repeat=len(bounded)):
+        z = z0.copy()
+        z[bounded] = signs
+        vals = np.asarray(values(jnp.asarray(z)))
+        jl.validate_vehicle(set_values(veh, names, vals))  # raises ConfigError if refused
+        assert set(at_bound(names, vals, veh)) == {names[i] for i in bounded}
+
+
+def test_a_value_at_a_bound_is_reported_as_such_not_as_left_at_its_start():
+    """The column of a value on a bound vanishes because the transform is flat there: the
+    report says it ended at the rule's limit (which side, the range), not that the data
+    ignore it and it stayed at its start."""
+    names = ("k", "F1", "peak1", "L_peak1")
+    veh = switch_on(jl.paper_vehicle(), names)
+    z = to_unconstrained(veh, names)
+    z[3] = -40.0  # L_peak1 onto its lower bound: the steepest fall the rule allows
+    vals = np.asarray(from_unconstrained(jnp.asarray(z), names, veh))
+    bound = at_bound(names, vals, veh)
+    assert bound == ("L_peak1",)
+    unc = dict(se=np.array([1.0, 1.0, 1e-3, 0.0]), zero=np.array([False, False, False, True]),
+               col_rel=np.array([1.0, 1.0, 1.0, 1e-20]))
+    ok, msgs = cal_fit._identifiability(names, vals, unc, bound)
+    assert ok.tolist() == [True, True, True, False] and msgs == []
+    msg = cal_fit._bound_message("L_peak1", names, vals, veh)
+    assert "lower bound" in msg and "standard errors" in msg and "not the data's" in msg
 
 
 def test_off_extensions_read_as_one_and_are_switched_on_by_set_values():
