@@ -2,7 +2,7 @@
 spec's default step and at the step the step study chose, this tree against an earlier one side
 by side) and the choice of the Monte Carlo step.
 
-    python benchmarks/bench_montecarlo.py [--quarter-n 20000] [--full-n 128] [--before TREE]
+    python benchmarks/bench_montecarlo.py [--quarter-n 20000] [--full-n 1024] [--before TREE]
     python benchmarks/bench_montecarlo.py --step-study [--step-n 32]
     python benchmarks/bench_montecarlo.py --step-check 128
     python benchmarks/bench_montecarlo.py --cache
@@ -351,6 +351,7 @@ def step_check(n: int, out: Path) -> dict:
                 worst_where_converged_agree=float(rel[worst]), worst_sample=worst,
                 over_tolerance=np.flatnonzero(agree & (rel > STEP_TOL)).tolist(),
                 converged_disagree=np.flatnonzero(~agree).tolist(),
+                converged_largest_difference=float(np.max(np.abs(other[k] / ref[k] - 1.0))),
                 ensemble_rel_error={f.__name__: float(abs(f(got[k]) / f(ref[k]) - 1.0))
                                     for f in (np.mean, np.median)},
                 converged_ensemble_rel_error={f.__name__: float(abs(f(other[k]) / f(ref[k])
@@ -400,7 +401,7 @@ def plot_steps(report: dict, out: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quarter-n", type=int, default=20_000)
-    ap.add_argument("--full-n", type=int, default=128)
+    ap.add_argument("--full-n", type=int, default=1024)
     ap.add_argument("--full-n-large", type=int, default=LARGE_TARGET[0],
                     help="one more full 3-D run of this size at the chosen step on 2 devices "
                          "(0: none)")
