@@ -614,7 +614,10 @@ def one_fit(case: str) -> dict:
     truth = vr.truth_vehicle()
     p_true = get_values(truth, cal.DEFAULT_PARAMS)
     n = len(cal.DEFAULT_PARAMS)
+    pm = r.diagnostics.get("peak_model_term")
     return dict(case=case, wall_s=wall, cpu_s=cpu, load_average_1min_at_start=load, **count,
+                misfit_warned=bool(r.diagnostics["misfit"]),
+                peak_model_term_fit_s=pm["wall_s"] if pm is not None and pm["added"] else None,
                 iterations=sum(s["iterations"] for s in r.stages),
                 starts_tried=r.settings["multistart"]["n_starts_tried"],
                 stages=[{k: s[k] for k in ("stage", "iterations", "status", "wall_s")}
