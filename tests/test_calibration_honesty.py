@@ -237,6 +237,37 @@ def test_without_misfit_the_missing_peak_term_changes_nothing(rig_fits, monkeypa
         np.testing.assert_array_equal(getattr(on, name), getattr(res, name))
 
 
+def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_path, capsys):
+    import argparse
+    import json
+
+    from calibration.cli import add_subcommands
+
+    parser = argparse.ArgumentParser()
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    physical = set_values(vr.truth_vehicle(), ("peak1", "L_peak1"), np.array([1.1, 1e-3]))
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, vehicle=physical, seed=7,
+                                 artefacts=dict(crush_peak=0.0))
+    vr.write_nominal(tmp_path)
+    reports = {}
+    for flag in ([], ["--no-peak-model-term"]):
+        out = tmp_path / ("off" if flag else "on")
+        args = parser.parse_args(["fit", str(toml), "--windows", "0.01,0.03",
+                                  "--refine-window-s", "0.06", "--no-plots", "--quiet",
+                                  "--out", str(out), *flag])
+        assert args.func(args) == 0
+        text = capsys.readouterr().out
+        reports[bool(flag)] = json.loads((out / "fit_report.json").read_text())
+        assert ("+ missing-peak term" in text) != bool(flag)
+        assert ("missing crush peak: the residuals show misfit" in text) != bool(flag)
+    on, off = reports[False], reports[True]
+    assert on["misfit"]["peak_model_term"]["added"] and off["misfit"]["peak_model_term"] is None
+    assert on["settings"]["peak_model_term"] == "auto"
+    assert off["settings"]["peak_model_term"] is False
+    k_on, k_off = on["parameters"]["k"], off["parameters"]["k"]
+    assert k_on["value"] == k_off["value"] and k_on["std_error_total"] > k_off["std_error_total"]
+
+
 def test_the_missing_peak_term_is_refused_by_name_when_misnamed():
     with pytest.raises(jl.ConfigError, match="peak_model_term"):
         cal.fit(vr.drop_test(0.2, seed=7), peak_model_term=True)
