@@ -412,6 +412,22 @@ def test_model_selection_refuses_the_peak_where_there_is_none(comparisons):
     assert c["comparison"]["p_value_adjusted"] > 0.01 or c["comparison"]["delta_bic"] > 0
 
 
+def test_model_selection_gives_the_model_without_the_peak_its_missing_peak_term(comparisons):
+    """Under misfit the model without the peak takes its missing-peak term from the peak
+    model the comparison fits (no third fit); without misfit it has none."""
+    c = comparisons["peak"]
+    assert c["no_peak"]["misfit"]
+    pm = c["no_peak"]["peak_model_term"]
+    assert pm["added"] and pm["values"] == c["peak"]["values"]
+    res = c["_results"]["no_peak"]
+    for i, n in enumerate(res.names):
+        assert pm["term"][n] == abs(c["peak"]["values"][n] - res.values[i])
+    np.testing.assert_array_equal([c["no_peak"]["std_errors_total"][n] for n in res.names],
+                                  res.std_errors_total)  # (NaN where not identified)
+    none = comparisons["none"]
+    assert not none["no_peak"]["misfit"] and none["no_peak"]["peak_model_term"] is None
+
+
 def test_chi2_survival_function_matches_tabulated_quantiles():
     from calibration._compare import chi2_sf
 
