@@ -602,8 +602,7 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
             rec.update(
                 added=True, params=list(with_peak.names),
                 values=dict(zip(with_peak.names, with_peak.values.tolist())),
-                std_errors_total=dict(zip(with_peak.names,
-                                          with_peak.std_errors_total.tolist())),
+                std_errors_hac=dict(zip(with_peak.names, with_peak.std_errors_hac.tolist())),
                 shift=dict(zip(names, shift.tolist())), term=dict(zip(names, term.tolist())),
                 chi2_without=_chi2(result.problem, result.theta),
                 chi2_with=_chi2(with_peak.problem, with_peak.theta),
@@ -669,7 +668,7 @@ def _window_text(a: float, b: float) -> str:
 
 
 def _no_warning(*args, **kwargs) -> None:
-    """``warnings.warn``'s stand-in for a fit run inside another (``_quiet``): the outer fit
+    """``warnings.warn``'s stand-in for a fit run inside another (``_inner``): the outer fit
     reports what matters, and ``warnings.catch_warnings`` is not thread-safe."""
 
 
@@ -718,7 +717,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         smoothing_m: float | None = None, smoothing_N: float | None = None,
         fit_touchdown: bool = True, channels=None, peak_form: str | None = None,
         model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
-        progress=None, _quiet: bool = False) -> FitResult:
+        progress=None, _inner: bool = False) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -767,7 +766,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     the data do not determine.
     """
     t_start = time.perf_counter()
-    warn = _no_warning if _quiet else warnings.warn
+    # _inner: a fit run inside another for its values (the missing-peak term): no warnings,
+    # no channel spread (it moves no value)
+    warn = _no_warning if _inner else warnings.warn
     if isinstance(drops, DropTest):
         drops = [drops]
     drops = list(drops)
@@ -945,10 +946,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
             smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
             channels=channels, model_form=False, peak_model_term=False, progress=tagged,
-            _quiet=True)
+            _inner=True)
         pool.shutdown(wait=False)
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
-                      if unc["misfit"] else (np.zeros_like(values), {}))
+                      if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]
     if spread_failed:
         spread = np.nan_to_num(spread, nan=0.0)  # all failed: the total is the trusted error
