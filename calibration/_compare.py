@@ -27,7 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ._fit import IdentifiabilityWarning, MisfitWarning, add_peak_model_term, fit
+from ._fit import (
+    IdentifiabilityWarning,
+    MisfitWarning,
+    add_peak_model_term,
+    fit,
+    has_no_peak,
+)
 from ._parameters import DEFAULT_PARAMS, PEAK_PARAMS
 
 __all__ = ["compare_models", "chi2_sf", "ALPHA"]
@@ -81,8 +87,10 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
             warnings.simplefilter("ignore", IdentifiabilityWarning)
             warnings.simplefilter("ignore", MisfitWarning)
             results[label] = fit(drops, names, **kw)
-    if peak_term == "auto" and results["no_peak"].diagnostics["misfit"]:
-        add_peak_model_term(results["no_peak"], results["peak"])
+    base = results["no_peak"]
+    if (peak_term == "auto" and base.diagnostics["misfit"]
+            and has_no_peak(base.names, base.problem.vehicle)):  # as ``fit`` decides it
+        add_peak_model_term(base, results["peak"])
     out = {}
     for label, res in results.items():
         d = res.diagnostics
