@@ -242,8 +242,15 @@ def _form_row(r, n: int) -> dict:
     error without it, the best-supported form and its values, the plausible forms."""
     mf = r.diagnostics.get("model_form")
     if mf is None:
-        return dict(model_form=False, se_total_without_form=r.std_errors_total[:n].tolist(),
-                    best_form="no peak", best_form_values=r.values[:n].tolist())
+        row = dict(model_form=False, se_total_without_form=r.std_errors_total[:n].tolist(),
+                   best_form="no peak", best_form_values=r.values[:n].tolist())
+        pm = r.diagnostics.get("peak_model_term")
+        if pm is not None and pm["added"]:  # the missing-peak term (no peak in the fit)
+            term = np.array([pm["term"][p] for p in r.names[:n]])
+            row.update(peak_model_term=True, peak_term=term.tolist(),
+                       se_total_without_peak_term=np.sqrt(np.maximum(
+                           r.std_errors_total[:n] ** 2 - term ** 2, 0.0)).tolist())
+        return row
     term = np.array([mf["spread"][p] for p in r.names[:n]])
     best = mf["forms"][mf["best_supported"]]
     return dict(model_form=True,
@@ -274,6 +281,11 @@ def coverage_summary(case: dict, names) -> dict:
         kinds.append(("total_without_form",
                       np.array([r_["se_total_without_form"] for r_ in rows])))
 
+    peak_term = any(r_.get("peak_model_term") for r_ in rows)
+    if peak_term:  # the total without the missing-peak term (fits that have it)
+        kinds.append(("total_without_peak_term", np.array(
+            [r_.get("se_total_without_peak_term", r_["se_total"]) for r_ in rows])))
+
     def cov(ref):
         out = {}
         for label, s in kinds:
@@ -286,6 +298,14 @@ def coverage_summary(case: dict, names) -> dict:
     if len(kinds) > 3:
         extra["mean_se_total_rel"] = dict(zip(names, (kinds[3][1].mean(axis=0)
                                                       / p_true).tolist()))
+    extra["peak_model_term"] = peak_term
+    extra["peak_model_term_fraction"] = float(np.mean([bool(r_.get("peak_model_term"))
+                                                       for r_ in rows]))
+    if peak_term:
+        ratio = kinds[3][1] / kinds[-1][1]
+        extra["width_ratio_peak_term"] = dict(
+            median=float(np.median(ratio)), max=float(np.max(ratio)),
+            per_param_median=dict(zip(names, np.median(ratio, axis=0).tolist())))
     extra["model_form"] = form
     extra["model_form_fraction"] = float(np.mean([bool(r_.get("model_form")) for r_ in rows]))
     if form:
@@ -594,7 +614,10 @@ def one_fit(case: str) -> dict:
     truth = vr.truth_vehicle()
     p_true = get_values(truth, cal.DEFAULT_PARAMS)
     n = len(cal.DEFAULT_PARAMS)
+    pm = r.diagnostics.get("peak_model_term")
     return dict(case=case, wall_s=wall, cpu_s=cpu, load_average_1min_at_start=load, **count,
+                misfit_warned=bool(r.diagnostics["misfit"]),
+                peak_model_term_fit_s=pm["wall_s"] if pm is not None and pm["added"] else None,
                 iterations=sum(s["iterations"] for s in r.stages),
                 starts_tried=r.settings["multistart"]["n_starts_tried"],
                 stages=[{k: s[k] for k in ("stage", "iterations", "status", "wall_s")}

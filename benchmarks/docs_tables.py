@@ -613,14 +613,16 @@ def calibration_prediction() -> str:
 def calibration_coverage() -> str:
     """Coverage of the 95 % intervals per rig case (``coverage`` in bench_fit.json): the
     classical, HAC and trusted intervals, the total one (the trusted error with the channel
-    spread and, where the fit has the crush peak, the peak-shape term), the total without that
-    term, the median ratio of the two widths and the peak form the data supported best."""
+    spread and, where the fit has the crush peak, the peak-shape term, or, under misfit
+    without one, the missing-peak term), the total without that term, the median ratio of the
+    two widths and the peak form the data supported best."""
     c = _load("bench_fit.json")["coverage"]
     params = c["params"]
     rows = []
     for name, case in c["cases"].items():
         cov = case["coverage_of_truth"]
         form = case.get("model_form", False)
+        term = "form" if form else "peak_term" if case.get("peak_model_term") else None
         best = case.get("best_form", {}).get("counts", {})
         rows.append([name, f"{case['misfit_warned_fraction']:.2f}",
                      f"{cov['classical_all']:.2f}", f"{cov['hac_all']:.2f}",
@@ -628,14 +630,14 @@ def calibration_coverage() -> str:
                      " ".join(f"{cov['trusted'][p]:.2f}" for p in params),
                      f"{cov['total_all']:.2f}",
                      " ".join(f"{cov['total'][p]:.2f}" for p in params),
-                     f"{cov['total_without_form_all']:.2f}" if form else "-",
-                     f"{case['width_ratio_form']['median']:.2f}" if form else "-",
+                     f"{cov[f'total_without_{term}_all']:.2f}" if term else "-",
+                     f"{case[f'width_ratio_{term}']['median']:.2f}" if term else "-",
                      ", ".join(f"{f} {k}" for f, k in best.items()) if form else "-"])
     return _table(["rig data", "fits warned of misfit [-]", "classical [-]", "HAC [-]",
                    "the interval the report trusts [-]",
                    f"trusted, per parameter ({', '.join(params)}) [-]",
-                   "total: trusted, channel spread and peak-shape term [-]",
-                   "total, per parameter [-]", "total without the peak-shape term [-]",
+                   "total: trusted, channel spread and peak-shape or missing-peak term [-]",
+                   "total, per parameter [-]", "total without that term [-]",
                    "width, total / without the term, median [-]",
                    f"best-supported peak form (of {c['n_seeds']} seeds)"], rows)
 

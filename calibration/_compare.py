@@ -27,7 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ._fit import IdentifiabilityWarning, MisfitWarning, fit
+from ._fit import (
+    IdentifiabilityWarning,
+    MisfitWarning,
+    add_peak_model_term,
+    fit,
+    has_no_peak,
+)
 from ._parameters import DEFAULT_PARAMS, PEAK_PARAMS
 
 __all__ = ["compare_models", "chi2_sf", "ALPHA"]
@@ -64,18 +70,27 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
     """Fit without and with the primary crush peak; JSON-ready comparison (see the module
     docstring). ``fit_kw`` go to both fits (``peak_form`` to the peak model's only; L_rise1
     in ``params`` goes to the peak model). The peak model's fit carries the peak-shape term
-    in its total standard errors (``fit``'s ``model_form``)."""
+    in its total standard errors (``fit``'s ``model_form``); the model without the peak, where
+    its residuals show misfit, the shift to the peak model (``fit``'s ``peak_model_term``,
+    here from the peak model fitted below, so nothing is fitted twice; it is the same fit
+    unless ``peak_form`` is given)."""
     rise = ("L_rise1",) if "L_rise1" in params else ()  # the built-up peak joins the peak
     params = tuple(p for p in params if p not in PEAK_PARAMS + rise)
     peak_form = fit_kw.pop("peak_form", None)
+    peak_term = fit_kw.pop("peak_model_term", "auto")
     results = {}
     for label, names in (("no_peak", params), ("peak", params + PEAK_PARAMS + rise)):
         kw = (dict(fit_kw, peak_form=peak_form) if label == "peak" else
-              {k: v for k, v in fit_kw.items() if k != "model_form"})  # no peak: no term
+              dict({k: v for k, v in fit_kw.items() if k != "model_form"},  # no peak: no
+                   peak_model_term=False))  # peak-shape term; the missing-peak one below
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentifiabilityWarning)
             warnings.simplefilter("ignore", MisfitWarning)
             results[label] = fit(drops, names, **kw)
+    base = results["no_peak"]
+    if (peak_term == "auto" and base.diagnostics["misfit"]
+            and has_no_peak(base.names, base.problem.vehicle)):  # as ``fit`` decides it
+        add_peak_model_term(base, results["peak"])
     out = {}
     for label, res in results.items():
         d = res.diagnostics
@@ -87,6 +102,7 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
             std_errors_hac=dict(zip(res.names, res.std_errors_hac.tolist())),
             std_errors_total=dict(zip(res.names, res.std_errors_total.tolist())),
             interval_reported=d["interval"], model_form=d["model_form"],
+            peak_model_term=d["peak_model_term"],
             chi2=chi2, n_params=k, n_obs=n, aic=chi2 + 2 * k, bic=chi2 + k * math.log(n),
             residual_variance_factor=d["residual_variance_factor"],
             residual_lag1_autocorr=d["residual_lag1_autocorr"], misfit=d["misfit"],

@@ -47,6 +47,13 @@ benchmarks/results/bench_fit.json):
    ``std_errors_total``. A form the data reject adds nothing. The fit and its refits in
    every form share one compiled program (``CalibrationProblem(shared_forms=True)``), and the
    refits run in a second thread beside the channel spread's.
+8. **Missing peak** (``add_peak_model_term``), where the misfit is warned and the fitted model
+   has no crush peak at all: the same fit is run again with the primary peak (``PEAK_PARAMS``,
+   the law's linear form, from the same start, as ``compare_models`` fits it), in a second
+   thread beside the channel spread's, and each value's shift to that fit is added in
+   quadrature to ``std_errors_total``. A peak in the truth's honeycomb puts the same error
+   into every channel, so neither the HAC error nor the channel spread sees the bias it
+   leaves on k and gamma; the model with the peak is the nearest model that can hold it.
 """
 
 from __future__ import annotations
@@ -69,6 +76,7 @@ from ._parameters import (
     DEFAULT_PARAMS,
     PARAMS,
     PEAK_FORMS,
+    PEAK_PARAMS,
     SHAPE_PARAMS,
     START_IF_OFF,
     _bounds,
@@ -215,9 +223,11 @@ class FitResult:
                                      "(holds under misfit: autocorrelated residuals)",
                        std_error_total="same unit as the value; the trusted standard error "
                                        "and, under misfit, the channel spread "
-                                       "(misfit.channel_spread), and with a crush peak in the "
+                                       "(misfit.channel_spread), with a crush peak in the "
                                        "fit the peak-shape term (misfit.model_form.spread), "
-                                       "added in quadrature"),
+                                       "and under misfit without a crush peak in the model "
+                                       "the shift to the model with one "
+                                       "(misfit.peak_model_term.term), added in quadrature"),
             interval_reported=self.diagnostics.get("interval"),
         )
 
@@ -560,6 +570,51 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
                 applies_to=[n for n in names if n not in SHAPE_PARAMS])
 
 
+def has_no_peak(names, vehicle: jl.Vehicle) -> bool:
+    """The fitted model has no primary crush peak: none of its parameters is fitted and the
+    vehicle's honeycomb has neither the law's peak nor a tabulated excess."""
+    hc = vehicle.honeycomb
+    return (not any(n in names for n in SHAPE_PARAMS) and hc.peak_ratio1 is None
+            and hc.excess1 is None)
+
+
+def add_peak_model_term(result: FitResult, with_peak) -> None:
+    """Widen ``result`` (a fit without a crush peak whose residuals show misfit) by the
+    missing-peak term: per parameter |value without the peak - value with it|, ``with_peak``
+    the same fit with the primary peak (``PEAK_PARAMS``), added in quadrature to
+    ``std_errors_total``; recorded in ``diagnostics["peak_model_term"]``. ``with_peak`` an
+    exception (the fit with the peak failed): the term is 0 and the failure recorded."""
+    names = result.names
+    reason = ("the residuals show misfit (" + "; ".join(result.diagnostics["misfit"])
+              + ") and the fitted model has no crush peak: the bias a peak leaves is shared "
+              "by every channel, so neither the HAC error nor the channel spread covers it; "
+              "the fit was repeated with the primary crush peak (" + ", ".join(PEAK_PARAMS)
+              + ", the law's linear form, from the same start) and each value's shift to "
+              "that fit is added in quadrature to std_error_total")
+    rec = dict(reason=reason, added=False, failed=None, params=None, values=None,
+               std_errors_total=None, shift=None, term=dict.fromkeys(names, 0.0))
+    if isinstance(with_peak, FitResult):
+        shift = np.array([with_peak.value(n) for n in names]) - result.values
+        if np.all(np.isfinite(shift)):
+            term = np.abs(shift)
+            result.std_errors_total = np.sqrt(result.std_errors_total**2 + term**2)
+            d = with_peak.diagnostics
+            rec.update(
+                added=True, params=list(with_peak.names),
+                values=dict(zip(with_peak.names, with_peak.values.tolist())),
+                std_errors_hac=dict(zip(with_peak.names, with_peak.std_errors_hac.tolist())),
+                shift=dict(zip(names, shift.tolist())), term=dict(zip(names, term.tolist())),
+                chi2_without=_chi2(result.problem, result.theta),
+                chi2_with=_chi2(with_peak.problem, with_peak.theta),
+                misfit_with=d["misfit"], at_bound_with=d["at_bound"],
+                wall_s=with_peak.wall_s)
+        else:
+            rec["failed"] = "non-finite values"
+    else:
+        rec["failed"] = f"{type(with_peak).__name__}: {with_peak}"
+    result.diagnostics["peak_model_term"] = rec
+
+
 def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
     """``vehicle`` with the rise switched on at its ``START_IF_OFF`` length, or where that
     lies outside its bounds, in the middle of them."""
@@ -612,6 +667,11 @@ def _window_text(a: float, b: float) -> str:
     return f"{a * 1e3:.0f} to {b * 1e3:.0f} ms after touchdown"
 
 
+def _no_warning(*args, **kwargs) -> None:
+    """``warnings.warn``'s stand-in for a fit run inside another (``_inner``): the outer fit
+    reports what matters, and ``warnings.catch_warnings`` is not thread-safe."""
+
+
 def robust_threshold(problem: CalibrationProblem, theta, k: float) -> float:
     """Huber threshold: ``k`` times the residuals' robust std (1.4826 MAD), at least ``k``
     (the residuals are in noise-std units, so the noise itself sets the floor)."""
@@ -656,7 +716,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         dt: float = 1e-5, save_dt: float = 2e-5, integrator: str = INTEGRATOR,
         smoothing_m: float | None = None, smoothing_N: float | None = None,
         fit_touchdown: bool = True, channels=None, peak_form: str | None = None,
-        model_form: bool | str = "auto", progress=None) -> FitResult:
+        model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
+        progress=None, _inner: bool = False) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -694,12 +755,20 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         force it on (with the peak) or off. On: the values are refitted in each other peak
         form (``model_form_spread``) and the largest shift of each parameter is added in
         quadrature to ``std_errors_total``
+    peak_model_term : the missing-peak term of the uncertainty: ``"auto"`` (default) computes
+        it where the residuals show misfit (``MisfitWarning``) and the fitted model has no
+        crush peak (``has_no_peak``): the fit is repeated with the primary peak
+        (``PEAK_PARAMS``) and each value's shift to it is added in quadrature to
+        ``std_errors_total`` (``add_peak_model_term``); False leaves it out
     progress : called with a dict after every iteration (``stage``, ``iteration``, ``loss``...)
 
     Warns ``IdentifiabilityWarning`` (and lists it in ``FitResult.warnings``) for each parameter
     the data do not determine.
     """
     t_start = time.perf_counter()
+    # _inner: a fit run inside another for its values (the missing-peak term): no warnings,
+    # no channel spread (it moves no value)
+    warn = _no_warning if _inner else warnings.warn
     if isinstance(drops, DropTest):
         drops = [drops]
     drops = list(drops)
@@ -749,6 +818,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                                  "(the built-up form)")
     if model_form not in ("auto", True, False):
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
+    if peak_model_term not in ("auto", False):
+        raise jl.ConfigError("peak_model_term", peak_model_term, "must be 'auto' or False")
     if model_form is True and "peak1" not in names:
         raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
                              "parameters (the term spans the crush peak's forms)")
@@ -841,7 +912,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     identified, msgs = _identifiability(names, values, unc, bound)
     msgs += [_bound_message(n, names, values, final.vehicle) for n in bound]
     for m in msgs:
-        warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
+        warn(m, IdentifiabilityWarning, stacklevel=2)
     # the misfit test needs a measured noise level: on noise-free records (every channel's
     # noise at the loader's floor) the residuals are the model's own discretisation, smooth by
     # nature; the diagnostics are still reported
@@ -860,46 +931,76 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         forms_future = pool.submit(model_form_spread, final, theta, form, huber_c, max_iter,
                                    unc["rho1"])
         pool.shutdown(wait=False)
+    peak_future = None
+    if unc["misfit"] and peak_model_term == "auto" and has_no_peak(names, start_vehicle):
+        # the fit with the crush peak runs in a second thread beside the channel spread's
+        tagged = None if progress is None else (
+            lambda rec: progress(dict(rec, stage="with the crush peak " + rec["stage"])))
+        pool = ThreadPoolExecutor(max_workers=1)
+        # a start vehicle's peak is off (read as ratio 1): its fitted values only
+        start_p = (dict(zip(names, get_values(start, names).tolist()))
+                   if isinstance(start, jl.Vehicle) else start)
+        peak_future = pool.submit(
+            fit, drops, names + PEAK_PARAMS, vehicle=vehicle, start=start_p, windows=windows,
+            refine_window_s=refine_window_s, robust=robust, multistart=multistart,
+            method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
+            smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
+            channels=channels, model_form=False, peak_model_term=False, progress=tagged,
+            _inner=True)
+        pool.shutdown(wait=False)
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
-                      if unc["misfit"] else (np.zeros_like(values), {}))
+                      if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]
     if spread_failed:
         spread = np.nan_to_num(spread, nan=0.0)  # all failed: the total is the trusted error
-        warnings.warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
-                      "leaves out how far those channels pull the fit (channel_spread_failed "
-                      "in the report)", MisfitWarning, stacklevel=2)
+        warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
+             "leaves out how far those channels pull the fit (channel_spread_failed "
+             "in the report)", MisfitWarning, stacklevel=2)
     mform = None
     if forms:
         mform = forms_future.result()
         if mform["failed"]:
-            warnings.warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
-                          "form failed, so std_error_total leaves out how far that form "
-                          "moves the values (misfit.model_form.failed in the report)",
-                          MisfitWarning, stacklevel=2)
+            warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
+                 "form failed, so std_error_total leaves out how far that form "
+                 "moves the values (misfit.model_form.failed in the report)",
+                 MisfitWarning, stacklevel=2)
         best = mform["best_supported"]
         if form not in mform["plausible"]:
             how = {"rise": "add L_rise1 to the parameters",
                    "exp": "fit with peak_form='exp' (--peak-form exp)",
                    "linear": "fit without L_rise1 and peak_form"}[best]
-            warnings.warn(
+            warn(
                 f"the data reject the crush peak's {form} form: the {best} form fits them "
                 f"better by a misfit-adjusted AIC of {mform['forms'][form]['daic_adjusted']:.3g}"
                 f" (limit {DAIC_PLAUSIBLE:g}); std_error_total spans the forms the data "
                 f"support ({', '.join(mform['plausible'])}); to report the {best} form's "
                 f"values, {how}", MisfitWarning, stacklevel=2)
+    with_peak = None
+    if peak_future is not None:
+        try:
+            with_peak = peak_future.result()
+        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError) as err:
+            with_peak = err
+            warn(f"the fit with the crush peak failed ({err}), so std_error_total leaves out "
+                 "how far the peak moves the values (misfit.peak_model_term.failed in the "
+                 "report)", MisfitWarning, stacklevel=2)
     form_term = (np.array([mform["spread"][n] for n in names]) if mform is not None
                  else np.zeros_like(values))
     if unc["misfit"]:
         worst = "; ".join(
             f"{w['drop']}: {w['channel']} {_window_text(*w['window_s'])} "
             f"({w['rms_noise_units']:.3g} x noise)" for w in unc["where"])
-        warnings.warn("the data contradict the model: " + "; ".join(unc["misfit"])
-                      + f". The classical standard errors are too small: trust the HAC ones "
-                      f"(std_error_hac), widened by how far the values move when one channel "
-                      f"is left out (std_error_total){_disagreement(names, shifts, trusted)}. "
-                      f"Largest misfit: {worst}", MisfitWarning, stacklevel=2)
+        warn("the data contradict the model: " + "; ".join(unc["misfit"])
+             + ". The classical standard errors are too small: trust the HAC ones "
+             "(std_error_hac), widened by how far the values move when one channel "
+             f"is left out (std_error_total){_disagreement(names, shifts, trusted)}"
+             + ("; the model has no crush peak, so the fit was repeated with one and each "
+                "value's shift to it is in std_error_total too (misfit.peak_model_term; "
+                "--compare-models says whether the data support the peak)"
+                if with_peak is not None else "")
+             + f". Largest misfit: {worst}", MisfitWarning, stacklevel=2)
     fitted = final.vehicle_at(theta)
-    return FitResult(
+    result = FitResult(
         names=names, values=values, std_errors=unc["se"], correlation=unc["corr"],
         covariance=unc["cov"], identified=identified, start_values=start_values,
         vehicle=fitted, touchdown_times_s=final.touchdown_times(theta),
@@ -912,7 +1013,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             worst_window=unc["where"], at_bound=list(bound),
             trust=trust,
             interval=("std_error_total" if (unc["misfit"] or mform is not None) else trust),
-            model_form=mform,
+            model_form=mform, peak_model_term=None,
             filtered_noise_lag1_autocorr=final.noise_lag1,
             channel_spread={g: None if v is None else dict(zip(names, v.tolist()))
                             for g, v in shifts.items()},
@@ -930,7 +1031,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       pre_touchdown_s=PRE_S, fit_touchdown=fit_touchdown,
                       channels=list(final.channels), max_iter=max_iter,
                       peak_form=form, model_form=model_form,
+                      peak_model_term=peak_model_term,
                       model="quarter (jaxland.landing), from touchdown",
                       channel_map={c: CHANNELS[base_channel(c)][1] for c in final.channels},
                       filter_cfc={d.name: dict(d.filters) for d in drops if d.filters} or None,
                       filter_margin_s=final.margin_s))
+    if with_peak is not None:
+        add_peak_model_term(result, with_peak)
+    return result

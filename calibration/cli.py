@@ -98,7 +98,8 @@ def _cmd_fit(args) -> int:
                   max_iter=args.max_iter, dt=args.dt, integrator=integrator,
                   smoothing_m=smoothing_m, smoothing_N=smoothing_n,
                   progress=_Progress(args.quiet),
-                  model_form=False if args.no_model_form else "auto")
+                  model_form=False if args.no_model_form else "auto",
+                  peak_model_term=False if args.no_peak_model_term else "auto")
     if args.peak_form == "exp":
         fit_kw["peak_form"] = "exp"
     cmp = None
@@ -161,11 +162,24 @@ def _cmd_fit(args) -> int:
           + ("  MISFIT: trust the HAC standard errors widened by the channel spread (total)"
              if diag["misfit"] else ""))
     trusted = _INTERVAL_TEXT[diag["trust"]]
+    pm = diag.get("peak_model_term")
     print("  interval reported: " + (
         f"total (std_error_total) = {trusted}"
         + (" + channel spread" if diag["misfit"] else "")
         + (" + peak-shape term" if diag["model_form"] is not None else "")
+        + (" + missing-peak term" if pm is not None and pm["added"] else "")
         if diag["interval"] == "std_error_total" else trusted))
+    if pm is not None:
+        print("  missing crush peak: the residuals show misfit and the model has no crush "
+              + ("peak, so it was fitted again with one ("
+                 + ", ".join(f"{k} {v:.4g}" for k, v in pm["values"].items()
+                             if k in ("peak1", "L_peak1"))
+                 + f"; chi2 {pm['chi2_with']:.6g} against {pm['chi2_without']:.6g} without); "
+                 "each value's shift to that fit is added to the total (--no-peak-model-term "
+                 "leaves it out; --compare-models says whether the data support the peak)"
+                 if pm["added"] else
+                 f"peak; the fit with one failed ({pm['failed']}), so the total leaves out "
+                 "how far the peak moves the values"))
     mf = diag["model_form"]
     if mf is not None:
         other = ", ".join(f"{k} (dAIC {f['daic_adjusted']:+.3g}"
@@ -268,6 +282,11 @@ def add_subcommands(subparsers) -> None:
                         "fit has the crush peak: the values refitted in the peak's other forms "
                         "(linear, built up, exponential) and the largest shift among those the "
                         "data support added to the total standard error")
+    f.add_argument("--no-peak-model-term", action="store_true",
+                   help="leave out the missing-peak term, on by default when the residuals "
+                        "show misfit and the fitted model has no crush peak: the fit repeated "
+                        "with the crush peak (peak1, L_peak1) and each value's shift to it "
+                        "added to the total standard error")
     f.add_argument("--out", default="out/fit", help="output folder (default out/fit)")
     f.add_argument("--no-plots", action="store_true", help="skip the figures")
     f.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")

@@ -152,8 +152,9 @@ def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
     shifts = res.diagnostics["channel_spread"]
     assert set(shifts) == set(res.settings["channels"])
     spread = np.max([[abs(v[n]) for n in res.names] for v in shifts.values()], axis=0)
+    term = np.array([res.diagnostics["peak_model_term"]["term"][n] for n in res.names])
     np.testing.assert_allclose(res.std_errors_total,
-                               np.hypot(res.std_errors_hac, spread), rtol=1e-12)
+                               np.sqrt(res.std_errors_hac**2 + spread**2 + term**2), rtol=1e-12)
     ok = res.identified
     assert np.max((spread / res.std_errors_hac)[ok]) > 1.0
     rep = res.report()["parameters"]
@@ -176,6 +177,102 @@ def test_without_a_peak_in_the_fit_there_is_no_peak_shape_term(rig_fits):
         assert res.diagnostics["interval"] == kind == res.report()["interval_reported"]
 
 
+def test_a_missing_peak_widens_the_total_to_the_fit_with_the_peak(rig_fits):
+    """A +10 % crush peak in the truth's honeycomb, fitted without one: every channel carries
+    the peak, so the channels agree and the HAC error and channel spread leave k and gamma
+    biased by more than 1.96 of them. Under misfit the fit is repeated with the peak and each
+    value's shift to it is added to the total: it now covers the truth (fails if the term is
+    not computed, not added, or added without the misfit)."""
+    res, warned = rig_fits["physical peak"]
+    pm = res.diagnostics["peak_model_term"]
+    assert pm["added"] and pm["failed"] is None and "misfit" in pm["reason"]
+    assert pm["params"] == list(cal.DEFAULT_PARAMS + ("peak1", "L_peak1"))
+    assert pm["values"]["peak1"] > 1.0 and pm["chi2_with"] < pm["chi2_without"]
+    assert "repeated with one" in str(warned[0].message)
+    term = np.array([pm["term"][n] for n in res.names])
+    np.testing.assert_allclose(term, np.abs([pm["values"][n] - res.value(n) for n in res.names]),
+                               rtol=1e-12)
+    spread = np.max([[abs(v[n]) for n in res.names]
+                     for v in res.diagnostics["channel_spread"].values()], axis=0)
+    before = np.hypot(res.std_errors_hac, spread)
+    np.testing.assert_allclose(res.std_errors_total, np.hypot(before, term), rtol=1e-12)
+    truth = get_values(vr.truth_vehicle(), res.names)
+    ok = res.identified  # F2 is not identified on this short window
+    for i in np.nonzero(ok)[0]:
+        assert abs(res.values[i] - truth[i]) <= 1.96 * res.std_errors_total[i], res.names[i]
+    # without the term the truth of k and gamma lies outside (the shared bias)
+    for n in ("k", "gamma"):
+        i = res.names.index(n)
+        assert abs(res.values[i] - truth[i]) > 1.96 * before[i], n
+    rep = res.report()
+    assert rep["misfit"]["peak_model_term"]["term"] == pm["term"]
+    assert rep["parameters"]["k"]["std_error_total"] == pytest.approx(res.std_errors_total[0])
+
+
+def test_without_misfit_the_missing_peak_term_changes_nothing(rig_fits, monkeypatch):
+    """On a record the model represents no fit warns, so nothing is fitted again and the
+    report's values are bit for bit those with the term switched off."""
+    res, warned = rig_fits["representable"]
+    assert not warned and res.diagnostics["peak_model_term"] is None
+    calls = []
+    fit0 = cal_fit.fit
+
+    def counting(*args, **kwargs):
+        calls.append(kwargs.get("params", args[1] if len(args) > 1 else None))
+        return fit0(*args, **kwargs)
+
+    monkeypatch.setattr(cal_fit, "fit", counting)
+    kw = dict(windows=(0.01, 0.03), refine_window_s=0.06)
+    drop = vr.drop_test(0.2, seed=7, crush_peak=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cal.IdentifiabilityWarning)
+        on = counting(drop, **kw)
+        assert len(calls) == 1  # no second fit
+        off = counting(drop, peak_model_term=False, **kw)
+    a, b = on.report(), off.report()
+    assert a["parameters"] == b["parameters"] and a["correlation"] == b["correlation"]
+    assert a["misfit"] == b["misfit"] and a["final_loss"] == b["final_loss"]
+    assert a["touchdown_time_s"] == b["touchdown_time_s"]
+    for name in ("values", "std_errors", "std_errors_hac", "std_errors_total"):
+        np.testing.assert_array_equal(getattr(on, name), getattr(res, name))
+
+
+def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_path, capsys):
+    import argparse
+    import json
+
+    from calibration.cli import add_subcommands
+
+    parser = argparse.ArgumentParser()
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    physical = set_values(vr.truth_vehicle(), ("peak1", "L_peak1"), np.array([1.1, 1e-3]))
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, vehicle=physical, seed=7,
+                                 artefacts=dict(crush_peak=0.0))
+    vr.write_nominal(tmp_path)
+    reports = {}
+    for flag in ([], ["--no-peak-model-term"]):
+        out = tmp_path / ("off" if flag else "on")
+        args = parser.parse_args(["fit", str(toml), "--windows", "0.01,0.03",
+                                  "--refine-window-s", "0.06", "--no-plots", "--quiet",
+                                  "--out", str(out), *flag])
+        assert args.func(args) == 0
+        text = capsys.readouterr().out
+        reports[bool(flag)] = json.loads((out / "fit_report.json").read_text())
+        assert ("+ missing-peak term" in text) != bool(flag)
+        assert ("missing crush peak: the residuals show misfit" in text) != bool(flag)
+    on, off = reports[False], reports[True]
+    assert on["misfit"]["peak_model_term"]["added"] and off["misfit"]["peak_model_term"] is None
+    assert on["settings"]["peak_model_term"] == "auto"
+    assert off["settings"]["peak_model_term"] is False
+    k_on, k_off = on["parameters"]["k"], off["parameters"]["k"]
+    assert k_on["value"] == k_off["value"] and k_on["std_error_total"] > k_off["std_error_total"]
+
+
+def test_the_missing_peak_term_is_refused_by_name_when_misnamed():
+    with pytest.raises(jl.ConfigError, match="peak_model_term"):
+        cal.fit(vr.drop_test(0.2, seed=7), peak_model_term=True)
+
+
 def test_failed_channel_refits_are_named_and_the_total_falls_back(monkeypatch):
     """When the refits without a channel fail, the fit says so by name, records them, and the
     total error is the trusted (HAC) error: never NaN, never silently narrower (fails when the
@@ -187,7 +284,8 @@ def test_failed_channel_refits_are_named_and_the_total_falls_back(monkeypatch):
     monkeypatch.setattr(cal_fit, "channel_spread", all_fail)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = cal.fit(vr.drop_test(0.2, seed=7), windows=(0.01, 0.03), refine_window_s=0.06)
+        res = cal.fit(vr.drop_test(0.2, seed=7), windows=(0.01, 0.03), refine_window_s=0.06,
+                      peak_model_term=False)
     failed = res.diagnostics["channel_spread_failed"]
     assert failed and set(failed) == set(res.diagnostics["channel_spread"])
     assert any(f"the fit without {', '.join(failed)} failed" in str(w.message) for w in caught)
@@ -312,6 +410,22 @@ def test_model_selection_refuses_the_peak_where_there_is_none(comparisons):
     c = comparisons["none"]
     assert not c["comparison"]["peak_supported"]
     assert c["comparison"]["p_value_adjusted"] > 0.01 or c["comparison"]["delta_bic"] > 0
+
+
+def test_model_selection_gives_the_model_without_the_peak_its_missing_peak_term(comparisons):
+    """Under misfit the model without the peak takes its missing-peak term from the peak
+    model the comparison fits (no third fit); without misfit it has none."""
+    c = comparisons["peak"]
+    assert c["no_peak"]["misfit"]
+    pm = c["no_peak"]["peak_model_term"]
+    assert pm["added"] and pm["values"] == c["peak"]["values"]
+    res = c["_results"]["no_peak"]
+    for i, n in enumerate(res.names):
+        assert pm["term"][n] == abs(c["peak"]["values"][n] - res.values[i])
+    np.testing.assert_array_equal([c["no_peak"]["std_errors_total"][n] for n in res.names],
+                                  res.std_errors_total)  # (NaN where not identified)
+    none = comparisons["none"]
+    assert not none["no_peak"]["misfit"] and none["no_peak"]["peak_model_term"] is None
 
 
 def test_chi2_survival_function_matches_tabulated_quantiles():
