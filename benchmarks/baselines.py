@@ -469,7 +469,7 @@ SIDE_BY_SIDE = {
 }
 
 
-def side_by_side(repeats: int = 7, dt: float = 1e-5) -> dict:
+def side_by_side(repeats: int = 15, dt: float = 1e-5) -> dict:
     """One quarter landing (the paper drop, euler at ``dt``) in jaxland under jit with each
     bookkeeping of ``SIDE_BY_SIDE``, and in the numba loop of the same scheme, interleaved
     repeat by repeat in this process (CPU time, median): how far the compiled JAX loop is
@@ -531,7 +531,7 @@ def main(argv=None) -> int:
     if args.side_by_side:
         from _common import write_json
 
-        res = side_by_side(3 if args.quick else 7)
+        res = side_by_side(3 if args.quick else 15)
         write_json(folder / "numba_side_by_side.json", res, indent=2)
         print(json.dumps(res, indent=2))
         return 0

@@ -26,6 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._params import Ground
+from ._minmax import fmax
 from ._smooth import ramp, ramp_integral, soft_min
 
 
@@ -57,8 +58,8 @@ def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None,
     k_r smooth)."""
     k_r = ground.k_r if k_r is None else k_r
     if smooth == 0.0:
-        d_max = jnp.maximum(d_max_prev, d)
-        e = jnp.maximum(d - ground.gamma * d_max, 0.0)
+        d_max = fmax(d, d_max_prev)
+        e = fmax(d - ground.gamma * d_max, 0.0)
         elastic = 0.5 * k_r * e**2
     else:  # the memory advances by ramp(d - d_max_prev) <= max(., 0): it may lag, never creeps
         d_max = d_max_prev + ramp(d - d_max_prev, smooth)
@@ -66,7 +67,7 @@ def normal_contact(d, d_dot, d_max_prev, ground: Ground, k_r=None,
         e = ramp(raw, smooth)
         elastic = k_r * ramp_integral(raw, smooth)
     f_s = k_r * e
-    factor = jnp.maximum(1.0 + ground.chi * d_dot, 0.0)
+    factor = fmax(1.0 + ground.chi * d_dot, 0.0)
     f_n = f_s * factor
     return NormalOut(
         force=f_n,

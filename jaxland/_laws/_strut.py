@@ -24,6 +24,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
+from ._minmax import fmax, fmin
 from ._smooth import ramp
 
 
@@ -44,7 +45,7 @@ def strut_force(F_bh, x, v_b, D_b, k_topout, kick_per_mass=None, free_rate=None,
     [m/s] is then the stroke rate after the kick from all forces on the foot except the strut's
     (see the module notes). ``smooth_N`` [N] and ``smooth_m`` [m] (static, opt-in) round the
     no-pull floor of the damped force and the top-out kink (``_smooth.ramp``)."""
-    x_ext = jnp.minimum(x, 0.0) if smooth_m == 0.0 else -ramp(-x, smooth_m)
+    x_ext = fmin(x, 0.0) if smooth_m == 0.0 else -ramp(-x, smooth_m)
     f_top = k_topout * x_ext
     if kick_per_mass is None:
         rate = v_b
@@ -53,7 +54,7 @@ def strut_force(F_bh, x, v_b, D_b, k_topout, kick_per_mass=None, free_rate=None,
         c = D_b * jnp.abs(F_bh)
         w = free_rate - kick_per_mass * (F_bh + f_top)
         f_raw = F_bh + c * (w / (1.0 + kick_per_mass * c))
-    floored = jnp.maximum(f_raw, 0.0) if smooth_N == 0.0 else ramp(f_raw, smooth_N)
+    floored = fmax(f_raw, 0.0) if smooth_N == 0.0 else ramp(f_raw, smooth_N)
     f_total = jnp.where(F_bh >= 0.0, floored, f_raw)
     f_damp = f_total - F_bh
     if kick_per_mass is not None:

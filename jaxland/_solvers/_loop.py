@@ -15,6 +15,7 @@ from jax import custom_batching
 from jaxtyping import Array
 
 from .._errors import ConfigError
+from .._laws._minmax import fmax
 from .._models import AbstractModel, Evaluation
 from ._base import N_EVENTS, Result
 from ._settle import check_steps, mass_diagonal, settled
@@ -83,14 +84,16 @@ class Track(eqx.Module):
                    jnp.zeros((), jnp.int32))
 
     def update(self, model: AbstractModel, s, ev: Evaluation, e0, e_scale,
-               check: bool = True) -> Track:
+               check: bool = True, count: bool = True) -> Track:
         """With one evaluated state ``s``; ``check``: also the ledger and the failure checks
-        (static)."""
+        (static); ``count``: also the step count (static; off where the driver adds a whole
+        scan's steps at once, so the count is not one more value carried and rewritten on
+        every step)."""
         # After a tip-over the body (which has no ground contact of its own) is not a landing
         # any more: peaks, the ledger and failure checks stop there; the tip itself counts.
         upright = self.tip_time < 0.0
         values = model.peak_values(ev.record, ev.accel)
-        peaks = {k: jnp.where(upright, jnp.maximum(p, values[k]), p)
+        peaks = {k: jnp.where(upright, fmax(values[k], p), p)
                  for k, p in self.peaks.items()}
         contact = model.contact_flag(ev.record)
         touched = (self.n_events > 0) | contact  # a foot has been on the ground
@@ -104,15 +107,21 @@ class Track(eqx.Module):
         track = eqx.tree_at(
             lambda x: (x.peaks, x.event_times, x.n_events, x.contact, x.tip_time, x.n_steps), self,
             (peaks, ev_t, self.n_events + changed.astype(jnp.int32), contact, tip_t,
-             self.n_steps + 1))
+             self.n_steps + 1 if count else self.n_steps))
         if not check:
             return track
         residual = ev.ledger() + jnp.sum(s.diss_rate) - e0
-        res_max = jnp.where(upright, jnp.maximum(self.residual_max, jnp.abs(residual)),
+        res_max = jnp.where(upright, fmax(jnp.abs(residual), self.residual_max),
                             self.residual_max)
-        state_ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x))
-                                      for x in jax.tree.leaves((s.q, s.v))]))
-        bad = ~state_ok | ~(jnp.abs(residual) <= ENERGY_TOLERANCE * e_scale)
+        # every component finite: x * 0 is 0 for a finite x and NaN otherwise, so one sum
+        # over the components (one reduction, not one per leaf and a stack) is finite iff all are
+        state_ok = jnp.isfinite(sum(jnp.sum(x * 0.0) for x in jax.tree.leaves((s.q, s.v))))
+        # Judged on the new worst residual, not on this step's: before the first failure of an
+        # upright landing the old worst is within the tolerance (else it would have failed), so
+        # the two tests agree, NaN included; and the failure time and code then read the worst
+        # residual's output instead of each evaluating the ledger once more (XLA fuses a shared
+        # producer into every consumer that is not already materialised).
+        bad = ~state_ok | ~(res_max <= ENERGY_TOLERANCE * e_scale)
         first = bad & upright & (self.failure_time < 0.0)
         return eqx.tree_at(
             lambda x: (x.residual_max, x.failure_time, x.failure), track,
@@ -212,11 +221,12 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
         s, track, carried = carry
         s1, (s_at, ev), carried = integrator.step_carried(model, veh, s, scene, derived, dt,
                                                           carried)
-        return (s1, track.update(model, s_at, ev, st.energy0, st.energy_scale, check),
+        return (s1, track.update(model, s_at, ev, st.energy0, st.energy_scale, check, False),
                 carried), None
 
     def steps(carry, n):
-        return run_steps(body, carry, n, solver.ledger_every)
+        s, track, carried = run_steps(body, carry, n, solver.ledger_every)
+        return s, eqx.tree_at(lambda t: t.n_steps, track, track.n_steps + n), carried
 
     kick_save = integrator.record_kick(dt)
 
