@@ -85,6 +85,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from .._params import Honeycomb, HoneycombCurve
+from ._minmax import fclip, fmax, fmin
 from ._smooth import ramp
 
 
@@ -97,7 +98,7 @@ class HoneycombOut(eqx.Module):
 
 
 def _clip(x, lo, hi):
-    return jnp.minimum(jnp.maximum(x, lo), hi)
+    return fclip(x, lo, hi)
 
 
 def honeycomb_virgin_force(x, hc: Honeycomb | HoneycombCurve):
@@ -134,7 +135,7 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
         return _honeycomb_extended(x, x_max_prev, hc, smooth)
     if smooth != 0.0:
         return _honeycomb_smooth(x, x_max_prev, hc, smooth)
-    x_max = jnp.maximum(x_max_prev, x)
+    x_max = fmax(x, x_max_prev)
     p1 = _clip(x_max - hc.x_L1, 0.0, hc.x_L2 - hc.x_L1)
     p2 = _clip(x_max - hc.x_L3, 0.0, hc.x_L4 - hc.x_L3)
     x_p = p1 + p2
@@ -142,8 +143,8 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
     dy3 = hc.x_L3 - hc.x_L2
     y1 = _clip(y, 0.0, hc.x_L1)
     y2 = _clip(y - hc.x_L1, 0.0, dy3)
-    y3 = jnp.maximum(y - hc.x_L1 - dy3, 0.0)
-    yt = jnp.minimum(y, 0.0)  # tension side, only used when bonded
+    y3 = fmax(y - hc.x_L1 - dy3, 0.0)
+    yt = fmin(y, 0.0)  # tension side, only used when bonded
     return _stack(hc, y1, y2, y3, yt, p1, p2, x_max)
 
 
