@@ -79,10 +79,10 @@ from ._parameters import (
     PEAK_PARAMS,
     SHAPE_PARAMS,
     START_IF_OFF,
-    _bounds,
     at_bound,
     check_names,
     get_values,
+    interval,
     peak_form_vehicle,
     set_values,
     switch_on,
@@ -620,7 +620,7 @@ def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
     lies outside its bounds, in the middle of them."""
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
     vals = get_values(veh, names)
-    lo, hi = (float(b) for b in _bounds("L_rise1", names, vals, veh))
+    lo, hi = interval("L_rise1", names, vals, veh)
     if not lo < START_IF_OFF["L_rise1"] < hi:
         veh = set_values(vehicle, ("L_rise1",), [0.5 * (lo + hi)])
     return veh
@@ -629,8 +629,7 @@ def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
 def _bound_message(n, names, values, vehicle) -> str:
     """What a value at a bound of its transform (``at_bound``) means, for the report."""
     i = names.index(n)
-    lo, hi = ((0.0, 1.0) if PARAMS[n][3] == "logit"
-              else (float(b) for b in _bounds(n, names, values, vehicle)))
+    lo, hi = interval(n, names, values, vehicle)
     side = "lower" if values[i] - lo < hi - values[i] else "upper"
     return (f"{n} = {values[i]:.6g} {PARAMS[n][1]} ended at the {side} bound of its range "
             f"({lo:.6g}, {hi:.6g}) set by the vehicle's rules (jaxland.validate_vehicle): the "
@@ -665,6 +664,16 @@ def _window_text(a: float, b: float) -> str:
     if a < 0.0:
         return f"from {-a * 1e3:.0f} ms before to {b * 1e3:.0f} ms after touchdown"
     return f"{a * 1e3:.0f} to {b * 1e3:.0f} ms after touchdown"
+
+
+def _in_thread(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` started in a thread of its own; its future (``result()``
+    re-raises what it raised). XLA compiles and runs without the interpreter lock, so the
+    caller's own work runs beside it."""
+    pool = ThreadPoolExecutor(max_workers=1)
+    future = pool.submit(fn, *args, **kwargs)
+    pool.shutdown(wait=False)
+    return future
 
 
 def _no_warning(*args, **kwargs) -> None:
@@ -927,27 +936,23 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     if forms:  # the peak-shape refits run in a second thread beside the channel spread's
         if forms_thread is not None:  # (each refit's time is XLA's, which frees the GIL)
             forms_thread.join()
-        pool = ThreadPoolExecutor(max_workers=1)
-        forms_future = pool.submit(model_form_spread, final, theta, form, huber_c, max_iter,
-                                   unc["rho1"])
-        pool.shutdown(wait=False)
+        forms_future = _in_thread(model_form_spread, final, theta, form, huber_c, max_iter,
+                                  unc["rho1"])
     peak_future = None
     if unc["misfit"] and peak_model_term == "auto" and has_no_peak(names, start_vehicle):
         # the fit with the crush peak runs in a second thread beside the channel spread's
         tagged = None if progress is None else (
             lambda rec: progress(dict(rec, stage="with the crush peak " + rec["stage"])))
-        pool = ThreadPoolExecutor(max_workers=1)
         # a start vehicle's peak is off (read as ratio 1): its fitted values only
         start_p = (dict(zip(names, get_values(start, names).tolist()))
                    if isinstance(start, jl.Vehicle) else start)
-        peak_future = pool.submit(
+        peak_future = _in_thread(
             fit, drops, names + PEAK_PARAMS, vehicle=vehicle, start=start_p, windows=windows,
             refine_window_s=refine_window_s, robust=robust, multistart=multistart,
             method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
             smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
             channels=channels, model_form=False, peak_model_term=False, progress=tagged,
             _inner=True)
-        pool.shutdown(wait=False)
     spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
                       if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]

@@ -42,7 +42,7 @@ import jaxland as jl
 
 __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_IF_OFF",
            "PEAK_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle", "forms_vehicle",
-           "check_names", "get_values", "at_bound", "BOUND_MARGIN",
+           "check_names", "get_values", "at_bound", "interval", "BOUND_MARGIN",
            "set_values", "switch_on", "to_unconstrained", "from_unconstrained"]
 
 # name -> (getter, unit, TOML key, transform, description)
@@ -292,6 +292,18 @@ def _bounds(n, names, values, vehicle):
             room - a / v(k_el) - (RISE_ROOM * room if first else 0.0))
 
 
+def interval(n, names, values, vehicle) -> tuple[float, float] | None:
+    """(lo, hi) of a bounded parameter's transform: (0, 1) for gamma (logit), ``_bounds`` for
+    the crush peaks, rise and unloading ratio; None for the others (log, gap)."""
+    kind = PARAMS[n][3]
+    if kind == "logit":
+        return 0.0, 1.0
+    if kind in ("over1", "length", "rise"):
+        lo, hi = _bounds(n, names, values, vehicle)
+        return float(lo), float(hi)
+    return None
+
+
 def at_bound(names, values, vehicle, rel: float = 1e-6) -> tuple[str, ...]:
     """The bounded parameters (gamma in (0, 1); ``_bounds``: crush peaks, rise, unloading
     ratio) whose value lies within ``rel`` of its interval's width from a bound (the
@@ -301,14 +313,9 @@ def at_bound(names, values, vehicle, rel: float = 1e-6) -> tuple[str, ...]:
     values = np.asarray(values, dtype=float)
     out = []
     for i, n in enumerate(names):
-        kind = PARAMS[n][3]
-        if kind == "logit":
-            lo, hi = 0.0, 1.0
-        elif kind in ("over1", "length", "rise"):
-            lo, hi = (float(b) for b in _bounds(n, names, values, vehicle))
-        else:
-            continue
-        if min(values[i] - lo, hi - values[i]) <= rel * (hi - lo):
+        bounds = interval(n, names, values, vehicle)
+        if bounds is not None and min(values[i] - bounds[0], bounds[1] - values[i]) <= rel * (
+                bounds[1] - bounds[0]):
             out.append(n)
     return tuple(out)
 
