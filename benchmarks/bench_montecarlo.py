@@ -286,6 +286,13 @@ def _outcomes(model, spec, method, dt, perturb=0.0):
     return out
 
 
+def same_classes(got: dict, ref: dict) -> bool:
+    """Every sample keeps its tip-over, bottoming and result (``_outcomes`` of two runs)."""
+    import numpy as np
+
+    return bool(all(np.array_equal(got[k], ref[k]) for k in ("tipped", "bottomed", "result")))
+
+
 def step_study(models, n: int) -> dict:
     """Per model and method, each step's largest relative error of the outcomes against the
     converged reference over ``n`` dispersed samples (per sample where the outcome is
@@ -319,9 +326,7 @@ def step_study(models, n: int) -> dict:
             err = {k: float(np.max(rel[k][~ill[k]], initial=0.0)) for k in STEP_KEYS}
             ens = {k: float(max(abs(f(got[k]) / f(ref[k]) - 1.0) for f in (np.mean, np.median)))
                    for k in STEP_KEYS}
-            same = bool(np.array_equal(got["tipped"], ref["tipped"])
-                        and np.array_equal(got["bottomed"], ref["bottomed"])
-                        and np.array_equal(got["result"], ref["result"]))
+            same = same_classes(got, ref)
             row = dict(method=method, dt_s=dt, max_rel_error=err, worst=max(err.values()),
                        ensemble_rel_error=ens, ensemble_worst=max(ens.values()),
                        max_rel_error_every_sample={k: float(np.max(rel[k])) for k in STEP_KEYS},
@@ -380,10 +385,8 @@ def step_check(n: int, out: Path) -> dict:
                 converged_ensemble_rel_error={f.__name__: float(abs(f(other[k]) / f(ref[k])
                                                                     - 1.0))
                                               for f in (np.mean, np.median)})
-        rows.append(dict(method=method, dt_s=dt, outcomes=per, classification_kept=bool(
-            np.array_equal(got["tipped"], ref["tipped"])
-            and np.array_equal(got["bottomed"], ref["bottomed"])
-            and np.array_equal(got["result"], ref["result"]))))
+        rows.append(dict(method=method, dt_s=dt, outcomes=per,
+                         classification_kept=same_classes(got, ref)))
         print(rows[-1], flush=True)
     report = dict(n=n, spec="examples/montecarlo_dispersed.toml", tolerance=STEP_TOL,
                   reference=dict(method=REFERENCE[0], dt_s=REFERENCE[1]),
