@@ -254,3 +254,21 @@ def test_a_stabilised_method_at_a_larger_step_agrees(quarter_run):
     assert res.summary["n_failed"] == 0 and res.summary["method"] == "euler_implicit"
     np.testing.assert_allclose(res.outputs["max_stroke_m"], quarter_run.outputs["max_stroke_m"],
                                rtol=5e-3)
+
+
+def test_default_chunk_follows_the_platform():
+    """A CPU run keeps small chunks; a run on any accelerator takes the large ones (a GPU's step
+    costs about the same for one landing as for tens of thousands)."""
+    import jax
+
+    from jaxland._montecarlo._run import DEFAULT_CHUNK, default_chunk
+
+    class Device:
+        def __init__(self, platform):
+            self.platform = platform
+
+    for model in ("quarter", "full"):
+        assert default_chunk(model, [Device("cpu")] * 2) == DEFAULT_CHUNK["cpu"][model]
+        assert default_chunk(model, [Device("gpu")]) == DEFAULT_CHUNK["accelerator"][model]
+        assert DEFAULT_CHUNK["accelerator"][model] > DEFAULT_CHUNK["cpu"][model]
+    assert default_chunk("full", jax.local_devices()) == DEFAULT_CHUNK["cpu"]["full"]

@@ -161,11 +161,27 @@ def init_distributed(coordinator: str, num_processes: int, process_id: int) -> N
     jax.distributed.initialize(coordinator, num_processes=num_processes, process_id=process_id)
 
 
+# Landings per compiled chunk when none is given, by the devices' platform. A CPU device runs a
+# chunk's time loop as one single-threaded kernel whose cost per landing does not fall with the
+# batch, so small chunks bound memory and give the progress line its steps. A GPU step costs
+# about the same for one landing as for thousands (its kernels are too small to fill it), so it
+# wants the largest chunk that fits: then a run is one or a few chunks.
+DEFAULT_CHUNK = {"cpu": {"quarter": 512, "full": 64},
+                 "accelerator": {"quarter": 131072, "full": 32768}}
+
+
+def default_chunk(model: str, devices) -> int:
+    """``DEFAULT_CHUNK`` for ``model`` on ``devices`` (a list of JAX devices)."""
+    kind = "cpu" if all(d.platform == "cpu" for d in devices) else "accelerator"
+    return DEFAULT_CHUNK[kind][model]
+
+
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
                    chunk: int | None = None, devices=None, progress: bool | str = True,
                    share_program: bool = False) -> MonteCarloResult:
     """Run ``spec.n`` dispersed landings; see the module docstring for reproducibility and
-    sharding. ``chunk`` bounds memory (rounded up to a multiple of the device count);
+    sharding. ``chunk`` bounds memory (rounded up to a multiple of the device count; default
+    ``DEFAULT_CHUNK`` by the devices' platform);
     ``progress``: a progress line on stderr (a string: the line's label). ``share_program``:
     the vehicle is an argument of the compiled chunk, kept for the next run of the same spec
     with this flag, so that one compilation serves several vehicles (a design's verification);
@@ -175,7 +191,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     solver = mc_solver(spec, model, spec.dt, spec.method)
     devices = list(jax.local_devices() if devices is None else devices)
     n_dev = len(devices)
-    chunk = min(spec.n, 512 if model == "quarter" else 64) if chunk is None else int(chunk)
+    chunk = min(spec.n, default_chunk(model, devices)) if chunk is None else int(chunk)
     if chunk < 1:
         raise ConfigError("chunk", chunk, "must be >= 1")
     chunk = int(math.ceil(chunk / n_dev) * n_dev)
