@@ -6,6 +6,7 @@ by side) and the choice of the Monte Carlo step.
     python benchmarks/bench_montecarlo.py --step-study [--step-n 32]
     python benchmarks/bench_montecarlo.py --step-check 128
     python benchmarks/bench_montecarlo.py --cache
+    python benchmarks/bench_montecarlo.py --accelerator [--budget-s 420]   (on a GPU machine)
     python benchmarks/bench_montecarlo.py --quick
 
 Throughput: each configuration runs in its own process (the device count is fixed when jax
@@ -52,6 +53,7 @@ getattr(jaxland, "use_batch_fusion", lambda: None)()  # as jaxland montecarlo do
 import jax
 from jaxland import Distribution, MonteCarloSpec, run_montecarlo, load_montecarlo_spec
 model, n, method, dt = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4])
+chunk = int(sys.argv[6]) if len(sys.argv) > 6 and int(sys.argv[6]) > 0 else None
 if model == "full":
     spec = load_montecarlo_spec(sys.argv[5])
     spec.n = n
@@ -62,19 +64,23 @@ else:
         fixed={"drop_height_m": 0.0}, n=n, seed=0, t_end=1.0)
 spec.method, spec.dt = method, dt
 t = time.perf_counter()
-r = run_montecarlo(spec, progress=False)
+r = run_montecarlo(spec, progress=False, chunk=chunk)
 wall = time.perf_counter() - t
 print(json.dumps(dict(model=r.summary["model"], n=n, devices=len(jax.devices()), wall_s=wall,
                       landings_per_s=n / wall, n_failed=r.summary["n_failed"],
-                      n_retried=r.summary["n_retried"], method=method, dt_s=dt)))
+                      n_retried=r.summary["n_retried"], method=method, dt_s=dt,
+                      chunk=r.summary["chunk"], device_kind=jax.devices()[0].device_kind,
+                      max_stroke_m=r.summary["envelopes"]["max_stroke_m (any leg)"])))
 """
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "montecarlo_dispersed.toml"
 
 
 def run(model: str, n: int, devices: int, method="euler", dt=1e-5, tree=None,
-        cache=None) -> dict:
+        cache=None, chunk=0, timeout=None) -> dict:
     """One Monte Carlo in a fresh process; ``cache``: a folder for JAX's persistent compilation
-    cache (as ``jaxland montecarlo`` keeps one), else none."""
+    cache (as ``jaxland montecarlo`` keeps one), else none; ``chunk``: landings per compiled
+    chunk (0: run_montecarlo's default for the platform); ``timeout`` [s]: the child is
+    stopped after it (subprocess.TimeoutExpired)."""
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     state = "none"  # the compilation cache as the run finds it
@@ -85,8 +91,8 @@ def run(model: str, n: int, devices: int, method="euler", dt=1e-5, tree=None,
         env["PYTHONPATH"] = str(Path(tree).resolve())
     example = EXAMPLE if tree is None else Path(tree).resolve() / EXAMPLE.relative_to(ROOT)
     out = subprocess.run([sys.executable, "-c", CHILD, model, str(n), method, str(dt),
-                          str(example)], env=env, check=True, capture_output=True, text=True,
-                         cwd=tree or None)
+                          str(example), str(chunk)], env=env, check=True, capture_output=True,
+                         text=True, cwd=tree or None, timeout=timeout)
     row = json.loads(out.stdout.strip().splitlines()[-1])
     row["tree"] = "before" if tree is not None else "this"
     row["cache"] = state
@@ -185,6 +191,104 @@ def throughput(args, out: Path) -> dict:
     ax.legend(fontsize="small")
     save_png(fig, out / "bench_montecarlo.png")
     return result
+
+
+# ---------------------------------------------------------------- on an accelerator
+
+# (model, n, chunk) in the order they run, most wanted first: the issue's sizes (10^4 3-D in a
+# minute, 10^5 quarter in 20 s), the n = 1024 3-D row of the CPU table, then 10x larger runs and
+# the chunk sweeps behind run_montecarlo's accelerator default (chunk 0: that default)
+ACCEL_RUNS = (("full", 10_000, 0), ("quarter", 100_000, 0), ("full", 1024, 0),
+              ("quarter", 20_000, 0), ("full", 100_000, 0), ("quarter", 1_000_000, 0),
+              ("full", 16_384, 1024), ("full", 16_384, 4096), ("full", 16_384, 16_384),
+              ("full", 131_072, 32_768), ("full", 131_072, 131_072),
+              ("quarter", 1_000_000, 1_000_000))
+
+
+def accelerator(args, out: Path) -> dict:
+    """The throughput runs of ``throughput`` on this machine's accelerator, unchanged: the same
+    child, spec, seed and chosen steps, one process per run, wall time with compilation. The
+    3-D model at 10^4 also runs twice with one empty compilation cache, which separates its
+    compilation from its run. Runs stop being started once ``--budget-s`` has passed (each is
+    stopped at the budget's end). Writes montecarlo_accelerator.{json,png}."""
+    import tempfile
+
+    chosen = {m: (r["chosen"]["method"], r["chosen"]["dt_s"]) for m, r in json.loads(
+        (RESULTS / "montecarlo_step.json").read_text())["models"].items() if r.get("chosen")}
+    t0 = time.perf_counter()
+    plan = ACCEL_RUNS[:2] if args.quick else ACCEL_RUNS
+    sizes = {"quarter": 64, "full": 4} if args.quick else {}
+    rows, cached, skipped = [], [], []
+
+    def left():
+        return args.budget_s - (time.perf_counter() - t0)
+
+    def attempt(model, n, chunk, **kw):
+        if left() < 10:
+            skipped.append(dict(model=model, n=n, chunk=chunk, why="budget spent"))
+            return None
+        try:
+            return run(model, sizes.get(model, n), 1, *chosen[model], chunk=chunk,
+                       timeout=left(), **kw)
+        except subprocess.TimeoutExpired:
+            skipped.append(dict(model=model, n=n, chunk=chunk, why="stopped at the budget"))
+        except subprocess.CalledProcessError as e:
+            tail = (e.stderr or "").strip().splitlines()[-3:]
+            skipped.append(dict(model=model, n=n, chunk=chunk, why="failed", stderr=tail))
+        return None
+
+    def save():
+        write_json(out / "montecarlo_accelerator.json", dict(
+            spec="as bench_montecarlo.json: quarter dispersion in the CHILD, full 3-D "
+                 "examples/montecarlo_dispersed.toml; 1.0 s landings; one device; wall time "
+                 "includes compilation", chosen_steps={m: list(c) for m, c in chosen.items()},
+            runs=rows, cached=cached, skipped=skipped, budget_s=args.budget_s,
+            wall_total_s=time.perf_counter() - t0), indent=2)
+
+    for i, (model, n, chunk) in enumerate(plan):
+        row = attempt(model, n, chunk)
+        if row is not None:
+            rows.append(row)
+        save()
+        if i == 0 and row is not None:  # the same 3-D run twice with one compilation cache
+            with tempfile.TemporaryDirectory(prefix="jaxland-mc-cache-") as tmp:
+                for _ in range(2):
+                    r = attempt(model, n, chunk, cache=Path(tmp) / "xla")
+                    if r is not None:
+                        cached.append(r)
+            save()
+    result = json.loads((out / "montecarlo_accelerator.json").read_text())
+    result["machine"] = machine()  # after the runs: the backend takes the device's memory
+    write_json(out / "montecarlo_accelerator.json", result, indent=2)
+    plot_accelerator(result, out)
+    return result
+
+
+def plot_accelerator(result: dict, out: Path) -> None:
+    """Throughput against n per model and chunk, from montecarlo_accelerator.json."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4), layout="constrained")
+    ax = fig.subplots()
+    for i, model in enumerate(("quarter", "full")):
+        rs = sorted((r for r in result["runs"] if r["model"] == model), key=lambda r: r["n"])
+        for chunks, marker in ((lambda r: r["chunk"] >= r["n"], "o"),
+                               (lambda r: r["chunk"] < r["n"], "x")):
+            pick = [r for r in rs if chunks(r)]
+            if pick:
+                ax.plot([r["n"] for r in pick], [r["landings_per_s"] for r in pick], marker,
+                        color=f"C{i}", label=f"{model}, " + (
+                            "one chunk" if marker == "o" else "several chunks"))
+        ax.axhline(TARGETS[model], color=f"C{i}", ls="--", lw=1,
+                   label=f"{model}: the issue's CPU target")
+    kind = next((r["device_kind"] for r in result["runs"]), "accelerator")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("landings in the run, n [-]")
+    ax.set_ylabel("throughput, with compilation [landings/s]")
+    ax.set_title(f"Monte Carlo on one {kind}")
+    ax.legend(fontsize="small")
+    save_png(fig, out / "montecarlo_accelerator.png")
 
 
 # ---------------------------------------------------------------- the CLI's compilation cache
@@ -436,6 +540,11 @@ def main() -> None:
     ap.add_argument("--step-n", type=int, default=32)
     ap.add_argument("--step-check", type=int, default=0, metavar="N",
                     help="check the 3-D chosen step on N samples (montecarlo_step_check.json)")
+    ap.add_argument("--accelerator", action="store_true",
+                    help="the throughput runs on this machine's GPU, one device "
+                         "(montecarlo_accelerator.json)")
+    ap.add_argument("--budget-s", type=float, default=420.0,
+                    help="with --accelerator: start no run after this many seconds [s]")
     ap.add_argument("--cache", action="store_true",
                     help="the CLI run twice with one compilation cache (cli_cache.json)")
     add_out_args(ap)
@@ -444,6 +553,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     if args.quick:
         args.quarter_n, args.full_n, args.step_n, args.full_n_large = 64, 4, 4, 0
+    if args.accelerator:
+        print(json.dumps(accelerator(args, out), indent=2))
+        return
     if args.cache:
         print(json.dumps(cli_cache(out, args.quick), indent=2))
         return

@@ -386,6 +386,62 @@ def performance_montecarlo_cached() -> str:
                    "target [landings/s]"], rows)
 
 
+def _cpu_rate(model: str, n: int):
+    """This CPU's two-device throughput at the chosen step for ``model`` and ``n`` from
+    bench_montecarlo.json (the throughput rows and the 10^4 run), or None."""
+    b = _load("bench_montecarlo.json")
+    target = b["targets"].get(model)
+    runs = [r for r in b["runs"] + b["large"]["runs"] if r["model"] == model and r["n"] == n
+            and r["devices"] == 2 and target and [r["method"], r["dt_s"]] == target["setting"]]
+    return runs[0]["landings_per_s"] if runs else None
+
+
+def montecarlo_accelerator() -> str:
+    """bench_montecarlo.py --accelerator's runs on one GPU, next to this CPU's rate for the same
+    model and n where it has one (montecarlo_accelerator.json, bench_montecarlo.json)."""
+    b = _load("montecarlo_accelerator.json")
+    rows = []
+    for r in b["runs"] + b["cached"]:
+        cpu = _cpu_rate(r["model"], r["n"])
+        rows.append([r["model"], f"{r['method']}, {r['dt_s']:g}", str(r["n"]), str(r["chunk"]),
+                     r["cache"] if r["cache"] != "none" else "-", f"{r['wall_s']:.1f}",
+                     f"{r['landings_per_s']:.1f}", f"{cpu:.1f}" if cpu else "-",
+                     str(r["n_failed"])])
+    return _table(["model", "method, dt [s]", "n [-]", "chunk [-]", "compilation cache",
+                   "wall, with compilation [s]", f"one {b['runs'][0]['device_kind']} "
+                   "[landings/s]", "this CPU, 2 devices [landings/s]", "failed [-]"], rows)
+
+
+def montecarlo_accelerator_targets() -> str:
+    """The issue's Monte Carlo sizes and per-landing cost ratio on the GPU: its fastest rate per
+    model over the runs, and the runs at the issue's sizes (montecarlo_accelerator.json)."""
+    b = _load("montecarlo_accelerator.json")
+    best = {m: max((r for r in b["runs"] if r["model"] == m),
+                   key=lambda r: r["landings_per_s"]) for m in ("quarter", "full")}
+    rows = []
+    for model, n, wall in (("quarter", 100_000, 20.0), ("full", 10_000, 60.0)):
+        r = next(r for r in b["runs"] if r["model"] == model and r["n"] == n)
+        rows.append([f"{n} {model} landings in <= {wall:g} s (the CPU target)",
+                     f"{r['wall_s']:.1f} s", "met" if r["wall_s"] <= wall else "not met"])
+    q, f = best["quarter"], best["full"]
+    ratio = q["landings_per_s"] / f["landings_per_s"]
+    rows.append([f"per landing, full 3-D / quarter <= 6 (fastest runs: n = {f['n']} and "
+                 f"{q['n']})", f"{ratio:.1f}", "met" if ratio <= 6 else "not met"])
+    return _table(["on one " + b["runs"][0]["device_kind"], "measured", "target"], rows)
+
+
+def accelerator_agreement() -> str:
+    """One landing per model on the GPU and on the same machine's CPU
+    (accelerator_agreement.json, benchmarks/accelerator_agreement.py)."""
+    b = _load("accelerator_agreement.json")
+    rows = [[m, f"{r['gpu']['max_stroke_m']:.12g}", f"{r['cpu']['max_stroke_m']:.12g}",
+             f"{r['rel_diff_max_stroke']:.1e}", f"{r['gpu']['run_s'] * 1e3:.0f}",
+             f"{r['cpu']['run_s'] * 1e3:.1f}"] for m, r in b.items()]
+    return _table(["model", "max stroke, GPU [m]", "max stroke, its CPU [m]",
+                   "relative difference [-]", "one landing, GPU [ms]",
+                   "one landing, its CPU [ms]"], rows)
+
+
 def numba_side_by_side() -> str:
     """One quarter landing in jaxland with each bookkeeping against the numba loop of the same
     scheme (numba_side_by_side.json)."""
@@ -784,6 +840,9 @@ TABLES = {
     "calibration-fit-time": calibration_fit_time,
     "performance-montecarlo-large": performance_montecarlo_large,
     "performance-montecarlo-cached": performance_montecarlo_cached,
+    "montecarlo-accelerator": montecarlo_accelerator,
+    "montecarlo-accelerator-targets": montecarlo_accelerator_targets,
+    "accelerator-agreement": accelerator_agreement,
     "calibration-peak-recovery": calibration_peak_recovery,
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
