@@ -629,10 +629,11 @@ def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
     return veh
 
 
-def _bound_message(n, names, values, vehicle) -> str:
-    """What a value at a bound of its transform (``at_bound``) means, for the report."""
+def _bound_message(n, names, values, vehicle, form=None) -> str:
+    """What a value at a bound of its transform (``at_bound``; the primary peak in ``form``)
+    means, for the report."""
     i = names.index(n)
-    lo, hi = interval(n, names, values, vehicle)
+    lo, hi = interval(n, names, values, vehicle, form)
     side = "lower" if values[i] - lo < hi - values[i] else "upper"
     return (f"{n} = {values[i]:.6g} {PARAMS[n][1]} ended at the {side} bound of its range "
             f"({lo:.6g}, {hi:.6g}) set by the vehicle's rules (jaxland.validate_vehicle): the "
@@ -927,9 +928,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             f"the fit found no usable minimum ({err}): the model does not follow the record "
             "at all; check the drop test's metadata against the record (drop_height_m, "
             "sink_speed_mps or touchdown_speed_mps, sensor_leg, units)") from None
-    bound = at_bound(names, values, final.vehicle)
+    bound = at_bound(names, values, final.vehicle, form=final.peak_form)
     identified, msgs = _identifiability(names, values, unc, bound)
-    msgs += [_bound_message(n, names, values, final.vehicle) for n in bound]
+    msgs += [_bound_message(n, names, values, final.vehicle, final.peak_form) for n in bound]
     for m in msgs:
         warn(m, IdentifiabilityWarning, stacklevel=2)
     # the misfit test needs a measured noise level: on noise-free records (every channel's

@@ -135,7 +135,9 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
             form, *args = args
         speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs = args
         z = theta[:n_z]
-        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle))
+        # the bounds of the primary peak's parameters depend on its form (the exp table's span)
+        bounds_form = form if peak_form == SHARED else None if peak_form == SWITCH else peak_form
+        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle, bounds_form))
         if peak_form == SHARED:
             veh = forms_vehicle(veh, form)
         elif peak_form == SWITCH:  # off: ratio exactly 1, the peak's height (r - 1) F1 is 0
@@ -410,21 +412,24 @@ class CalibrationProblem:
     def theta_from(self, vehicle: jl.Vehicle | None = None, shifts_ms=None) -> np.ndarray:
         """theta for ``vehicle``'s values of the fitted parameters (default: the problem's
         vehicle) and touchdown shifts (default 0)."""
-        z = to_unconstrained(self.vehicle if vehicle is None else vehicle, self.names)
+        z = to_unconstrained(self.vehicle if vehicle is None else vehicle, self.names,
+                             self.peak_form)
         if not self.fit_touchdown:
             return z
         s = np.zeros(len(self.drops)) if shifts_ms is None else np.asarray(shifts_ms, float)
         return np.concatenate([z, s])
 
     def _transform(self, jacobian: bool = False):
-        """The jitted z -> values (or its Jacobian) of the compiled functions' parameters,
-        shared by the problems with the same fixed values (the fitted ones are not read)."""
-        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian)
+        """The jitted (z, form code) -> values (or their Jacobian in z) of the compiled
+        functions' parameters, shared by the problems with the same fixed values (the fitted
+        ones are not read) and peak form (with ``shared_forms``, every form: its code is read)."""
+        form = SHARED if self.shared_forms else self.peak_form
+        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian, form)
         if key not in _COMPILED:
             names, vehicle = self._z_names, self._canonical
 
-            def f(z):
-                return from_unconstrained(z, names, vehicle)
+            def f(z, code):
+                return from_unconstrained(z, names, vehicle, code if form == SHARED else form)
 
             _COMPILED[key] = jax.jit(jax.jacfwd(f) if jacobian else f)
         return _COMPILED[key]
@@ -433,9 +438,13 @@ class CalibrationProblem:
         """The compiled functions' parameter coordinates at ``theta`` (numpy)."""
         return np.append(np.asarray(theta, dtype=float), 0.0)[self._z_src]
 
+    def _code(self) -> int:
+        """The peak form's code (``FORM_INDEX``) that the shared functions read; 0 otherwise."""
+        return FORM_INDEX[self.peak_form] if self.shared_forms else 0
+
     def values(self, theta) -> np.ndarray:
         """Physical values of the fitted parameters [SI] at ``theta``."""
-        return np.asarray(self._transform()(self._z(theta)))[self._z_cols]
+        return np.asarray(self._transform()(self._z(theta), self._code()))[self._z_cols]
 
     def vehicle_at(self, theta) -> jl.Vehicle:
         """The vehicle with the fitted parameters at ``theta``, its peak in the problem's
@@ -454,7 +463,7 @@ class CalibrationProblem:
 
     def transform_jacobian(self, theta) -> np.ndarray:
         """d(physical values)/d(theta[:n_z]) (for the delta method)."""
-        g = np.asarray(self._transform(jacobian=True)(self._z(theta)))
+        g = np.asarray(self._transform(jacobian=True)(self._z(theta), self._code()))
         return g[self._z_cols][:, self._z_cols]
 
     # ------------------------------------------------------------------------ evaluation
