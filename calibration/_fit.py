@@ -54,6 +54,9 @@ benchmarks/results/bench_fit.json):
    quadrature to ``std_errors_total``. A peak in the truth's honeycomb puts the same error
    into every channel, so neither the HAC error nor the channel spread sees the bias it
    leaves on k and gamma; the model with the peak is the nearest model that can hold it.
+   A fit without any crush peak runs on functions whose linear peak is switched off at run
+   time (``CalibrationProblem(peak_switch=True)``), and the fit with the peak on the same
+   functions switched on: the term compiles nothing.
 """
 
 from __future__ import annotations
@@ -626,10 +629,11 @@ def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
     return veh
 
 
-def _bound_message(n, names, values, vehicle) -> str:
-    """What a value at a bound of its transform (``at_bound``) means, for the report."""
+def _bound_message(n, names, values, vehicle, form=None) -> str:
+    """What a value at a bound of its transform (``at_bound``; the primary peak in ``form``)
+    means, for the report."""
     i = names.index(n)
-    lo, hi = interval(n, names, values, vehicle)
+    lo, hi = interval(n, names, values, vehicle, form)
     side = "lower" if values[i] - lo < hi - values[i] else "upper"
     return (f"{n} = {values[i]:.6g} {PARAMS[n][1]} ended at the {side} bound of its range "
             f"({lo:.6g}, {hi:.6g}) set by the vehicle's rules (jaxland.validate_vehicle): the "
@@ -776,7 +780,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     """
     t_start = time.perf_counter()
     # _inner: a fit run inside another for its values (the missing-peak term): no warnings,
-    # no channel spread (it moves no value)
+    # no channel spread (it moves no value), on the outer fit's program (``peak_switch``)
     warn = _no_warning if _inner else warnings.warn
     if isinstance(drops, DropTest):
         drops = [drops]
@@ -841,11 +845,18 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # the shared functions cannot hold it at a given length
     forms = form is not None and model_form is not False
     shared = forms and ("L_rise1" in names or start_vehicle.honeycomb.peak_rise1 is None)
+    # a model without any crush peak runs on functions whose linear peak is switched off at
+    # run time (``peak_switch``), so that the missing-peak term's fit (the same functions,
+    # switched on) compiles nothing: that second compilation took about half of the lab
+    # record's fit time. Every fit without a peak does so, whether the term runs or not, so
+    # that a fit's values do not depend on the term's setting
+    switch = has_no_peak(names, start_vehicle) or (_inner and form == "linear")
     problem = CalibrationProblem(drops, names, vehicle=start_vehicle, window_s=stages_w[-1],
                                  pre_s=PRE_S, dt=dt, save_dt=save_dt, integrator=integrator,
                                  smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                                  fit_touchdown=fit_touchdown, channels=channels,
-                                 peak_form=form if shared else peak_form, shared_forms=shared)
+                                 peak_form=form if shared else peak_form, shared_forms=shared,
+                                 peak_switch=switch)
     theta0 = problem.theta_from()
     forms_thread = precompile_forms(problem, form) if forms and not shared else None
     problem.compile(theta0)
@@ -917,9 +928,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             f"the fit found no usable minimum ({err}): the model does not follow the record "
             "at all; check the drop test's metadata against the record (drop_height_m, "
             "sink_speed_mps or touchdown_speed_mps, sensor_leg, units)") from None
-    bound = at_bound(names, values, final.vehicle)
+    bound = at_bound(names, values, final.vehicle, form=final.peak_form)
     identified, msgs = _identifiability(names, values, unc, bound)
-    msgs += [_bound_message(n, names, values, final.vehicle) for n in bound]
+    msgs += [_bound_message(n, names, values, final.vehicle, final.peak_form) for n in bound]
     for m in msgs:
         warn(m, IdentifiabilityWarning, stacklevel=2)
     # the misfit test needs a measured noise level: on noise-free records (every channel's

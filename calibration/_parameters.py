@@ -11,7 +11,9 @@ keeps it physical while the optimiser works on an unconstrained number.
   within the bounds of the vehicle's rules
   (``jaxland.validate_vehicle``), as logit((x - lo) / (hi - lo)), or log(x - lo) without an
   upper bound: unload in (1, max(k_b1, k_b3) / k_b3); L between 2 (r - 1) F / k (the
-  falling slope (r - 1) F / L <= k / 2) and the room left before x_L2 (x_L4); r in (1, the
+  falling slope (r - 1) F / L <= k / 2) and the room left before x_L2 (x_L4), in the
+  exponential form of the primary peak that room over EXP_SPAN (its table spans EXP_SPAN
+  L_peak1: the bounds take the peak's form); r in (1, the
   largest peak those leave room for), and r1 F1 < F2; L_rise1 between (r1 - 1) F1 / k_b1 (a
   build-up slower than the elastic rise) and the room L_peak1 leaves before x_L2. A sharper
   measured peak than the rule allows ends the fit at the bound (the peak's work, not its
@@ -90,8 +92,10 @@ _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None 
 # L_peak1; ``rise``, the law's peak built up over L_rise1 before that fall; ``exp``, an
 # excess (peak1 - 1) F1 exp(-c / L_peak1) of the crush c past the onset, tabulated
 # (``Honeycomb.excess1``) over EXP_SPAN decay lengths at EXP_POINTS nodes (exp(-8): 3e-4 of
-# the peak is cut off at the table's end). The exp form starts with the linear form's slope
-# (peak1 - 1) F1 / L_peak1, so the linear form's bounds hold for it.
+# the peak is cut off at the table's end). The exp form's steepest fall, on its first
+# segment, is 0.96 of the linear form's slope (peak1 - 1) F1 / L_peak1, so the linear form's
+# lower bound on L_peak1 holds for it; its table ends EXP_SPAN L_peak1 past the onset, so its
+# room before x_L2 is EXP_SPAN times shorter (``_bounds``' ``form``).
 PEAK_FORMS = ("linear", "rise", "exp")
 SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
 EXP_SPAN, EXP_POINTS = 8.0, 97
@@ -254,10 +258,20 @@ def _value(m, names, values, vehicle):
     return 1.0 if v is None else v
 
 
-def _bounds(n, names, values, vehicle):
+def _span(form):
+    """How many L_peak1 the primary peak's decay spans in ``form``: a name of PEAK_FORMS (None:
+    the vehicle's own law) or a form's code (``FORM_INDEX``, traced under jit). EXP_SPAN for
+    the exponential form (its table), 1 for the law's linear fall, built up or not."""
+    if form is None or isinstance(form, str):
+        return EXP_SPAN if form == "exp" else 1.0
+    return jnp.where(jnp.asarray(form) == FORM_INDEX["exp"], EXP_SPAN, 1.0)
+
+
+def _bounds(n, names, values, vehicle, form=None):
     """(lo, hi) of a crush-peak or unloading parameter from the vehicle's rules (hi None: no
-    upper bound), given the other values (fitted or the vehicle's); each bound that a rule
-    sets lies ``BOUND_MARGIN`` of the rule's scale inside it (module docstring)."""
+    upper bound), given the other values (fitted or the vehicle's) and the primary peak's form
+    (``_span``); each bound that a rule sets lies ``BOUND_MARGIN`` of the rule's scale inside
+    it (module docstring)."""
     def v(m):
         return _value(m, names, values, vehicle)
 
@@ -276,44 +290,47 @@ def _bounds(n, names, values, vehicle):
     end = hc.x_L2 if first else hc.x_L4
     room = (hc.x_L2 - v("F1") / v("k_b1") if first
             else hc.x_L4 - hc.x_L2 - (v("F2") - v("F1")) / v("k_b3")) - m * end
+    span = _span(form) if first else 1.0  # the peak's decay ends span L past its onset
     if n in ("peak1", "peak2"):  # bound the peak a = (r - 1) F
         if length in names:  # the length's interval below must stay open
-            a_hi = 0.999 * room / (2.0 / v("k") + 1.0 / v(k_el))
+            a_hi = 0.999 * room / (2.0 * span / v("k") + 1.0 / v(k_el))
         else:  # the fixed length: falling slope a / L <= k / 2, the peak ends in the room
             L = hc.peak_length1 if first else hc.peak_length2
-            a_hi = jnp.minimum(0.5 * v("k") * L * (1.0 - m), v(k_el) * (room - L))
+            a_hi = jnp.minimum(0.5 * v("k") * L * (1.0 - m), v(k_el) * (room - span * L))
         if first:  # r1 F1 < F2: the primary's peak stays below the secondary plateau
             a_hi = jnp.minimum(a_hi, v("F2") - v("F1") - m * v("F2"))
         return 1.0, 1.0 + a_hi / v(force)
     a = (v(ratio) - 1.0) * v(force)
-    # falling slope a / L <= k / 2; the peak's rise a / k_el and decay L end in the room, and
-    # the primary's leaves RISE_ROOM of it, so that L_rise1's interval stays open at any L
+    # falling slope a / L <= k / 2; the peak's rise a / k_el and decay span L end in the room,
+    # and the primary's leaves RISE_ROOM of it, so that L_rise1's interval stays open at any L
     return (2.0 * a / v("k") * (1.0 + m),
-            room - a / v(k_el) - (RISE_ROOM * room if first else 0.0))
+            (room - a / v(k_el) - (RISE_ROOM * room if first else 0.0)) / span)
 
 
-def interval(n, names, values, vehicle) -> tuple[float, float] | None:
+def interval(n, names, values, vehicle, form=None) -> tuple[float, float] | None:
     """(lo, hi) of a bounded parameter's transform: (0, 1) for gamma (logit), ``_bounds`` for
-    the crush peaks, rise and unloading ratio; None for the others (log, gap)."""
+    the crush peaks, rise and unloading ratio (the primary peak in ``form``); None for the
+    others (log, gap)."""
     kind = PARAMS[n][3]
     if kind == "logit":
         return 0.0, 1.0
     if kind in ("over1", "length", "rise"):
-        lo, hi = _bounds(n, names, values, vehicle)
+        lo, hi = _bounds(n, names, values, vehicle, form)
         return float(lo), float(hi)
     return None
 
 
-def at_bound(names, values, vehicle, rel: float = 1e-6) -> tuple[str, ...]:
+def at_bound(names, values, vehicle, rel: float = 1e-6, form=None) -> tuple[str, ...]:
     """The bounded parameters (gamma in (0, 1); ``_bounds``: crush peaks, rise, unloading
     ratio) whose value lies within ``rel`` of its interval's width from a bound (the
     transform's slope is then below ``rel``: |z| > 13.8 for the default): the optimiser ran
     to the limit of the vehicle's rules there, so the value is the rule's, not the data's, and
-    the delta-method standard error through the flat transform says nothing about it."""
+    the delta-method standard error through the flat transform says nothing about it. The
+    primary peak in ``form`` (``_bounds``)."""
     values = np.asarray(values, dtype=float)
     out = []
     for i, n in enumerate(names):
-        bounds = interval(n, names, values, vehicle)
+        bounds = interval(n, names, values, vehicle, form)
         if bounds is not None and min(values[i] - bounds[0], bounds[1] - values[i]) <= rel * (
                 bounds[1] - bounds[0]):
             out.append(n)
@@ -323,8 +340,9 @@ def at_bound(names, values, vehicle, rel: float = 1e-6) -> tuple[str, ...]:
 _STAGE = {"log": 0, "logit": 0, "gap": 1, "over1": 2, "length": 3, "rise": 4}  # in order
 
 
-def to_unconstrained(vehicle: jl.Vehicle, names) -> np.ndarray:
-    """Unconstrained coordinates z of the selected parameters of ``vehicle``."""
+def to_unconstrained(vehicle: jl.Vehicle, names, form=None) -> np.ndarray:
+    """Unconstrained coordinates z of the selected parameters of ``vehicle``, its primary peak
+    in ``form`` (``_bounds``)."""
     p = get_values(vehicle, names)
     for i, n in enumerate(names):  # an extension that is off starts from its documented value
         if (PARAMS[n][3] == "over1" and p[i] == 1.0) or (
@@ -347,7 +365,8 @@ def to_unconstrained(vehicle: jl.Vehicle, names) -> np.ndarray:
                 raise jl.ConfigError(PARAMS[n][2], x, f"must exceed F1 = {f1:g} N")
             z[i] = np.log(x - f1)
         else:  # bounded by the vehicle's rules
-            lo, hi = (None if b is None else float(b) for b in _bounds(n, names, p, vehicle))
+            lo, hi = (None if b is None else float(b)
+                      for b in _bounds(n, names, p, vehicle, form))
             if not (x > lo and (hi is None or x < hi)):
                 shown, unit = (x * 1e3, " mm") if kind in ("length", "rise") else (x, "")
                 raise jl.ConfigError(
@@ -360,10 +379,11 @@ def to_unconstrained(vehicle: jl.Vehicle, names) -> np.ndarray:
     return z
 
 
-def from_unconstrained(z, names, vehicle: jl.Vehicle):
+def from_unconstrained(z, names, vehicle: jl.Vehicle, form=None):
     """Physical values (jnp) from unconstrained coordinates; traceable. Every value obeys the
     vehicle's rules: positive, gamma in (0, 1), F2 > F1, the crush peaks and unloading ratio
-    inside their bounds (``_bounds``)."""
+    inside their bounds (``_bounds``, the primary peak in ``form``: a name, or a form's code
+    traced under jit)."""
     out = [None] * len(names)
     for stage in range(5):
         for i, n in enumerate(names):
@@ -377,6 +397,6 @@ def from_unconstrained(z, names, vehicle: jl.Vehicle):
             elif kind == "gap":
                 out[i] = _f1_of(names, out, vehicle) + jnp.exp(z[i])
             else:
-                lo, hi = _bounds(n, names, out, vehicle)
+                lo, hi = _bounds(n, names, out, vehicle, form)
                 out[i] = lo + (jnp.exp(z[i]) if hi is None else (hi - lo) * jax.nn.sigmoid(z[i]))
     return jnp.stack([jnp.asarray(o, dtype=jnp.float64) for o in out])

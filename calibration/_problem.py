@@ -28,6 +28,14 @@ the problem in each of ``PEAK_FORMS``, so the peak-shape refits of a fit (``mode
 compile nothing. A problem whose form does not use L_rise1 holds that coordinate at 0 (the
 middle of its bounds; the form ignores its value) and drops its Jacobian column.
 
+With ``peak_switch`` the primary crush peak (``PEAK_PARAMS``, the law's linear form) is
+switched on or off at run time instead: the compiled functions fit ``switch_names`` (the
+problem's list without PEAK_PARAMS, then PEAK_PARAMS) and take the switch as an argument,
+off for a problem that does not fit the peak (its peak coordinates held at 0, their Jacobian
+columns dropped, the peak ratio read as exactly 1: no peak) and on for one that fits it. So
+a fit without the peak and its repetition with the peak (the missing-peak term of ``fit``)
+share one compiled program.
+
 The integrator is configurable (``integrator``, ``smoothing_m``, ``smoothing_N``: the
 ``jaxland.Solver`` fields ``method``, ``smoothing_m``, ``smoothing_N``), restricted to the
 fixed-step methods; the compiled functions are keyed on all three.
@@ -37,6 +45,7 @@ from __future__ import annotations
 
 import copy
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -49,6 +58,7 @@ from ._filter import IDENTITY, filtfilt_jax, filtfilt_np, noise_gain, settle_tim
 from ._parameters import (
     FORM_INDEX,
     PEAK_FORMS,
+    PEAK_PARAMS,
     check_names,
     forms_vehicle,
     from_unconstrained,
@@ -57,10 +67,12 @@ from ._parameters import (
     to_unconstrained,
 )
 
-__all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator", "shared_names"]
+__all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator", "shared_names",
+           "switch_names"]
 
 MS = 1e-3  # the touchdown shifts are fitted in milliseconds
 SHARED = "shared"  # the compiled functions' peak form: every form, chosen at run time
+SWITCH = "switch"  # the compiled functions' primary peak: the linear one, on or off at run time
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
 _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
 # fixed-step methods only: the fit checks dt against their stability limit and samples the
@@ -98,11 +110,18 @@ def shared_names(names) -> tuple:
     return tuple(n for n in names if n != "L_rise1") + ("L_rise1",)
 
 
+def switch_names(names) -> tuple:
+    """The parameter list of the compiled functions whose primary peak is switched at run time
+    (``peak_switch``): ``names`` without PEAK_PARAMS, then PEAK_PARAMS."""
+    return tuple(n for n in names if n not in PEAK_PARAMS) + PEAK_PARAMS
+
+
 def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None):
     """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels
     (and whether a CFC filter acts, and the primary peak's form: None, the vehicle's own;
-    SHARED, the form's code ``FORM_INDEX`` as the first data argument); compiled once and
-    shared (data, speeds, windows and filter coefficients are arguments)."""
+    SHARED, the form's code ``FORM_INDEX`` as the first data argument; SWITCH, the linear
+    peak on or off by the first data argument); compiled once and shared (data, speeds,
+    windows and filter coefficients are arguments)."""
     key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
            solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered,
            peak_form)
@@ -112,13 +131,18 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
     n_z = len(names)
 
     def residual(theta, *args):
-        if peak_form == SHARED:
+        if peak_form in (SHARED, SWITCH):
             form, *args = args
         speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs = args
         z = theta[:n_z]
-        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle))
+        # the bounds of the primary peak's parameters depend on its form (the exp table's span)
+        bounds_form = form if peak_form == SHARED else None if peak_form == SWITCH else peak_form
+        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle, bounds_form))
         if peak_form == SHARED:
             veh = forms_vehicle(veh, form)
+        elif peak_form == SWITCH:  # off: ratio exactly 1, the peak's height (r - 1) F1 is 0
+            veh = eqx.tree_at(lambda v: v.honeycomb.peak_ratio1, veh,
+                              jnp.where(form, veh.honeycomb.peak_ratio1, 1.0))
         elif peak_form is not None:
             veh = peak_form_vehicle(veh, peak_form)
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
@@ -177,13 +201,18 @@ class CalibrationProblem:
         with the problems of the same drops in the other forms; needs peak1 among ``params``.
         The form is then ``peak_form``, or None: ``rise`` with L_rise1 among ``params``, else
         ``linear``
+    peak_switch : compile functions whose primary crush peak (the law's linear one) is
+        switched on or off at run time (module docstring), shared with the problem of the
+        same drops with the peak fitted (PEAK_PARAMS among ``params``: on) or not (off; the
+        vehicle must then have no primary peak)
     """
 
     def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
                  window_s: float = 0.1, pre_s: float = 0.005, dt: float = 1e-5,
                  save_dt: float = 2e-5, integrator: str = "euler", smoothing_m: float = 0.0,
                  smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None,
-                 peak_form: str | None = None, shared_forms: bool = False):
+                 peak_form: str | None = None, shared_forms: bool = False,
+                 peak_switch: bool = False):
         from ._parameters import DEFAULT_PARAMS
 
         if peak_form is not None and peak_form not in PEAK_FORMS:
@@ -210,6 +239,21 @@ class CalibrationProblem:
         self.peak_form = peak_form
         self.vehicle = drops[0].vehicle if vehicle is None else vehicle
         jl.validate_vehicle(self.vehicle)
+        self.peak_switch = bool(peak_switch)
+        self.peak_on = all(n in self.names for n in PEAK_PARAMS)
+        if self.peak_switch:
+            hc = self.vehicle.honeycomb
+            if self.shared_forms or peak_form is not None or "L_rise1" in self.names:
+                raise jl.ConfigError("peak_switch", peak_switch, "switches the law's linear "
+                                     "peak only: not with shared_forms, peak_form or L_rise1")
+            if not self.peak_on and any(n in self.names for n in PEAK_PARAMS):
+                raise jl.ConfigError("peak_switch", peak_switch, "needs all of "
+                                     + ", ".join(PEAK_PARAMS) + " among the fitted "
+                                     "parameters or none")
+            if not self.peak_on and (hc.peak_ratio1 is not None or hc.excess1 is not None
+                                     or hc.peak_rise1 is not None):
+                raise jl.ConfigError("peak_switch", peak_switch, "switched off, it would "
+                                     "remove the vehicle's own primary crush peak")
         for name, val in (("window_s", window_s), ("pre_s", pre_s)):
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not (
                     np.isfinite(val) and val >= (0.0 if name == "pre_s" else 1e-3)):
@@ -293,22 +337,26 @@ class CalibrationProblem:
         self.n_z = len(self.names)
         self.n_theta = self.n_z + (nd if self.fit_touchdown else 0)
         # the fitted values are replaced inside: key the compiled code on the fixed ones only
-        # (the problems of one fit in every peak form share the functions of shared_names)
-        self._z_names = shared_names(self.names) if self.shared_forms else self.names
+        # (the problems of one fit in every peak form share the functions of shared_names,
+        # those with the peak switched on and off the functions of switch_names)
+        self._z_names = (shared_names(self.names) if self.shared_forms
+                         else switch_names(self.names) if self.peak_switch else self.names)
         self._canonical = set_values(self.vehicle, self._z_names,
                                      np.full(len(self._z_names), 0.5))
         fns = _compiled(self._canonical, self._z_names, self.solver, channels,
                         self.fit_touchdown, self.filtered,
-                        SHARED if self.shared_forms else peak_form)
+                        SHARED if self.shared_forms else SWITCH if self.peak_switch
+                        else peak_form)
         self._res_jit = fns[0]
-        if not self.shared_forms:
+        if not (self.shared_forms or self.peak_switch):
             self._res, self._jac = fns
             self._embed, self._z_cols = (lambda theta: theta), slice(None)
             self._z_src = np.arange(self.n_z)
             return
         # theta -> the shared functions' theta: each coordinate from its place in theta, the
-        # coordinate this form does not fit from the slot appended after theta (held at 0);
-        # their Jacobian's columns back in theta's order
+        # coordinates this problem does not fit (the rise in a form without one, the peak
+        # switched off) from the slot appended after theta (held at 0); their Jacobian's
+        # columns back in theta's order
         names_u, n_s = self._z_names, self.n_theta - self.n_z
         n_u = len(names_u)
         src = np.array([self.names.index(n) if n in self.names else self.n_theta
@@ -364,21 +412,24 @@ class CalibrationProblem:
     def theta_from(self, vehicle: jl.Vehicle | None = None, shifts_ms=None) -> np.ndarray:
         """theta for ``vehicle``'s values of the fitted parameters (default: the problem's
         vehicle) and touchdown shifts (default 0)."""
-        z = to_unconstrained(self.vehicle if vehicle is None else vehicle, self.names)
+        z = to_unconstrained(self.vehicle if vehicle is None else vehicle, self.names,
+                             self.peak_form)
         if not self.fit_touchdown:
             return z
         s = np.zeros(len(self.drops)) if shifts_ms is None else np.asarray(shifts_ms, float)
         return np.concatenate([z, s])
 
     def _transform(self, jacobian: bool = False):
-        """The jitted z -> values (or its Jacobian) of the compiled functions' parameters,
-        shared by the problems with the same fixed values (the fitted ones are not read)."""
-        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian)
+        """The jitted (z, form code) -> values (or their Jacobian in z) of the compiled
+        functions' parameters, shared by the problems with the same fixed values (the fitted
+        ones are not read) and peak form (with ``shared_forms``, every form: its code is read)."""
+        form = SHARED if self.shared_forms else self.peak_form
+        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian, form)
         if key not in _COMPILED:
             names, vehicle = self._z_names, self._canonical
 
-            def f(z):
-                return from_unconstrained(z, names, vehicle)
+            def f(z, code):
+                return from_unconstrained(z, names, vehicle, code if form == SHARED else form)
 
             _COMPILED[key] = jax.jit(jax.jacfwd(f) if jacobian else f)
         return _COMPILED[key]
@@ -387,9 +438,13 @@ class CalibrationProblem:
         """The compiled functions' parameter coordinates at ``theta`` (numpy)."""
         return np.append(np.asarray(theta, dtype=float), 0.0)[self._z_src]
 
+    def _code(self) -> int:
+        """The peak form's code (``FORM_INDEX``) that the shared functions read; 0 otherwise."""
+        return FORM_INDEX[self.peak_form] if self.shared_forms else 0
+
     def values(self, theta) -> np.ndarray:
         """Physical values of the fitted parameters [SI] at ``theta``."""
-        return np.asarray(self._transform()(self._z(theta)))[self._z_cols]
+        return np.asarray(self._transform()(self._z(theta), self._code()))[self._z_cols]
 
     def vehicle_at(self, theta) -> jl.Vehicle:
         """The vehicle with the fitted parameters at ``theta``, its peak in the problem's
@@ -408,7 +463,7 @@ class CalibrationProblem:
 
     def transform_jacobian(self, theta) -> np.ndarray:
         """d(physical values)/d(theta[:n_z]) (for the delta method)."""
-        g = np.asarray(self._transform(jacobian=True)(self._z(theta)))
+        g = np.asarray(self._transform(jacobian=True)(self._z(theta), self._code()))
         return g[self._z_cols][:, self._z_cols]
 
     # ------------------------------------------------------------------------ evaluation
@@ -422,6 +477,8 @@ class CalibrationProblem:
                 jnp.asarray(self.huber_c, dtype=jnp.float64), jnp.asarray(self.coeffs))
         if self.shared_forms:  # the peak's form, an argument of the shared functions
             args = (jnp.asarray(FORM_INDEX[self.peak_form], dtype=jnp.int32), *args)
+        elif self.peak_switch:  # the peak on or off, an argument of the switched functions
+            args = (jnp.asarray(self.peak_on), *args)
         self._args_cache = (self.mask, self.huber_c, args)
         return args
 

@@ -26,11 +26,15 @@ from calibration._parameters import (
     FORM_INDEX,
     PEAK_FORMS,
     SHAPE_PARAMS,
+    at_bound,
     forms_vehicle,
+    from_unconstrained,
     get_values,
+    interval,
     peak_form_vehicle,
     set_values,
     switch_on,
+    to_unconstrained,
 )
 from calibration._problem import CalibrationProblem
 from calibration.cli import add_subcommands
@@ -244,3 +248,44 @@ def test_the_shared_jacobian_has_each_forms_own_columns():
         step[i] = h
         fd = (lin.residuals(theta + step)[0] - lin.residuals(theta - step)[0]) / (2 * h)
         assert np.linalg.norm(jac[:, i] - fd) < 1e-3 * np.linalg.norm(fd), n
+
+
+def test_the_exp_forms_length_is_bounded_by_its_own_tables_room():
+    """The exponential form's table spans EXP_SPAN L_peak1 past the onset, so its L_peak1 has
+    EXP_SPAN times less room before x_L2 than the linear peak's. The transforms, at_bound and
+    a fit's problems in that form (its own functions and the ones shared by every form) bound
+    it by that room: a coordinate run onto the upper bound gives a vehicle the table's rule
+    accepts, and the same residuals as the model with that table built in (fails with the
+    linear form's bound, where the excess would end past x_L2)."""
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    veh = switch_on(drop.vehicle, PARAMS)
+    vals, j = get_values(veh, PARAMS), PARAMS.index("L_peak1")
+    lo_lin, hi_lin = interval("L_peak1", PARAMS, vals, veh)
+    lo_exp, hi_exp = interval("L_peak1", PARAMS, vals, veh, "exp")
+    assert lo_exp == lo_lin and hi_exp == pytest.approx(hi_lin / EXP_SPAN, rel=1e-12)
+    too_long = set_values(veh, ("L_peak1",), [0.5 * (hi_exp + hi_lin)])
+    with pytest.raises(jl.ConfigError, match="excess must end before x_L2"):
+        jl.validate_vehicle(peak_form_vehicle(too_long, "exp"))  # inside the linear bounds
+
+    z = to_unconstrained(veh, PARAMS, "exp")
+    z[j] = 40.0  # onto the upper bound: the sigmoid rounds to 1
+    v = np.asarray(from_unconstrained(jnp.asarray(z), PARAMS, veh, "exp"))
+    assert v[j] == pytest.approx(hi_exp, rel=1e-12)
+    table = jl.validate_vehicle(peak_form_vehicle(set_values(veh, PARAMS, v), "exp"))
+    assert at_bound(PARAMS, v, veh, form="exp") == ("L_peak1",)
+    assert at_bound(PARAMS, v, veh) == ()  # the linear peak has EXP_SPAN times the room
+
+    kw = dict(window_s=0.03, pre_s=cal_fit.PRE_S)
+    built_in = CalibrationProblem([drop], cal.DEFAULT_PARAMS, vehicle=table, **kw)
+    r_table, _ = built_in.residuals(built_in.theta_from(table, [0.0]))
+    for shared in (False, True):
+        prob = CalibrationProblem([drop], PARAMS, vehicle=veh, peak_form="exp",
+                                  shared_forms=shared, **kw)
+        theta = prob.theta_from(veh, [0.0])
+        theta[j] = 40.0
+        np.testing.assert_allclose(prob.values(theta), v, rtol=1e-12)
+        assert float(prob.vehicle_at(theta).honeycomb.excess_length1) == pytest.approx(
+            EXP_SPAN * hi_exp, rel=1e-12)
+        r, failed = prob.residuals(theta)
+        assert not failed
+        np.testing.assert_allclose(r, r_table, rtol=0, atol=1e-9 * np.max(np.abs(r_table)))

@@ -237,6 +237,62 @@ def test_without_misfit_the_missing_peak_term_changes_nothing(rig_fits, monkeypa
         np.testing.assert_array_equal(getattr(on, name), getattr(res, name))
 
 
+def test_the_missing_peak_fit_runs_on_the_fit_s_own_compiled_program(monkeypatch):
+    """The fit without a crush peak runs on functions whose linear peak is switched off at run
+    time, and its repetition with the peak (the missing-peak term) on the same functions
+    switched on: the term compiles nothing (fails where the two fits build programs of their
+    own)."""
+    caught = []
+    add0 = cal_fit.add_peak_model_term
+
+    def capture(result, with_peak):
+        caught.append(with_peak)
+        return add0(result, with_peak)
+
+    monkeypatch.setattr(cal_fit, "add_peak_model_term", capture)
+    physical = set_values(vr.truth_vehicle(), ("peak1", "L_peak1"), np.array([1.1, 1e-3]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = cal.fit(vr.drop_test(0.2, seed=7, crush_peak=0.0, vehicle=physical),
+                      windows=(0.01, 0.03), refine_window_s=0.06)
+    (with_peak,) = caught
+    assert isinstance(with_peak, cal.FitResult)
+    assert with_peak.names == res.names + ("peak1", "L_peak1")
+    a, b = res.problem, with_peak.problem
+    assert a.peak_switch and not a.peak_on and b.peak_switch and b.peak_on
+    assert a._res_jit is b._res_jit
+
+
+def test_the_switched_peak_is_the_law_s_peak_on_and_no_peak_off():
+    """Switched off, the shared functions' residuals and Jacobian are those of the plain
+    model without a peak (the general law with a zero peak: equal up to rounding, not bit
+    for bit); switched on, those of the model with the law's linear peak."""
+    from calibration._problem import CalibrationProblem
+
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    names = cal.DEFAULT_PARAMS
+    kw = dict(window_s=0.06, pre_s=cal_fit.PRE_S)
+    veh = switch_on(drop.vehicle, names + ("peak1", "L_peak1"))
+    for fitted, vehicle in ((names, drop.vehicle), (names + ("peak1", "L_peak1"), veh)):
+        plain = CalibrationProblem([drop], fitted, vehicle=vehicle, **kw)
+        switched = CalibrationProblem([drop], fitted, vehicle=vehicle, peak_switch=True, **kw)
+        assert switched.peak_on == (len(fitted) > len(names))
+        assert plain._res_jit is not switched._res_jit
+        theta = plain.theta_from(None, [0.05])
+        r0, j0, _ = plain.residuals_and_jacobian(theta)
+        r1, j1, _ = switched.residuals_and_jacobian(theta)
+        assert j1.shape == j0.shape == (r0.size, len(fitted) + 1)
+        scale = np.max(np.abs(j0), axis=0)
+        scale = np.where(scale > 0, scale, 1.0)  # F2's column is 0: x_L2 is not reached
+        np.testing.assert_allclose(r1, r0, rtol=0, atol=1e-9 * np.max(np.abs(r0)))
+        np.testing.assert_allclose(j1 / scale, j0 / scale, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(switched.values(theta), plain.values(theta))
+    with pytest.raises(jl.ConfigError, match="peak_switch.*remove the vehicle's own"):
+        CalibrationProblem([drop], names, vehicle=veh, peak_switch=True, **kw)
+    with pytest.raises(jl.ConfigError, match="peak_switch.*all of peak1, L_peak1"):
+        CalibrationProblem([drop], names + ("peak1",), vehicle=veh, peak_switch=True, **kw)
+
+
 def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_path, capsys):
     import argparse
     import json
