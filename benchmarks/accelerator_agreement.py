@@ -6,8 +6,8 @@ machine's CPU: the same outcomes to rounding, and each one's time for a single l
 Writes OUT.json (benchmarks/results/accelerator_agreement.json holds the lent H200's run; the
 docs table accelerator-agreement reads it). On a machine without a GPU both rows are the CPU.
 """
+import argparse
 import json
-import sys
 import time
 
 import jax
@@ -15,6 +15,9 @@ import jax.numpy as jnp
 
 import jaxland as jl
 
+ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ap.add_argument("out", help="the JSON file to write")
+args = ap.parse_args()
 print("jax", jax.__version__, jax.devices(), flush=True)
 v = jl.paper_vehicle()
 solver = jl.Solver(dt=4e-5, t_end=0.6, save_dt=1e-3, method="leapfrog")
@@ -38,5 +41,5 @@ for model, sc in scenes.items():
     row["rel_diff_max_stroke"] = abs(row["gpu"]["max_stroke_m"] / row["cpu"]["max_stroke_m"] - 1)
     out[model] = row
     print(model, row, flush=True)
-with open(sys.argv[1], "w") as f:
+with open(args.out, "w") as f:
     json.dump(out, f, indent=1)
