@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -210,7 +211,10 @@ def accelerator(args, out: Path) -> dict:
     child, spec, seed and chosen steps, one process per run, wall time with compilation. The
     3-D model at 10^4 also runs twice with one empty compilation cache, which separates its
     compilation from its run. Runs stop being started once ``--budget-s`` has passed (each is
-    stopped at the budget's end). Writes montecarlo_accelerator.{json,png}."""
+    stopped at the budget's end). Writes montecarlo_accelerator.{json,png} once every run of
+    the plan has finished; until then, and for good where one did not,
+    montecarlo_accelerator.partial.json. Refused (exit 2) on a machine without a GPU, unless
+    ``--quick``."""
     import tempfile
 
     chosen = {m: (r["chosen"]["method"], r["chosen"]["dt_s"]) for m, r in json.loads(
@@ -237,8 +241,10 @@ def accelerator(args, out: Path) -> dict:
             skipped.append(dict(model=model, n=n, chunk=chunk, why="failed", stderr=tail))
         return None
 
+    partial = out / "montecarlo_accelerator.partial.json"
+
     def save():
-        write_json(out / "montecarlo_accelerator.json", dict(
+        write_json(partial, dict(
             spec="as bench_montecarlo.json: quarter dispersion in the CHILD, full 3-D "
                  "examples/montecarlo_dispersed.toml; 1.0 s landings; one device; wall time "
                  "includes compilation", chosen_steps={m: list(c) for m, c in chosen.items()},
@@ -257,9 +263,15 @@ def accelerator(args, out: Path) -> dict:
                     if r is not None:
                         cached.append(r)
             save()
-    result = json.loads((out / "montecarlo_accelerator.json").read_text())
+    result = json.loads(partial.read_text())
     result["machine"] = machine()  # after the runs: the backend takes the device's memory
+    if skipped:
+        write_json(partial, result, indent=2)
+        print(f"{len(skipped)} run(s) did not finish: results left in {partial}",
+              file=sys.stderr)
+        return result
     write_json(out / "montecarlo_accelerator.json", result, indent=2)
+    partial.unlink()
     plot_accelerator(result, out)
     return result
 
@@ -554,6 +566,13 @@ def main() -> None:
     if args.quick:
         args.quarter_n, args.full_n, args.step_n, args.full_n_large = 64, 4, 4, 0
     if args.accelerator:
+        if not (math.isfinite(args.budget_s) and args.budget_s > 0):
+            ap.error(f"--budget-s: {args.budget_s}: must be a finite number of seconds > 0")
+        backend = subprocess.run([sys.executable, "-c", "import jax; print(jax.default_backend())"],
+                                 capture_output=True, text=True, check=True).stdout.strip()
+        if backend == "cpu" and not args.quick:
+            ap.error("--accelerator: this machine's JAX backend is the CPU: the GPU throughput "
+                     "needs a GPU (the CPU's is the default run)")
         print(json.dumps(accelerator(args, out), indent=2))
         return
     if args.cache:

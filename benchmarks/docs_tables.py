@@ -420,9 +420,10 @@ def montecarlo_accelerator_targets() -> str:
                    key=lambda r: r["landings_per_s"]) for m in ("quarter", "full")}
     rows = []
     for model, n, wall in (("quarter", 100_000, 20.0), ("full", 10_000, 60.0)):
-        r = next(r for r in b["runs"] if r["model"] == model and r["n"] == n)
+        r = next((r for r in b["runs"] if r["model"] == model and r["n"] == n), None)
         rows.append([f"{n} {model} landings in <= {wall:g} s (the CPU target)",
-                     f"{r['wall_s']:.1f} s", "met" if r["wall_s"] <= wall else "not met"])
+                     *([f"{r['wall_s']:.1f} s", "met" if r["wall_s"] <= wall else "not met"]
+                       if r else ["not measured", "-"])])
     q, f = best["quarter"], best["full"]
     ratio = q["landings_per_s"] / f["landings_per_s"]
     rows.append([f"per landing, full 3-D / quarter <= 6 (fastest runs: n = {f['n']} and "

@@ -163,11 +163,12 @@ def init_distributed(coordinator: str, num_processes: int, process_id: int) -> N
 
 # Landings per compiled chunk when none is given, by the devices' platform. A CPU device runs a
 # chunk's time loop as one single-threaded kernel whose cost per landing does not fall with the
-# batch, so small chunks bound memory and give the progress line its steps. A GPU step costs
-# about the same for one landing as for thousands (its kernels are too small to fill it), so it
-# wants the largest chunk that fits: then a run is one or a few chunks.
+# batch, so small chunks bound memory and give the progress line its steps. On a GPU a chunk's
+# time grows far less than its size up to about 10^5 landings, so it takes the chunk that ran
+# fastest in a sweep on an H200 (docs/montecarlo.md, "On a GPU"; no other GPU was measured),
+# about 350 MiB of device memory for the 3-D model.
 DEFAULT_CHUNK = {"cpu": {"quarter": 512, "full": 64},
-                 "accelerator": {"quarter": 131072, "full": 32768}}
+                 "accelerator": {"quarter": 131072, "full": 131072}}
 
 
 def default_chunk(model: str, devices) -> int:
