@@ -434,13 +434,30 @@ def montecarlo_accelerator_targets() -> str:
 def accelerator_agreement() -> str:
     """One landing per model on the GPU and on the same machine's CPU
     (accelerator_agreement.json, benchmarks/accelerator_agreement.py)."""
-    b = _load("accelerator_agreement.json")
+    b = _load("accelerator_agreement.json")["single"]
     rows = [[m, f"{r['gpu']['max_stroke_m']:.12g}", f"{r['cpu']['max_stroke_m']:.12g}",
              f"{r['rel_diff_max_stroke']:.1e}", f"{r['gpu']['run_s'] * 1e3:.0f}",
              f"{r['cpu']['run_s'] * 1e3:.1f}"] for m, r in b.items()]
     return _table(["model", "max stroke, GPU [m]", "max stroke, its CPU [m]",
                    "relative difference [-]", "one landing, GPU [ms]",
                    "one landing, its CPU [ms]"], rows)
+
+
+def accelerator_samples() -> str:
+    """The same Monte Carlo on the GPU and on the same machine's CPU, two chunk sizes each,
+    sample by sample: per outcome the largest relative difference and the samples beyond
+    1e-6 and 1e-3 (accelerator_agreement.json's ``samples``)."""
+    b = _load("accelerator_agreement.json")
+    rows = []
+    for model, m in b["samples"].items():
+        for p in m["pairs"]:
+            diffs = {k: v for k, v in p.items() if isinstance(v, dict)}
+            rows.append([model, str(m["n"]), f"{p['a']} / {p['b']}",
+                         "; ".join(f"{k} {v['max_rel']:.1e} ({v['above_1e6']}, {v['above_1e3']})"
+                                   for k, v in diffs.items()), str(p["class_changes"])])
+    return _table(["model", "n [-]", "runs compared", "per outcome: largest relative difference "
+                   "(samples beyond 1e-6, beyond 1e-3)", "samples whose tip-over, bottoming or "
+                   "result changed [-]"], rows)
 
 
 def numba_side_by_side() -> str:
@@ -844,6 +861,7 @@ TABLES = {
     "montecarlo-accelerator": montecarlo_accelerator,
     "montecarlo-accelerator-targets": montecarlo_accelerator_targets,
     "accelerator-agreement": accelerator_agreement,
+    "accelerator-samples": accelerator_samples,
     "calibration-peak-recovery": calibration_peak_recovery,
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
