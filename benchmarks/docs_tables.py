@@ -602,8 +602,8 @@ def calibration_fit_time() -> str:
             for r in ft["runs"]]
     mod = ft.get("modified")
     code = (f"\nTimed at commit {ft['commit'][:7]}, "
-            + (f"with these library files changed: {', '.join(mod)}" if mod
-               else "library files unchanged") + ".\n") if "commit" in ft else ""
+            + (f"with these library files changed from it: {', '.join(mod)}" if mod
+               else "with no library file changed from it") + ".\n") if "commit" in ft else ""
     return _table(["fit (cold, fresh process)", "wall [s]", "of which the optimiser's stages [s]",
                    "CPU, all threads [s]", "load average at start [-]", "Jacobians [-]",
                    "starts [-]", f"wall <= {target:g} s ({ft['cpus']} CPUs)"], rows) + code

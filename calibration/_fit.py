@@ -480,6 +480,8 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     veh = peak_form_vehicle(vehicle, "linear") if alt != "rise" else vehicle
     if alt == "rise" and veh.honeycomb.peak_rise1 is None:
         veh = _rise_start(veh, names)
+    if alt == "exp":
+        veh = _inside_form(veh, names, alt)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
         dt=problem.solver.dt, save_dt=problem.solver.save_dt, integrator=problem.integrator,
@@ -487,6 +489,22 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
         fit_touchdown=problem.fit_touchdown, channels=problem.channels, peak_form=alt,
         shared_forms=True)
     return prob, veh
+
+
+def _inside_form(vehicle: jl.Vehicle, names, form: str) -> jl.Vehicle:
+    """``vehicle`` with each crush-peak value that lies outside its interval in ``form``
+    (``interval``: the exponential form leaves its L_peak1 EXP_SPAN times less room than the
+    linear form whose fit starts it) moved to 0.9 of the way from the interval's lower end, so
+    that a refit in that form starts inside its rules instead of failing; values already
+    inside are kept. The peak ratio first: the length's interval depends on it."""
+    for n in ("peak1", "L_peak1"):
+        if n in names:
+            vals = get_values(vehicle, names)
+            lo, hi = interval(n, names, vals, vehicle, form)
+            x = vals[names.index(n)]
+            if not lo < x < hi:
+                vehicle = set_values(vehicle, (n,), [lo + 0.9 * (hi - lo)])
+    return vehicle
 
 
 def precompile_forms(problem: CalibrationProblem, form: str):
@@ -847,9 +865,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     shared = forms and ("L_rise1" in names or start_vehicle.honeycomb.peak_rise1 is None)
     # a model without any crush peak runs on functions whose linear peak is switched off at
     # run time (``peak_switch``), so that the missing-peak term's fit (the same functions,
-    # switched on) compiles nothing: that second compilation took about half of the lab
-    # record's fit time. Every fit without a peak does so, whether the term runs or not, so
-    # that a fit's values do not depend on the term's setting
+    # switched on) compiles nothing; a second compilation would be a large part of a fit's
+    # time. Every fit without a peak does so, whether the term runs or not, so that a fit's
+    # values do not depend on the term's setting
     switch = has_no_peak(names, start_vehicle) or (_inner and form == "linear")
     problem = CalibrationProblem(drops, names, vehicle=start_vehicle, window_s=stages_w[-1],
                                  pre_s=PRE_S, dt=dt, save_dt=save_dt, integrator=integrator,

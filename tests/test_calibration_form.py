@@ -289,3 +289,24 @@ def test_the_exp_forms_length_is_bounded_by_its_own_tables_room():
         r, failed = prob.residuals(theta)
         assert not failed
         np.testing.assert_allclose(r, r_table, rtol=0, atol=1e-9 * np.max(np.abs(r_table)))
+
+
+def test_an_exp_refit_starts_inside_its_own_bounds():
+    """A linear fit whose L_peak1 lies beyond the exponential form's room (inside the linear
+    form's) starts the exp refit at a length inside the exp interval, where it would otherwise
+    be refused by the table's rule; a start already inside is kept."""
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    veh = switch_on(drop.vehicle, PARAMS)
+    vals = get_values(veh, PARAMS)
+    _, hi_lin = interval("L_peak1", PARAMS, vals, veh)
+    lo_exp, hi_exp = interval("L_peak1", PARAMS, vals, veh, "exp")
+    long_peak = set_values(veh, ("L_peak1",), [0.5 * (hi_exp + hi_lin)])
+    kw = dict(window_s=0.03, pre_s=cal_fit.PRE_S)
+    base = CalibrationProblem([drop], PARAMS, vehicle=long_peak, **kw)
+    prob, start = cal_fit._form_problem(base, long_peak, "exp")
+    L = float(start.honeycomb.peak_length1)
+    assert lo_exp < L < hi_exp
+    prob.theta_from(start, [0.0])  # inside: no ConfigError
+    inside = set_values(veh, ("L_peak1",), [0.5 * (lo_exp + hi_exp)])
+    _, kept = cal_fit._form_problem(base, inside, "exp")
+    assert float(kept.honeycomb.peak_length1) == 0.5 * (lo_exp + hi_exp)

@@ -67,9 +67,9 @@ class Track(eqx.Module):
 
     peaks: dict  # running maxima of the model's peak_values
     # (Solver.event_log + 1,) s, contact on/off times: entry i < n_events is the i-th change;
-    # a single landing's step writes its time at min(n_events, capacity), a plain store instead
-    # of a read, a select and a store, so the entries from n_events on (the last one a spare
-    # slot) hold no change (``events`` reads the log)
+    # a single landing's step writes its time at min(n_events, capacity) unconditionally (one
+    # store, no read or select), so the entries from n_events on (the last one a spare slot)
+    # hold no change (``events`` reads the log)
     event_times: Array
     # int32, contact changes so far; odd: in contact at the last step (the flag itself is not
     # carried: on XLA:CPU each carried value is one more kernel, buffer and copy per step)
@@ -151,9 +151,9 @@ def _log_write_raw(log, idx, t, changed):
 def _log_write_batched(axis_size, in_batched, log, idx, t, changed):
     # A one-hot select: under vmap, .at[idx].set with a per-landing index is a scatter, and
     # XLA:CPU compiles a while loop that holds a scatter kernel by kernel instead of into one
-    # native kernel (the batch then pays one dispatch per fused kernel and step). Only where
-    # the contact changed: the unconditional select of the single landing's store made a
-    # batched 3-D step 3-5 % slower.
+    # native kernel (the batch then pays one dispatch per fused kernel and step). It selects
+    # only where the contact changed: a select on every step costs a batched 3-D step more
+    # than the condition does.
     log, idx, t, changed = (x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
                             for x, b in zip((log, idx, t, changed), in_batched))
     hit = (jnp.arange(log.shape[-1], dtype=idx.dtype)[None, :] == idx[:, None]) & changed[:, None]
