@@ -246,6 +246,11 @@ class CalibrationProblem:
             if self.shared_forms or peak_form is not None or "L_rise1" in self.names:
                 raise jl.ConfigError("peak_switch", peak_switch, "switches the law's linear "
                                      "peak only: not with shared_forms, peak_form or L_rise1")
+            if hc.peak_rise1 is not None or hc.excess1 is not None:
+                raise jl.ConfigError("peak_switch", peak_switch, "switches the law's linear "
+                                     "peak only: the vehicle's primary peak has "
+                                     + ("a rise (peak_rise1)" if hc.peak_rise1 is not None
+                                        else "an exponential table (excess1)"))
             if not self.peak_on and any(n in self.names for n in PEAK_PARAMS):
                 raise jl.ConfigError("peak_switch", peak_switch, "needs all of "
                                      + ", ".join(PEAK_PARAMS) + " among the fitted "

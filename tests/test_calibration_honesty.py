@@ -21,6 +21,7 @@ from calibration._parameters import (
     at_bound,
     from_unconstrained,
     get_values,
+    peak_form_vehicle,
     set_values,
     switch_on,
     to_unconstrained,
@@ -291,6 +292,9 @@ def test_the_switched_peak_is_the_law_s_peak_on_and_no_peak_off():
         CalibrationProblem([drop], names, vehicle=veh, peak_switch=True, **kw)
     with pytest.raises(jl.ConfigError, match="peak_switch.*all of peak1, L_peak1"):
         CalibrationProblem([drop], names + ("peak1",), vehicle=veh, peak_switch=True, **kw)
+    with pytest.raises(jl.ConfigError, match="peak_switch.*an exponential table"):
+        CalibrationProblem([drop], names + ("peak1", "L_peak1"), peak_switch=True,
+                           vehicle=peak_form_vehicle(veh, "exp"), **kw)
 
 
 def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_path, capsys):
