@@ -40,11 +40,9 @@ import numpy as np  # noqa: E402
 import jaxland as jl  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import RESULTS  # noqa: E402
-from bench_montecarlo import _spec  # noqa: E402  (each model's benchmark spec)
+from bench_montecarlo import _spec, chosen_steps  # noqa: E402  (each model's benchmark spec)
 
-CHOSEN = {m: (r["chosen"]["method"], r["chosen"]["dt_s"]) for m, r in json.loads(
-    (RESULTS / "montecarlo_step.json").read_text())["models"].items()}
+CHOSEN = chosen_steps()
 
 gpu = [d for d in jax.devices() if d.platform != "cpu"]
 cpu = jax.devices("cpu")

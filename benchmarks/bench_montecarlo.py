@@ -107,22 +107,29 @@ LARGE_TARGET = (10_000, 60.0)  # full 3-D landings, seconds: "10^4 full landings
 DEFAULT = ("euler", 1e-5)  # the spec's default method and step
 
 
+def step_file_of(out: Path) -> Path:
+    """The step study's results: ``out``'s montecarlo_step.json where a run wrote one there,
+    else the tracked one."""
+    path = out / "montecarlo_step.json"
+    return path if path.exists() else RESULTS / "montecarlo_step.json"
+
+
+def chosen_steps(path: Path = RESULTS / "montecarlo_step.json") -> dict:
+    """{model: (method, dt_s)} the step study in ``path`` chose."""
+    return {m: (r["chosen"]["method"], r["chosen"]["dt_s"])
+            for m, r in json.loads(Path(path).read_text())["models"].items() if r.get("chosen")}
+
+
 def throughput(args, out: Path) -> dict:
     """In one session: each model at the spec's default step on 1 and 2 devices, at the step
     the step study chose (montecarlo_step.json) on 1 and 2 devices, and with ``--before`` that
     tree at its own study's chosen step on one device, next to this tree again."""
     sizes = {"quarter": args.quarter_n, "full": args.full_n}
-    step_file = out / "montecarlo_step.json"
-    if not step_file.exists():
-        step_file = RESULTS / "montecarlo_step.json"
-    def choices(path):
-        return {m: (r["chosen"]["method"], r["chosen"]["dt_s"])
-                for m, r in json.loads(path.read_text())["models"].items() if r.get("chosen")}
-
-    chosen = choices(step_file)
+    step_file = step_file_of(out)
+    chosen = chosen_steps(step_file)
     # the earlier tree at its own study's choice (it may lack this tree's methods)
-    chosen_before = (choices(Path(args.before) / "benchmarks" / "results" / "montecarlo_step.json")
-                     if args.before else {})
+    chosen_before = (chosen_steps(Path(args.before) / "benchmarks" / "results"
+                                  / "montecarlo_step.json") if args.before else {})
     rows, compare = [], []
     for model, n in sizes.items():
         for devices in (1, 2):
@@ -217,8 +224,7 @@ def accelerator(args, out: Path) -> dict:
     ``--quick``."""
     import tempfile
 
-    chosen = {m: (r["chosen"]["method"], r["chosen"]["dt_s"]) for m, r in json.loads(
-        (RESULTS / "montecarlo_step.json").read_text())["models"].items() if r.get("chosen")}
+    chosen = chosen_steps()
     t0 = time.perf_counter()
     plan = ACCEL_RUNS[:2] if args.quick else ACCEL_RUNS
     sizes = {"quarter": 64, "full": 4} if args.quick else {}
@@ -476,15 +482,13 @@ def step_check(n: int, out: Path) -> dict:
     median errors next to the converged runs' own. Writes montecarlo_step_check.json."""
     import numpy as np
 
-    step_file = out / "montecarlo_step.json"
-    if not step_file.exists():
-        step_file = RESULTS / "montecarlo_step.json"
-    chosen = json.loads(step_file.read_text())["models"]["full"]["chosen"]
+    step_file = step_file_of(out)
+    chosen = chosen_steps(step_file)["full"]
     spec = _spec("full", n)
     ref = _outcomes("full", spec, *REFERENCE)
     other = _outcomes("full", spec, "euler", REFERENCE[1])
     rows = []
-    for method, dt in ((chosen["method"], chosen["dt_s"]), DEFAULT):
+    for method, dt in (chosen, DEFAULT):
         got = _outcomes("full", spec, method, dt)
         per = {}
         for k in STEP_KEYS:
