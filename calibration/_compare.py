@@ -32,7 +32,7 @@ from ._fit import (
     MisfitWarning,
     add_peak_model_term,
     fit,
-    has_no_peak,
+    wants_peak_model_term,
 )
 from ._parameters import DEFAULT_PARAMS, PEAK_PARAMS
 
@@ -88,8 +88,8 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
             warnings.simplefilter("ignore", MisfitWarning)
             results[label] = fit(drops, names, **kw)
     base = results["no_peak"]
-    if (peak_term == "auto" and base.diagnostics["misfit"]
-            and has_no_peak(base.names, base.problem.vehicle)):  # as ``fit`` decides it
+    if wants_peak_model_term(peak_term, base.diagnostics["misfit"], base.names,
+                             base.problem.vehicle):
         add_peak_model_term(base, results["peak"])
     out = {}
     for label, res in results.items():

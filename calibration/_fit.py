@@ -599,6 +599,13 @@ def has_no_peak(names, vehicle: jl.Vehicle) -> bool:
             and hc.excess1 is None)
 
 
+def wants_peak_model_term(setting, misfit, names, vehicle: jl.Vehicle) -> bool:
+    """Whether a fit gets the missing-peak term: ``setting`` "auto" (``fit``'s
+    ``peak_model_term``), its residuals show misfit (``misfit``: the misfit messages) and the
+    fitted model has no crush peak (``has_no_peak``)."""
+    return setting == "auto" and bool(misfit) and has_no_peak(names, vehicle)
+
+
 def add_peak_model_term(result: FitResult, with_peak) -> None:
     """Widen ``result`` (a fit without a crush peak whose residuals show misfit) by the
     missing-peak term: per parameter |value without the peak - value with it|, ``with_peak``
@@ -968,7 +975,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         forms_future = _in_thread(model_form_spread, final, theta, form, huber_c, max_iter,
                                   unc["rho1"])
     peak_future = None
-    if unc["misfit"] and peak_model_term == "auto" and has_no_peak(names, start_vehicle):
+    if wants_peak_model_term(peak_model_term, unc["misfit"], names, start_vehicle):
         # the fit with the crush peak runs in a second thread beside the channel spread's
         tagged = None if progress is None else (
             lambda rec: progress(dict(rec, stage="with the crush peak " + rec["stage"])))

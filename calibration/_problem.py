@@ -481,7 +481,7 @@ class CalibrationProblem:
                 jnp.asarray(self.inv_sigma), jnp.asarray(self.mask),
                 jnp.asarray(self.huber_c, dtype=jnp.float64), jnp.asarray(self.coeffs))
         if self.shared_forms:  # the peak's form, an argument of the shared functions
-            args = (jnp.asarray(FORM_INDEX[self.peak_form], dtype=jnp.int32), *args)
+            args = (jnp.asarray(self._code(), dtype=jnp.int32), *args)
         elif self.peak_switch:  # the peak on or off, an argument of the switched functions
             args = (jnp.asarray(self.peak_on), *args)
         self._args_cache = (self.mask, self.huber_c, args)
