@@ -97,27 +97,23 @@ class HoneycombOut(eqx.Module):
     plastic_set: jnp.ndarray  # m, permanent crush x_p
 
 
-def _clip(x, lo, hi):
-    return fclip(x, lo, hi)
-
-
 def honeycomb_virgin_force(x, hc: Honeycomb | HoneycombCurve):
     """Virgin-curve force F_v(x) [N] at stroke x [m] (paper section 2.3), bottoming included."""
     hc = hc.curve() if isinstance(hc, Honeycomb) else hc
     if hc.extended:  # the initial peaks, written independently of the memory law (tests)
         return (
-            hc.k_b1 * _clip(x, 0.0, hc.x_L1)
+            hc.k_b1 * fclip(x, 0.0, hc.x_L1)
             + jnp.minimum(hc.k_b1 * jnp.maximum(x - hc.x_L1, 0.0),
                           _excess(x, hc.a1, hc.x_pk1, hc.L1) if hc.t1_c is None else
                           _table(_crushed(x, hc.x_pk1, hc.L1), hc, 0.0)[0])
-            + hc.k_b3 * _clip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
+            + hc.k_b3 * fclip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
             + jnp.minimum(hc.k_b3 * jnp.maximum(x - hc.x_L3, 0.0),
                           _excess(x, hc.a2, hc.x_pk2, hc.L2))
             + hc.k_bottom * jnp.maximum(x - hc.x_L4, 0.0)
         )
     return (
-        hc.k_b1 * _clip(x, 0.0, hc.x_L1)
-        + hc.k_b3 * _clip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
+        hc.k_b1 * fclip(x, 0.0, hc.x_L1)
+        + hc.k_b3 * fclip(x - hc.x_L2, 0.0, hc.x_L3 - hc.x_L2)
         + hc.k_bottom * jnp.maximum(x - hc.x_L4, 0.0)
     )
 
@@ -136,13 +132,13 @@ def honeycomb(x, x_max_prev, hc: Honeycomb | HoneycombCurve,
     if smooth != 0.0:
         return _honeycomb_smooth(x, x_max_prev, hc, smooth)
     x_max = fmax(x, x_max_prev)
-    p1 = _clip(x_max - hc.x_L1, 0.0, hc.x_L2 - hc.x_L1)
-    p2 = _clip(x_max - hc.x_L3, 0.0, hc.x_L4 - hc.x_L3)
+    p1 = fclip(x_max - hc.x_L1, 0.0, hc.x_L2 - hc.x_L1)
+    p2 = fclip(x_max - hc.x_L3, 0.0, hc.x_L4 - hc.x_L3)
     x_p = p1 + p2
     y = x - x_p
     dy3 = hc.x_L3 - hc.x_L2
-    y1 = _clip(y, 0.0, hc.x_L1)
-    y2 = _clip(y - hc.x_L1, 0.0, dy3)
+    y1 = fclip(y, 0.0, hc.x_L1)
+    y2 = fclip(y - hc.x_L1, 0.0, dy3)
     y3 = fmax(y - hc.x_L1 - dy3, 0.0)
     yt = fmin(y, 0.0)  # tension side, only used when bonded
     return _stack(hc, y1, y2, y3, yt, p1, p2, x_max)
@@ -190,7 +186,7 @@ def _honeycomb_smooth(x, x_max_prev, hc: HoneycombCurve, w: float) -> HoneycombO
 def _crushed(x_max, x_pk, length, w: float = 0.0):
     """clip(x_max - x_pk, 0, L) [m]: crush past the peak's stroke, rounded over ``w`` if > 0."""
     if w == 0.0:
-        return _clip(x_max - x_pk, 0.0, length)
+        return fclip(x_max - x_pk, 0.0, length)
     return ramp(x_max - x_pk, w) - ramp(x_max - x_pk - length, w)
 
 
@@ -265,9 +261,9 @@ def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> Honeycom
     u2 = x_max - hc.x_pk2 + (hc.a2 - e2) / hc.k_u  # secondary plateau crush
     top2 = hc.x_L4 - hc.x_pk2 + hc.a2 / hc.k_u
     if w == 0.0:
-        p1 = _clip(u1, 0.0, hc.x_L2 - hc.x_L1)
-        rise = _clip(x_max - hc.x_L2, 0.0, hc.x_pk2 - hc.x_L2)
-        p2 = _clip(u2, 0.0, top2)
+        p1 = fclip(u1, 0.0, hc.x_L2 - hc.x_L1)
+        rise = fclip(x_max - hc.x_L2, 0.0, hc.x_pk2 - hc.x_L2)
+        p2 = fclip(u2, 0.0, top2)
     else:
         p1 = ramp(u1, w) - ramp(u1 - (hc.x_L2 - hc.x_L1), w)
         rise = ramp(x_max - hc.x_L2, w) - ramp(x_max - hc.x_pk2, w)
@@ -275,8 +271,8 @@ def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> Honeycom
     x_p = p1 + hc.q * rise + p2
     y = x - x_p
     if w == 0.0:
-        y1 = _clip(y, 0.0, cap1)
-        y2 = _clip(y - cap1, 0.0, cap2)
+        y1 = fclip(y, 0.0, cap1)
+        y2 = fclip(y - cap1, 0.0, cap2)
         y3 = jnp.maximum(y - cap1 - cap2, 0.0)
         yt = jnp.minimum(y, 0.0)
     else:
