@@ -93,6 +93,20 @@ def test_free_tumbling_vehicle_conserves_angular_momentum_and_energy():
     assert 1.6 < drift[1e-5] / drift[5e-6] < 2.5
 
 
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 0.05, 0.5, 1.0])
+def test_attitude_exponential_map_equals_the_trigonometric_one(angle):
+    """The step's exp of a pure quaternion (a series) against cos and sin computed in numpy, to
+    rounding up to a half-angle of 1 rad; its derivative at zero rotation is finite and exact."""
+    from jaxland._models._full import _quat_exp
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    got = np.asarray(_quat_exp(jnp.asarray(angle * axis)))
+    sinc = np.sin(angle) / angle if angle else 1.0
+    want = np.concatenate([[np.cos(angle)], sinc * angle * axis])
+    np.testing.assert_allclose(got, want, rtol=0, atol=4e-16)
+    jac = np.asarray(jax.jacfwd(_quat_exp)(jnp.zeros(3)))  # d exp(h) / dh at h = 0: (0; I)
+    np.testing.assert_array_equal(jac, np.vstack([np.zeros((1, 3)), np.eye(3)]))
+
+
 def _edge_geometry(vehicle):
     """Horizontal distance d from the axis to the edge between two feet, and CoM height h."""
     foot = np.asarray(vehicle.leg.foot_rest)  # (r, z) relative to the CoM
