@@ -141,7 +141,9 @@ _SINC = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(9))
 # per kernel and step instead; docs/performance.md). The sums run in the order a dot takes.
 
 def _legsum(x):
-    """x summed over its first axis (the legs) as a chain of adds, not a reduction."""
+    """An (n,) array's sum over the legs as a chain of adds, not a reduction. The body's force
+    and torque sums over (n, 3) arrays stay reductions: written as adds, a Monte Carlo chunk
+    whose vehicle is a compile-time constant took XLA:CPU 60 s to compile instead of 3.5 s."""
     acc = x[0]
     for i in range(1, x.shape[0]):
         acc = acc + x[i]
@@ -347,7 +349,7 @@ class FullModel(AbstractModel):
             ax = aux_strut(la, derived.L_a0_pair, 0.5 * leg.k_a)
             fa = ax.force[:, None] * a
             aux_force_vecs = aux_force_vecs + fa
-            aux_torques = aux_torques + _legsum(jnp.cross(rA, -fa))
+            aux_torques = aux_torques + jnp.sum(jnp.cross(rA, -fa), axis=0)
             aux_energy = aux_energy + _legsum(ax.elastic_energy)
             aux_axial = aux_axial + ax.force
 
@@ -363,8 +365,8 @@ class FullModel(AbstractModel):
         gz = jnp.array([0.0, 0.0, 1.0])
 
         def body_rates(f_strut):  # the body's force [N] and body-frame angular acceleration
-            f_body = -_legsum(f_strut + aux_force_vecs) - m * g * gz
-            torque_b = _mtv(Rm, _legsum(jnp.cross(rP, -f_strut)) + aux_torques)
+            f_body = -jnp.sum(f_strut + aux_force_vecs, axis=0) - m * g * gz
+            torque_b = _mtv(Rm, jnp.sum(jnp.cross(rP, -f_strut), axis=0) + aux_torques)
             return f_body, (torque_b - jnp.cross(w_b, inertia * w_b)) / inertia
 
         if kick is None:
