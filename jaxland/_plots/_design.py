@@ -52,7 +52,7 @@ def _history(result, path: Path) -> Path:
         ax2.plot(it, [r["constraints"][c.name] for r in h], label=f"{c.name} ({m})")
     ax2.axhline(0.0, color="k", lw=0.8)
     ax2.set_xlabel("iteration")
-    ax2.set_ylabel("normalised constraint g = R[badness] / scale [1] (feasible <= 0)")
+    ax2.set_ylabel("constraint g = R[badness] / scale [1]\n(feasible <= 0)")
     ax2.set_title("constraints")
     if result.spec.constraints:
         ax2.legend()
