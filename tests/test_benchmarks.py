@@ -69,3 +69,13 @@ def test_bench_landing_quick_writes_json_and_plot(tmp_path):
         for r in runs:
             assert r["dispatches_per_step"] < 0.1, (model, r["batch"], r["dispatches_per_step"])
             assert r["loop_body"]["dots"] == 0, (model, r["batch"])
+
+
+def test_bench_design_gradient_modes_run_and_agree():
+    """The design benchmark's forward/reverse study runs against the current DesignProblem (it
+    calls internals a refactor can change) and the two modes give the same gradient."""
+    import bench_design
+
+    out = bench_design.forward_vs_reverse()
+    assert out["max_rel_difference"] < 1e-9, out
+    assert out["jacfwd_over_forward"] > 0 and out["grad_over_forward"] > 0
