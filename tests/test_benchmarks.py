@@ -79,3 +79,16 @@ def test_bench_design_gradient_modes_run_and_agree():
     out = bench_design.forward_vs_reverse()
     assert out["max_rel_difference"] < 1e-9, out
     assert out["jacfwd_over_forward"] > 0 and out["grad_over_forward"] > 0
+
+
+def test_every_mutation_target_is_in_the_code_once():
+    """mutation_check.py plants each bug by an exact string; a refactor that rewrites the code
+    leaves the mutation with nothing to plant ("target not found"), so each string is checked
+    here: present exactly once under its search folders (or one of its other spellings)."""
+    import mutation_check
+
+    for m in mutation_check.MUTATIONS:
+        spellings = [m.find, *(f for f, _ in m.also)]
+        hits = [(s, p) for s in spellings for d in m.search
+                for p in sorted((ROOT / d).rglob("*.py")) if s in p.read_text()]
+        assert len(hits) == 1, (m.name, hits)
