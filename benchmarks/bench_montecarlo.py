@@ -224,7 +224,7 @@ def accelerator(args, out: Path) -> dict:
     ``--quick``."""
     import tempfile
 
-    chosen = chosen_steps()
+    chosen = chosen_steps(step_file_of(out))
     t0 = time.perf_counter()
     plan = ACCEL_RUNS[:2] if args.quick else ACCEL_RUNS
     sizes = {"quarter": 64, "full": 4} if args.quick else {}

@@ -255,8 +255,7 @@ class CalibrationProblem:
                 raise jl.ConfigError("peak_switch", peak_switch, "needs all of "
                                      + ", ".join(PEAK_PARAMS) + " among the fitted "
                                      "parameters or none")
-            if not self.peak_on and (hc.peak_ratio1 is not None or hc.excess1 is not None
-                                     or hc.peak_rise1 is not None):
+            if not self.peak_on and hc.peak_ratio1 is not None:  # (rise, table: refused above)
                 raise jl.ConfigError("peak_switch", peak_switch, "switched off, it would "
                                      "remove the vehicle's own primary crush peak")
         for name, val in (("window_s", window_s), ("pre_s", pre_s)):

@@ -14,6 +14,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._config import paper_vehicle, validate_vehicle
 from .._errors import ConfigError
+from .._laws import safe_sqrt
 from .._models import MODELS
 from .._montecarlo import MonteCarloSpec
 from .._montecarlo._sample import check_fixed, draw, scene_fields
@@ -52,8 +53,7 @@ def risk_measure(values, measure: str, level: float = 0.9):
         z = statistics.NormalDist().inv_cdf(level)
         mean = jnp.mean(values)
         var = jnp.sum((values - mean) ** 2) / max(n - 1, 1)
-        pos = var > 0.0  # double where: sqrt's gradient stays finite for equal values
-        sd = jnp.where(pos, jnp.sqrt(jnp.where(pos, var, 1.0)), 0.0)
+        sd = safe_sqrt(var)  # its gradient stays finite for equal values
         return mean + z * sd
     tail = (1.0 - level) * n
     worst = -jnp.sort(-values)  # descending

@@ -12,6 +12,7 @@ from ._contact import (
     TangentialOut as TangentialOut,
     normal_contact as normal_contact,
     safe_hypot as safe_hypot,
+    safe_sqrt as safe_sqrt,
     tangential_contact as tangential_contact,
 )
 from ._honeycomb import (

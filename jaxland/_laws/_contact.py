@@ -30,11 +30,16 @@ from ._minmax import fmax
 from ._smooth import ramp, ramp_integral, soft_min
 
 
+def safe_sqrt(x2):
+    """sqrt(x2) for x2 >= 0 with a finite gradient (0) at zero: both branches of the ``where``
+    are finite there."""
+    pos = x2 > 0.0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x2, 1.0)), 0.0)
+
+
 def safe_hypot(x, y):
     """sqrt(x^2 + y^2) with a finite gradient at zero, on separate components (no reduction)."""
-    n2 = x * x + y * y
-    pos = n2 > 0.0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+    return safe_sqrt(x * x + y * y)
 
 
 class NormalOut(eqx.Module):

@@ -27,6 +27,7 @@ from .._laws import (
     honeycomb,
     normal_contact,
     safe_hypot,
+    safe_sqrt,
     strut_force,
     tangential_contact,
 )
@@ -197,9 +198,7 @@ def ground_frame(scene: Scene):
 
 def _norm_rows(d):
     """|d| of each row of an (n, 3) array: one square root, with a finite gradient at zero."""
-    n2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-    pos = n2 > 0.0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+    return safe_sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
 
 
 def _inertia(vehicle: Vehicle):
