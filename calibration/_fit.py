@@ -40,7 +40,8 @@ benchmarks/results/bench_fit.json):
    largest shift of each parameter added in quadrature: the interval to quote under misfit.
 7. **Peak shape** (``model_form_spread``), whenever the fit has the primary crush peak: the
    final stage refitted from the optimum with the peak in each of its other forms (the law's
-   linear fall, the law's built-up peak, an exponential decay: ``PEAK_FORMS``). A peak shape
+   linear fall, the law's built-up peak, an exponential decay, and that decay built up:
+   ``PEAK_FORMS``). A peak shape
    the law lacks biases every channel alike, so the residuals can look clean and the channels
    agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
    the best) bracket that bias, and the largest shift among them is added in quadrature to
@@ -80,6 +81,7 @@ from ._parameters import (
     PARAMS,
     PEAK_FORMS,
     PEAK_PARAMS,
+    RISE_FORMS,
     SHAPE_PARAMS,
     START_IF_OFF,
     at_bound,
@@ -451,14 +453,14 @@ def peak_form_of(names, peak_form: str | None) -> str | None:
     """The primary crush peak's form a fit of ``names`` uses (None: the fit has no peak)."""
     if "peak1" not in names:
         return None
-    if peak_form == "exp":
-        return "exp"
+    if peak_form in ("exp", "rise_exp"):
+        return peak_form
     return "rise" if "L_rise1" in names else "linear"
 
 
 def _form_names(names, form: str) -> tuple:
     base = tuple(n for n in names if n != "L_rise1")
-    return base + ("L_rise1",) if form == "rise" else base
+    return base + ("L_rise1",) if form in RISE_FORMS else base
 
 
 def _chi2(problem: CalibrationProblem, theta) -> float:
@@ -477,10 +479,10 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     values those of ``vehicle`` (the rise, where it is new, at its start). Its compiled
     functions serve every form (``shared_forms``): made once per drops, channels and solver."""
     names = _form_names(problem.names, alt)
-    veh = peak_form_vehicle(vehicle, "linear") if alt != "rise" else vehicle
-    if alt == "rise" and veh.honeycomb.peak_rise1 is None:
+    veh = peak_form_vehicle(vehicle, "linear") if alt not in RISE_FORMS else vehicle
+    if alt in RISE_FORMS and veh.honeycomb.peak_rise1 is None:
         veh = _rise_start(veh, names)
-    if alt == "exp":
+    if alt in ("exp", "rise_exp"):
         veh = _inside_form(veh, names, alt)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
@@ -493,11 +495,12 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
 
 def _inside_form(vehicle: jl.Vehicle, names, form: str) -> jl.Vehicle:
     """``vehicle`` with each crush-peak value that lies outside its interval in ``form``
-    (``interval``: the exponential form leaves its L_peak1 EXP_SPAN times less room than the
-    linear form whose fit starts it) moved to 0.9 of the way from the interval's lower end, so
-    that a refit in that form starts inside its rules instead of failing; values already
-    inside are kept. The peak ratio first: the length's interval depends on it."""
-    for n in ("peak1", "L_peak1"):
+    (``interval``: the exponential forms leave their L_peak1 EXP_SPAN times less room than the
+    linear form whose fit starts them) moved to 0.9 of the way from the interval's lower end,
+    so that a refit in that form starts inside its rules instead of failing; values already
+    inside are kept. The peak ratio first, then the length, then the rise: each interval
+    depends on the ones before."""
+    for n in ("peak1", "L_peak1", "L_rise1"):
         if n in names:
             vals = get_values(vehicle, names)
             lo, hi = interval(n, names, vals, vehicle, form)
@@ -787,7 +790,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     fit_touchdown : fit each drop's touchdown time (else use the detected one)
     channels : channels to fit (default: all present)
     peak_form : the primary crush peak's form when peak1 is fitted: None (the law's: linear,
-        or built up when L_rise1 is fitted) or ``"exp"`` (``PEAK_FORMS``)
+        or built up when L_rise1 is fitted), ``"exp"`` or, with L_rise1 fitted,
+        ``"rise_exp"`` (``PEAK_FORMS``)
     model_form : the peak-shape (model-form) term of the uncertainty: ``"auto"`` (default)
         computes it when the fit has the primary crush peak (peak1 fitted), True / False
         force it on (with the peak) or off. On: the values are refitted in each other peak
@@ -846,14 +850,17 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         if refine > windows[-1]:
             stages_w.append(refine)
     if peak_form is not None:
-        if peak_form != "exp":
-            raise jl.ConfigError("peak_form", peak_form, "must be None or 'exp'")
+        if peak_form not in ("exp", "rise_exp"):
+            raise jl.ConfigError("peak_form", peak_form, "must be None, 'exp' or 'rise_exp'")
         if "peak1" not in names:
             raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
                                  "parameters")
-        if "L_rise1" in names:
-            raise jl.ConfigError("peak_form", peak_form, "cannot be combined with L_rise1 "
-                                 "(the built-up form)")
+        if ("L_rise1" in names) != (peak_form == "rise_exp"):
+            raise jl.ConfigError("peak_form", peak_form,
+                                 "needs L_rise1 among the fitted parameters (the exponential "
+                                 "decay built up over L_rise1)" if peak_form == "rise_exp" else
+                                 "cannot be combined with L_rise1 (the built-up form: "
+                                 "peak_form='rise_exp' builds up the exponential decay)")
     if model_form not in ("auto", True, False):
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
     if peak_model_term not in ("auto", False):
@@ -1009,6 +1016,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         if form not in mform["plausible"]:
             how = {"rise": "add L_rise1 to the parameters",
                    "exp": "fit with peak_form='exp' (--peak-form exp)",
+                   "rise_exp": "add L_rise1 to the parameters and fit with "
+                               "peak_form='rise_exp' (--peak-form rise_exp)",
                    "linear": "fit without L_rise1 and peak_form"}[best]
             warn(
                 f"the data reject the crush peak's {form} form: the {best} form fits them "

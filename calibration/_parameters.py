@@ -43,8 +43,8 @@ import numpy as np
 import jaxland as jl
 
 __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_IF_OFF",
-           "PEAK_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle", "forms_vehicle",
-           "check_names", "get_values", "at_bound", "interval", "BOUND_MARGIN",
+           "PEAK_FORMS", "RISE_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle",
+           "forms_vehicle", "check_names", "get_values", "at_bound", "interval", "BOUND_MARGIN",
            "set_values", "switch_on", "to_unconstrained", "from_unconstrained"]
 
 # name -> (getter, unit, TOML key, transform, description)
@@ -92,13 +92,18 @@ _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None 
 # L_peak1; ``rise``, the law's peak built up over L_rise1 before that fall; ``exp``, an
 # excess (peak1 - 1) F1 exp(-c / L_peak1) of the crush c past the onset, tabulated
 # (``Honeycomb.excess1``) over EXP_SPAN decay lengths at EXP_POINTS nodes (exp(-8): 3e-4 of
-# the peak is cut off at the table's end). The exp form's steepest fall, on its first
+# the peak is cut off at the table's end); ``rise_exp``, that exponential decay built up over
+# L_rise1 first (the law's rise with a table: ``Honeycomb.peak_rise1`` and ``excess1``, the
+# table EXP_POINTS - 1 nodes long so that the rise and the table fill the shared program's
+# EXP_POINTS segments). The exp forms' steepest fall, on their first
 # segment, is 0.96 of the linear form's slope (peak1 - 1) F1 / L_peak1, so the linear form's
-# lower bound on L_peak1 holds for it; its table ends EXP_SPAN L_peak1 past the onset, so its
-# room before x_L2 is EXP_SPAN times shorter (``_bounds``' ``form``).
-PEAK_FORMS = ("linear", "rise", "exp")
+# lower bound on L_peak1 holds for them; their table ends EXP_SPAN L_peak1 past the onset, so
+# their room before x_L2 is EXP_SPAN times shorter (``_bounds``' ``form``).
+PEAK_FORMS = ("linear", "rise", "exp", "rise_exp")
+RISE_FORMS = ("rise", "rise_exp")  # the forms that fit L_rise1
 SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
 EXP_SPAN, EXP_POINTS = 8.0, 97
+EXP_TABLE_SPAN = {"exp": EXP_SPAN, "rise_exp": EXP_SPAN}  # in L_peak1; the law's forms: 1
 # how far inside each rule-set bound the transform keeps a value, in units of the rule's own
 # scale (module docstring): rounding (1e-16) cannot cross it, no measurement can see it
 BOUND_MARGIN = 1e-9
@@ -144,20 +149,23 @@ def set_values(vehicle: jl.Vehicle, names, values) -> jl.Vehicle:
 def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
     """``vehicle`` with its primary peak (peak_ratio1, peak_length1, peak_rise1) in ``form``
     (``PEAK_FORMS``); jit-safe. ``linear`` switches the rise off; ``rise`` keeps it (the
-    vehicle must have one); ``exp`` replaces the linear peak by its exponential table."""
+    vehicle must have one); ``exp`` replaces the linear peak by its exponential table;
+    ``rise_exp`` by that table, EXP_POINTS - 1 nodes long, after the rise (which it keeps)."""
     hc = vehicle.honeycomb
     if form == "rise":
         return vehicle
     if form == "linear":
         return eqx.tree_at(lambda v: v.honeycomb.peak_rise1, vehicle, None, **_NONE)
-    if form != "exp":
+    if form not in EXP_TABLE_SPAN:
         raise jl.ConfigError("peak_form", form, "must be one of " + ", ".join(PEAK_FORMS))
-    u = jnp.arange(EXP_POINTS, dtype=jnp.float64) * (EXP_SPAN / EXP_POINTS)  # c_j / L_peak1
+    n = EXP_POINTS - 1 if form == "rise_exp" else EXP_POINTS
+    u = jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)  # c_j / L_peak1
     table = (jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0) * jnp.exp(-u)
+    rise = hc.peak_rise1 if form == "rise_exp" else None
     return eqx.tree_at(
         lambda v: (v.honeycomb.peak_ratio1, v.honeycomb.peak_rise1, v.honeycomb.excess1,
                    v.honeycomb.excess_length1), vehicle,
-        (None, None, table, EXP_SPAN * jnp.asarray(hc.peak_length1, dtype=jnp.float64)),
+        (None, rise, table, EXP_SPAN * jnp.asarray(hc.peak_length1, dtype=jnp.float64)),
         **_NONE)
 
 
@@ -166,7 +174,8 @@ class _FormsHoneycomb(jl.Honeycomb):
     form ``form`` (``FORM_INDEX``: a number, traced under jit). Every form is the law's
     tabulated excess with EXP_POINTS segments, each of its own width: ``linear`` one falling
     segment, ``rise`` a rising and a falling one, ``exp`` ``peak_form_vehicle``'s exponential
-    table; the segments a form does not use have width and slope 0 and add exactly 0. So one
+    table, ``rise_exp`` a rising segment and that table one node shorter; the segments a form
+    does not use have width and slope 0 and add exactly 0. So one
     compiled program serves every form (``forms_vehicle``); the curve is that of the form's
     own vehicle (``peak_form_vehicle``) up to rounding."""
 
@@ -187,7 +196,7 @@ class _FormsHoneycomb(jl.Honeycomb):
 
         a = cv.a1  # (r1 - 1) F1
         zero = jnp.zeros_like(a)
-        is_rise = form == FORM_INDEX["rise"]
+        is_rise = (form == FORM_INDEX["rise"]) | (form == FORM_INDEX["rise_exp"])
         # the rise's width only where the form has one (a finite divisor in every form)
         rise = length if self.peak_rise1 is None else jnp.where(is_rise, self.peak_rise1,
                                                                 length)
@@ -197,6 +206,13 @@ class _FormsHoneycomb(jl.Honeycomb):
         span = EXP_SPAN * length
         dc = col(span / n)
         e_next = jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
+        # rise_exp: the rise, then the table of n - 1 nodes over the same span
+        u_r = jnp.arange(n - 1, dtype=jnp.float64) * (EXP_SPAN / (n - 1))
+        e_r = (col(self.peak_ratio1) - 1.0) * jnp.exp(-u_r) * col(self.F1)
+        dc_r = jnp.broadcast_to(col(span / (n - 1)), e_r.shape)
+        e_r_next = jnp.concatenate([e_r[..., 1:], jnp.zeros_like(e_r[..., :1])], axis=-1)
+        w_r = jnp.concatenate([col(rise), dc_r], axis=-1)
+
         def starts(widths):  # each segment starts where the ones before it end
             ends = jnp.cumsum(widths, axis=-1)
             return jnp.concatenate([jnp.zeros_like(ends[..., :1]), ends[..., :-1]], axis=-1)
@@ -209,11 +225,15 @@ class _FormsHoneycomb(jl.Honeycomb):
                      segments(zero, a)),
             "exp": (e[..., 0], span, dc * jnp.arange(n, dtype=jnp.float64),
                     jnp.broadcast_to(dc, e.shape), (e_next - e) / dc, e),
+            "rise_exp": (zero, rise + span, starts(w_r), w_r,
+                         jnp.concatenate([col(e_r[..., 0] / rise), (e_r_next - e_r) / dc_r],
+                                         axis=-1),
+                         jnp.concatenate([col(zero), e_r], axis=-1)),
         }
 
         def pick(i):  # every form's numbers are finite: no NaN in the unselected branches
             out = tables["exp"][i]
-            for f in ("rise", "linear"):
+            for f in ("rise_exp", "rise", "linear"):
                 out = jnp.where(form == FORM_INDEX[f], tables[f][i], out)
             return out
 
@@ -261,10 +281,14 @@ def _value(m, names, values, vehicle):
 def _span(form):
     """How many L_peak1 the primary peak's decay spans in ``form``: a name of PEAK_FORMS (None:
     the vehicle's own law) or a form's code (``FORM_INDEX``, traced under jit). EXP_SPAN for
-    the exponential form (its table), 1 for the law's linear fall, built up or not."""
+    the exponential forms (their table), 1 for the law's linear fall, built up or not."""
     if form is None or isinstance(form, str):
-        return EXP_SPAN if form == "exp" else 1.0
-    return jnp.where(jnp.asarray(form) == FORM_INDEX["exp"], EXP_SPAN, 1.0)
+        return EXP_TABLE_SPAN.get(form, 1.0)
+    code = jnp.asarray(form)
+    out = 1.0
+    for f, span in EXP_TABLE_SPAN.items():
+        out = jnp.where(code == FORM_INDEX[f], span, out)
+    return out
 
 
 def _bounds(n, names, values, vehicle, form=None):
@@ -280,7 +304,7 @@ def _bounds(n, names, values, vehicle, form=None):
     if n == "L_rise1":  # the build-up (r1 - 1) F1 / L_r < k_b1; the rise and fall end in x_L2
         a = (v("peak1") - 1.0) * v("F1")
         return (a / v("k_b1") * (1.0 + m),
-                hc.x_L2 - v("F1") / v("k_b1") - v("L_peak1") - m * hc.x_L2)
+                hc.x_L2 - v("F1") / v("k_b1") - _span(form) * v("L_peak1") - m * hc.x_L2)
     if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
         return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3") * (1.0 - m)
     first = n in ("peak1", "L_peak1")

@@ -59,6 +59,7 @@ from ._parameters import (
     FORM_INDEX,
     PEAK_FORMS,
     PEAK_PARAMS,
+    RISE_FORMS,
     check_names,
     forms_vehicle,
     from_unconstrained,
@@ -196,11 +197,12 @@ class CalibrationProblem:
     fit_touchdown : fit one touchdown-time shift per drop (else use the detected touchdown)
     channels : channels to fit (default: every channel any drop has)
     peak_form : the primary crush peak's form (``PEAK_FORMS``; None: the vehicle's own law).
-        ``exp`` reads peak1 and L_peak1 as an exponential peak's height and decay length
+        ``exp`` reads peak1 and L_peak1 as an exponential peak's height and decay length,
+        ``rise_exp`` too, built up over L_rise1 first
     shared_forms : compile functions that serve every peak form (module docstring), shared
         with the problems of the same drops in the other forms; needs peak1 among ``params``.
-        The form is then ``peak_form``, or None: ``rise`` with L_rise1 among ``params``, else
-        ``linear``
+        The form is then ``peak_form`` (``rise`` or ``rise_exp`` with L_rise1 among
+        ``params``), or None: ``rise`` with L_rise1 among ``params``, else ``linear``
     peak_switch : compile functions whose primary crush peak (the law's linear one) is
         switched on or off at run time (module docstring), shared with the problem of the
         same drops with the peak fitted (PEAK_PARAMS among ``params``: on) or not (off; the
@@ -233,9 +235,9 @@ class CalibrationProblem:
             rise = "L_rise1" in self.names
             if peak_form is None:
                 peak_form = "rise" if rise else "linear"
-            if rise != (peak_form == "rise"):
-                raise jl.ConfigError("peak_form", peak_form, "the rise form, and only it, "
-                                     "fits L_rise1")
+            if rise != (peak_form in RISE_FORMS):
+                raise jl.ConfigError("peak_form", peak_form, "the built-up forms ("
+                                     + ", ".join(RISE_FORMS) + "), and only they, fit L_rise1")
         self.peak_form = peak_form
         self.vehicle = drops[0].vehicle if vehicle is None else vehicle
         jl.validate_vehicle(self.vehicle)

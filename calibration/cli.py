@@ -100,8 +100,8 @@ def _cmd_fit(args) -> int:
                   progress=_Progress(args.quiet),
                   model_form=False if args.no_model_form else "auto",
                   peak_model_term=False if args.no_peak_model_term else "auto")
-    if args.peak_form == "exp":
-        fit_kw["peak_form"] = "exp"
+    if args.peak_form != "law":
+        fit_kw["peak_form"] = args.peak_form
     cmp = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", _fit.IdentifiabilityWarning)
@@ -273,15 +273,16 @@ def add_subcommands(subparsers) -> None:
                         "L_peak1), report which the data support (likelihood ratio adjusted "
                         "for misfit, AIC, BIC) and where each misfits (model_comparison.json, "
                         "figures/model_comparison.png); the supported model is the fit written")
-    f.add_argument("--peak-form", choices=("law", "exp"), default="law",
+    f.add_argument("--peak-form", choices=("law", "exp", "rise_exp"), default="law",
                    help="the fitted crush peak's form (with peak1, L_peak1): law, the law's "
-                        "linear fall (built up over L_rise1 when that is fitted), or exp, an "
-                        "exponential decay of length L_peak1 (default law)")
+                        "linear fall (built up over L_rise1 when that is fitted); exp, an "
+                        "exponential decay of length L_peak1; rise_exp, that decay built up "
+                        "over L_rise1 (which must be fitted) (default law)")
     f.add_argument("--no-model-form", action="store_true",
                    help="leave out the peak-shape (model-form) term, on by default when the "
                         "fit has the crush peak: the values refitted in the peak's other forms "
-                        "(linear, built up, exponential) and the largest shift among those the "
-                        "data support added to the total standard error")
+                        "(linear, built up, exponential, built-up exponential) and the largest "
+                        "shift among those the data support added to the total standard error")
     f.add_argument("--no-peak-model-term", action="store_true",
                    help="leave out the missing-peak term, on by default when the residuals "
                         "show misfit and the fitted model has no crush peak: the fit repeated "

@@ -314,10 +314,7 @@ def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
                               f"{float(np.min(k)) * 0.5:.4g} N/m (ground.k_N_per_m): a longer "
                               "decay or a smaller ratio, or the foot snaps through")
     if hc.excess1 is not None:
-        if hc.peak_rise1 is not None:
-            raise ConfigError("honeycomb.excess1", "[...]", "give either peak_rise1_mm or "
-                              "excess1, not both (each sets the primary's crush peak)")
-        _check_excess_table(hc, k, F1, F2, k1, x1, x2)
+        _check_excess_table(hc, k, F1, F2, k1, x1, x2, rise)
     if np.any(~(rho * k3 <= np.maximum(k1, k3))):
         raise ConfigError("honeycomb.unload_ratio", float(np.max(rho)),
                           f"the unloading stiffness unload_ratio k_b3 = "
@@ -326,8 +323,9 @@ def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
                           "stiffer than its stiffest stage; the stable step assumes it)")
 
 
-def _check_excess_table(hc, k, F1, F2, k1, x1, x2):
-    """Cross-field rules of the primary's tabulated strength excess (``Honeycomb.excess1``)."""
+def _check_excess_table(hc, k, F1, F2, k1, x1, x2, rise=None):
+    """Cross-field rules of the primary's tabulated strength excess (``Honeycomb.excess1``),
+    built up over the crush ``rise`` [m] first where ``peak_rise1`` is on."""
     t, length = concrete(hc.excess1), concrete(hc.excess_length1)
     if t is None or length is None:
         return
@@ -338,7 +336,15 @@ def _check_excess_table(hc, k, F1, F2, k1, x1, x2):
     n = e.shape[-1]
     dc = np.expand_dims(length / n, -1)
     slope = np.diff(np.concatenate([e, np.zeros_like(e[..., :1])], axis=-1), axis=-1) / dc
-    done = x1 + e[..., 0] / k1 + length  # stroke where the excess has ended
+    if rise is not None and np.any(~(e[..., 0] / rise < k1)):  # the build-up 0 -> e_0
+        raise ConfigError("honeycomb.peak_rise1_mm", float(np.min(rise)) * 1e3,
+                          f"the excess builds up at e_0 F1 / rise = "
+                          f"{float(np.max(e[..., 0] / rise)):.4g} N/m, which must be < k_b1 = "
+                          f"{float(np.min(k1)):.6g} N/m (a faster rise is elastic, not "
+                          "crushing): a longer rise")
+    # stroke where the excess has ended: past the elastic rise to F1 + e_0, or to F1 and the
+    # build-up
+    done = x1 + (e[..., 0] / k1 if rise is None else rise) + length
     if np.any(~(done < x2)):
         raise ConfigError("honeycomb.excess_length1_mm", float(np.max(length)) * 1e3,
                           f"the excess must end before x_L2: its onset and length end at "

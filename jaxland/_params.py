@@ -135,9 +135,11 @@ class Honeycomb(eqx.Module):
     peak_rise1: jnp.ndarray = _param(
         "m", "crush over which the primary peak builds up: with it, the elastic rise ends at F1 "
         "and the strength rises linearly from F1 to peak_ratio1 F1 over this much crush, then "
-        "falls over peak_length1_mm (0: off, the elastic rise goes to the peak itself)",
+        "falls over peak_length1_mm; with excess1 instead, it rises linearly from F1 to "
+        "F1 (1 + e_0) and then follows the table (0: off, the elastic rise goes to the peak "
+        "itself)",
         "our extension (issue 12): a peak that builds up while the first folds form; fit it "
-        "from a drop record. Default off. Unused while peak_ratio1 = 1",
+        "from a drop record. Default off. Unused while peak_ratio1 = 1 and excess1 is off",
         "> 0", toml="peak_rise1_mm", to_si=1e-3, off=0.0)
     peak_ratio2: jnp.ndarray = _param(
         "1", "initial crush peak of the virgin secondary honeycomb over its plateau, r2 = peak / "
@@ -156,7 +158,9 @@ class Honeycomb(eqx.Module):
                 "ratios of F1: the values e_j / F1 at the crush c_j = j excess_length1_mm / n "
                 "(j = 0 .. n-1, n the table's length), piecewise linear between them and 0 from "
                 "c = excess_length1_mm on. c is the crush past the onset x_L1 + e_0 / k_b1 "
-                "(where the elastic rise meets F1 + e_0); the strength is F1 + e(c) as a function "
+                "(where the elastic rise meets F1 + e_0), or, with peak_rise1_mm, past the end "
+                "of that linear build-up from F1 (which starts at x_L1); the strength is "
+                "F1 + e(c) as a function "
                 "of the largest stroke reached, so an already crushed block has no excess. Any "
                 "peak shape (a rise, a fall, fold ripples); [] or absent: off. Not with "
                 "peak_ratio1",
@@ -218,6 +222,15 @@ class Honeycomb(eqx.Module):
                 a1 = e[..., 0]
                 ext = dict(t1_c=dc * jnp.arange(n, dtype=jnp.float64), t1_dc=dc,
                            t1_slope=(e_next - e) / dc)
+                if self.peak_rise1 is not None:  # built up from 0 to e_0 over the rise first
+                    rise = jnp.expand_dims(self.peak_rise1, -1)
+                    ext = dict(t1_c=jnp.concatenate([jnp.zeros_like(rise), rise + ext["t1_c"]],
+                                                    axis=-1),
+                               t1_dc=jnp.concatenate([rise, jnp.broadcast_to(dc, e.shape)],
+                                                     axis=-1),
+                               t1_slope=jnp.concatenate([e[..., :1] / rise, ext["t1_slope"]],
+                                                        axis=-1))
+                    a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
             ext.update(a1=a1, x_pk1=x_L1 + a1 / self.k_b1, L1=L1,
                        a2=a2, x_pk2=x_L3 + a2 / self.k_b3, L2=self.peak_length2,
                        k_u=self.k_b3 * rho, q=1.0 - 1.0 / rho)

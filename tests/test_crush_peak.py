@@ -629,9 +629,62 @@ def test_rise_length_in_toml_off_by_zero_and_refused_by_name(tmp_path):
     assert float(jl.load_vehicle(tmp_path / "v.toml").honeycomb.peak_rise1) == 1.5e-3
     for hc, needle in (({"peak_ratio1": 1.2, "peak_rise1_mm": 0.05}, "must be < k_b1"),
                        ({"peak_ratio1": 1.2, "peak_rise1_mm": 56.0}, "must end before x_L2"),
-                       ({"excess1": [0.1], "peak_rise1_mm": 1.0}, "give either peak_rise1")):
+                       ({"excess1": [0.1], "peak_rise1_mm": 0.002},
+                        "peak_rise1_mm = 0.002: the excess builds up"),
+                       ({"excess1": [0.1], "excess_length1_mm": 10.0, "peak_rise1_mm": 48.0},
+                        "excess must end before x_L2")):
         with pytest.raises(jl.ConfigError, match=needle):
             jl.vehicle_from_dict({"honeycomb": hc})
+
+
+# a table after a build-up (calibration's rise_exp form): 0 -> e_0 over the rise, then the
+# table; ratios of F1
+RISE_TABLE = (0.2, 0.12, 0.07, 0.04, 0.02)
+RISE_TABLE_L, RISE_TABLE_RISE = 5e-3, 1.2e-3
+
+
+def _hc_rise_table(r2=None, rho=None):
+    hc = _hc_table(RISE_TABLE, RISE_TABLE_L, r2, rho)
+    return eqx.tree_at(lambda h: h.peak_rise1, hc, jnp.float64(RISE_TABLE_RISE), **_NONE)
+
+
+def _expected_rise_table_virgin(x):
+    """Hand-written: elastic to F1 at x_L1, linear to F1 (1 + e_0) over the rise, then the
+    table interpolated over its length, 0 excess from its end."""
+    e = np.append(RISE_TABLE, 0.0) * F1
+    c = np.concatenate([[0.0], RISE_TABLE_RISE + np.linspace(0.0, RISE_TABLE_L, len(e))])
+    return np.where(x < X1, K1 * x, F1 + np.interp(x - X1, c, np.concatenate([[0.0], e])))
+
+
+def test_a_table_after_a_rise_builds_up_then_follows_the_table(tmp_path):
+    hc = _hc_rise_table()
+    xs = np.linspace(0.0, X2 - 1e-3, 40_001)
+    expected = _expected_rise_table_virgin(xs)
+    for f in (lambda x: laws.honeycomb(x, x, hc).force,
+              lambda x: laws.honeycomb_virgin_force(x, hc)):
+        np.testing.assert_allclose(jax.vmap(f)(jnp.asarray(xs)), expected, rtol=1e-11,
+                                   atol=1e-6)
+    # the ledger along load / unload / reload, once unloaded in the build-up and once in the
+    # table; the excess's work, integrated independently, is the crush beyond the plateau's
+    x_mid = X1 + 0.5 * RISE_TABLE_RISE
+    x_tab = X1 + RISE_TABLE_RISE + 0.3 * RISE_TABLE_L
+    hs = _path(0.0, x_mid, x_mid - 5e-4, x_tab, x_tab - 1e-3, 0.009, 0.001, 0.065, 0.061,
+               0.0715, 0.07, 0.12)
+    f, el, cr, ps = _assert_ledger_closes(_hc_rise_table(r2=1.2, rho=1.3), hs)
+    i = np.argmax(hs >= 0.0575)
+    c = np.linspace(0.0, RISE_TABLE_RISE + RISE_TABLE_L, 200_001)
+    e = _expected_rise_table_virgin(X1 + c) - F1
+    area = np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(c))
+    np.testing.assert_allclose(cr[i], F1 * ps[i] + area, rtol=1e-7)
+    # reloaded after the excess: the plateau only; the TOML carries both
+    f, *_ = _run(hc, _path(0.0, X1 + RISE_TABLE_RISE + RISE_TABLE_L + 1e-3, 0.0,
+                           X1 + RISE_TABLE_RISE + RISE_TABLE_L + 5e-3))
+    assert np.max(f[2 * 100_000:]) <= F1 * (1 + 1e-9)
+    veh = eqx.tree_at(lambda v: v.honeycomb, jl.paper_vehicle(), hc)
+    (tmp_path / "v.toml").write_text(jl.vehicle_to_toml(jl.validate_vehicle(veh)))
+    back = jl.load_vehicle(tmp_path / "v.toml").honeycomb
+    assert float(back.peak_rise1) == RISE_TABLE_RISE
+    np.testing.assert_array_equal(np.asarray(back.excess1), RISE_TABLE)
 
 
 def _with_node_values(cv):

@@ -70,6 +70,8 @@ the integral likewise, the same numbers without a sum over every segment.
 A peak that builds up (``Honeycomb.peak_rise1`` = L_r, with peak_ratio1): the elastic rise
 ends at F1 (a = 0 at the onset x_L1), the strength rises linearly to r1 F1 over the crush L_r,
 then falls to F1 over peak_length1: the table's law with two segments, of widths L_r and L.
+With ``excess1`` instead of peak_ratio1 the build-up goes from 0 to e_0 over L_r and the table
+follows: one segment of width L_r before the table's n.
 
 Unloading after the secondary stage (``unload_ratio`` = rho >= 1). The secondary stage's elastic
 stiffness is k_u = rho k_b3 while its virgin rise keeps the slope k_b3: for rho > 1 the fraction
