@@ -292,6 +292,38 @@ def test_the_exp_forms_length_is_bounded_by_its_own_tables_room():
         np.testing.assert_allclose(r, r_table, rtol=0, atol=1e-9 * np.max(np.abs(r_table)))
 
 
+def test_the_built_up_exp_forms_rise_is_bounded_by_its_own_tables_room():
+    """In the built-up exponential form (``rise_exp``) the rise and the table of EXP_SPAN
+    L_peak1 must end before x_L2, so L_rise1's upper bound is EXP_SPAN L_peak1 lower than in
+    the law's built-up form: a coordinate run onto it gives a vehicle the table's rule
+    accepts, in the form's own functions and the shared ones alike, and the fitted vehicle
+    is the law's rise with the table (fails with the built-up form's bound)."""
+    names = PARAMS + ("L_rise1",)
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    veh = switch_on(set_values(drop.vehicle, ("L_rise1",), [1e-3]), names)
+    vals, j = get_values(veh, names), names.index("L_rise1")
+    lo_r, hi_r = interval("L_rise1", names, vals, veh, "rise")
+    lo_x, hi_x = interval("L_rise1", names, vals, veh, "rise_exp")
+    L = vals[names.index("L_peak1")]
+    assert lo_x == lo_r and hi_x == pytest.approx(hi_r - (EXP_SPAN - 1.0) * L, rel=1e-12)
+    too_long = set_values(veh, ("L_rise1",), [0.5 * (hi_x + hi_r)])
+    with pytest.raises(jl.ConfigError, match="excess must end before x_L2"):
+        jl.validate_vehicle(peak_form_vehicle(too_long, "rise_exp"))
+
+    kw = dict(window_s=0.03, pre_s=cal_fit.PRE_S)
+    for shared in (False, True):
+        prob = CalibrationProblem([drop], names, vehicle=veh, peak_form="rise_exp",
+                                  shared_forms=shared, **kw)
+        theta = prob.theta_from(veh, [0.0])
+        theta[j] = 40.0  # onto the upper bound: the sigmoid rounds to 1
+        assert prob.values(theta)[j] == pytest.approx(hi_x, rel=1e-12)
+        hc = prob.vehicle_at(theta).honeycomb  # validated
+        assert float(hc.peak_rise1) == pytest.approx(hi_x, rel=1e-12)
+        assert hc.excess1.shape == (EXP_POINTS - 1,) and hc.peak_ratio1 is None
+        r, failed = prob.residuals(theta)
+        assert not failed and np.all(np.isfinite(r))
+
+
 def test_an_exp_refit_starts_inside_its_own_bounds():
     """A linear fit whose L_peak1 lies beyond the exponential form's room (inside the linear
     form's) starts the exp refit at a length inside the exp interval, where it would otherwise
