@@ -449,6 +449,24 @@ def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: i
     return spread, shifts
 
 
+def check_peak_form(names, peak_form: str | None) -> None:
+    """Refuse, by name, a ``fit(peak_form=...)`` that is not one of its choices or does not
+    go with the fitted parameters ``names``."""
+    if peak_form is None:
+        return
+    if peak_form not in ("exp", "rise_exp"):
+        raise jl.ConfigError("peak_form", peak_form, "must be None, 'exp' or 'rise_exp'")
+    if "peak1" not in names:
+        raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
+                             "parameters")
+    if ("L_rise1" in names) != (peak_form == "rise_exp"):
+        raise jl.ConfigError("peak_form", peak_form,
+                             "needs L_rise1 among the fitted parameters (the exponential "
+                             "decay built up over L_rise1)" if peak_form == "rise_exp" else
+                             "cannot be combined with L_rise1 (the built-up form: "
+                             "peak_form='rise_exp' builds up the exponential decay)")
+
+
 def peak_form_of(names, peak_form: str | None) -> str | None:
     """The primary crush peak's form a fit of ``names`` uses (None: the fit has no peak)."""
     if "peak1" not in names:
@@ -849,18 +867,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         refine = min(float(refine_window_s), shortest - 0.006)
         if refine > windows[-1]:
             stages_w.append(refine)
-    if peak_form is not None:
-        if peak_form not in ("exp", "rise_exp"):
-            raise jl.ConfigError("peak_form", peak_form, "must be None, 'exp' or 'rise_exp'")
-        if "peak1" not in names:
-            raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
-                                 "parameters")
-        if ("L_rise1" in names) != (peak_form == "rise_exp"):
-            raise jl.ConfigError("peak_form", peak_form,
-                                 "needs L_rise1 among the fitted parameters (the exponential "
-                                 "decay built up over L_rise1)" if peak_form == "rise_exp" else
-                                 "cannot be combined with L_rise1 (the built-up form: "
-                                 "peak_form='rise_exp' builds up the exponential decay)")
+    check_peak_form(names, peak_form)
     if model_form not in ("auto", True, False):
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
     if peak_model_term not in ("auto", False):

@@ -89,6 +89,8 @@ def _cmd_fit(args) -> int:
     smoothing_m = default_m if args.smoothing_m is None else args.smoothing_m
     smoothing_n = default_n if args.smoothing_n is None else args.smoothing_n
     _fit.check_integrator(integrator, smoothing_m, smoothing_n)
+    peak_form = None if args.peak_form == "law" else args.peak_form
+    _fit.check_peak_form(names, peak_form)
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
           f"parameters {', '.join(names)}, method {args.method}, integrator {integrator} "
           f"(dt {args.dt:g} s, smoothing {smoothing_m:g} m / {smoothing_n:g} N)",
@@ -100,8 +102,8 @@ def _cmd_fit(args) -> int:
                   progress=_Progress(args.quiet),
                   model_form=False if args.no_model_form else "auto",
                   peak_model_term=False if args.no_peak_model_term else "auto")
-    if args.peak_form != "law":
-        fit_kw["peak_form"] = args.peak_form
+    if peak_form is not None:
+        fit_kw["peak_form"] = peak_form
     cmp = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", _fit.IdentifiabilityWarning)

@@ -162,6 +162,32 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
     assert k_b1["std_error_total"] > 2.0 * max(k_b1["std_error"], k_b1["std_error_hac"])
 
 
+def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_rise(
+        tmp_path, capsys):
+    """``jaxland fit --peak-form rise_exp``: with L_rise1 among the parameters the fitted
+    vehicle is the law's rise with the exponential table (it loads and validates), and the
+    report names the form; without L_rise1, exit 2 and one line naming the field."""
+    from jaxland.cli import main
+
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=5, artefacts=dict(peak_mode="physical"))
+    vr.write_nominal(tmp_path)
+    params = ",".join(PARAMS + ("L_rise1",))
+    out = tmp_path / "fit"
+    assert main(["fit", str(toml), "--params", params, "--peak-form", "rise_exp",
+                 "--windows", "0.01,0.03", "--refine-window-s", "0.1", "--no-plots", "--quiet",
+                 "--out", str(out)]) == 0
+    hc = jl.load_vehicle(out / "fitted_vehicle.toml").honeycomb
+    assert hc.peak_ratio1 is None and hc.peak_rise1 is not None
+    assert hc.excess1.shape == (EXP_POINTS - 1,)
+    rep = json.loads((out / "fit_report.json").read_text())
+    assert rep["misfit"]["model_form"]["form"] == "rise_exp"
+    capsys.readouterr()
+    assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-form", "rise_exp",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "peak_form = 'rise_exp': needs L_rise1" in err[0], err
+
+
 def test_the_shared_table_lands_as_each_forms_own_vehicle():
     """``forms_vehicle`` (one compiled landing for every form, the form a runtime code) lands
     as the vehicle in that form (``peak_form_vehicle``) up to rounding. Its derivatives are
