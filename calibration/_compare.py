@@ -31,12 +31,13 @@ from ._fit import (
     IdentifiabilityWarning,
     MisfitWarning,
     add_peak_model_term,
+    check_peak_form,
     fit,
     wants_peak_model_term,
 )
 from ._parameters import DEFAULT_PARAMS, PEAK_PARAMS
 
-__all__ = ["compare_models", "chi2_sf", "ALPHA"]
+__all__ = ["compare_models", "peak_model_names", "chi2_sf", "ALPHA"]
 
 ALPHA = 0.01
 
@@ -66,6 +67,13 @@ def _chi2(result) -> float:
     return 2.0 * prob.loss(result.theta)
 
 
+def peak_model_names(params) -> tuple:
+    """The parameters of ``compare_models``' peak model: ``params`` without the peak's, then
+    PEAK_PARAMS, then L_rise1 where ``params`` has it (the built-up peak joins the peak)."""
+    rise = ("L_rise1",) if "L_rise1" in params else ()
+    return tuple(p for p in params if p not in PEAK_PARAMS + rise) + PEAK_PARAMS + rise
+
+
 def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
     """Fit without and with the primary crush peak; JSON-ready comparison (see the module
     docstring). ``fit_kw`` go to both fits (``peak_form`` to the peak model's only; L_rise1
@@ -74,12 +82,13 @@ def compare_models(drops, params=DEFAULT_PARAMS, **fit_kw) -> dict:
     its residuals show misfit, the shift to the peak model (``fit``'s ``peak_model_term``,
     here from the peak model fitted below, so nothing is fitted twice; it is the same fit
     unless ``peak_form`` is given)."""
-    rise = ("L_rise1",) if "L_rise1" in params else ()  # the built-up peak joins the peak
-    params = tuple(p for p in params if p not in PEAK_PARAMS + rise)
+    peak_names = peak_model_names(params)
+    params = tuple(p for p in params if p not in PEAK_PARAMS + ("L_rise1",))
     peak_form = fit_kw.pop("peak_form", None)
+    check_peak_form(peak_names, peak_form)  # before the first fit
     peak_term = fit_kw.pop("peak_model_term", "auto")
     results = {}
-    for label, names in (("no_peak", params), ("peak", params + PEAK_PARAMS + rise)):
+    for label, names in (("no_peak", params), ("peak", peak_names)):
         kw = (dict(fit_kw, peak_form=peak_form) if label == "peak" else
               dict({k: v for k, v in fit_kw.items() if k != "model_form"},  # no peak: no
                    peak_model_term=False))  # peak-shape term; the missing-peak one below

@@ -78,6 +78,7 @@ from ._data import CHANNELS, DropTest, base_channel
 from ._optim import lbfgs, levenberg_marquardt
 from ._parameters import (
     DEFAULT_PARAMS,
+    EXP_TABLE_SPAN,
     PARAMS,
     PEAK_FORMS,
     PEAK_PARAMS,
@@ -454,8 +455,9 @@ def check_peak_form(names, peak_form: str | None) -> None:
     go with the fitted parameters ``names``."""
     if peak_form is None:
         return
-    if peak_form not in ("exp", "rise_exp"):
-        raise jl.ConfigError("peak_form", peak_form, "must be None, 'exp' or 'rise_exp'")
+    if peak_form not in EXP_TABLE_SPAN:
+        raise jl.ConfigError("peak_form", peak_form, "must be None, " + " or ".join(
+            f"'{f}'" for f in EXP_TABLE_SPAN))
     if "peak1" not in names:
         raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
                              "parameters")
@@ -471,7 +473,7 @@ def peak_form_of(names, peak_form: str | None) -> str | None:
     """The primary crush peak's form a fit of ``names`` uses (None: the fit has no peak)."""
     if "peak1" not in names:
         return None
-    if peak_form in ("exp", "rise_exp"):
+    if peak_form in EXP_TABLE_SPAN:
         return peak_form
     return "rise" if "L_rise1" in names else "linear"
 
@@ -500,7 +502,7 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     veh = peak_form_vehicle(vehicle, "linear") if alt not in RISE_FORMS else vehicle
     if alt in RISE_FORMS and veh.honeycomb.peak_rise1 is None:
         veh = _rise_start(veh, names)
-    if alt in ("exp", "rise_exp"):
+    if alt in EXP_TABLE_SPAN:  # a table's room is EXP_SPAN times shorter
         veh = _inside_form(veh, names, alt)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
@@ -1021,11 +1023,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                  MisfitWarning, stacklevel=2)
         best = mform["best_supported"]
         if form not in mform["plausible"]:
-            how = {"rise": "add L_rise1 to the parameters",
-                   "exp": "fit with peak_form='exp' (--peak-form exp)",
-                   "rise_exp": "add L_rise1 to the parameters and fit with "
-                               "peak_form='rise_exp' (--peak-form rise_exp)",
-                   "linear": "fit without L_rise1 and peak_form"}[best]
+            how = {"linear": "fit without L_rise1 and without peak_form",
+                   "rise": "fit with L_rise1 among the parameters and without peak_form",
+                   "exp": "fit without L_rise1, with peak_form='exp' (--peak-form exp)",
+                   "rise_exp": "fit with L_rise1 among the parameters and "
+                               "peak_form='rise_exp' (--peak-form rise_exp)"}[best]
             warn(
                 f"the data reject the crush peak's {form} form: the {best} form fits them "
                 f"better by a misfit-adjusted AIC of {mform['forms'][form]['daic_adjusted']:.3g}"

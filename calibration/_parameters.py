@@ -12,10 +12,11 @@ keeps it physical while the optimiser works on an unconstrained number.
   (``jaxland.validate_vehicle``), as logit((x - lo) / (hi - lo)), or log(x - lo) without an
   upper bound: unload in (1, max(k_b1, k_b3) / k_b3); L between 2 (r - 1) F / k (the
   falling slope (r - 1) F / L <= k / 2) and the room left before x_L2 (x_L4), in the
-  exponential form of the primary peak that room over EXP_SPAN (its table spans EXP_SPAN
+  exponential forms of the primary peak that room over EXP_SPAN (their table spans EXP_SPAN
   L_peak1: the bounds take the peak's form); r in (1, the
   largest peak those leave room for), and r1 F1 < F2; L_rise1 between (r1 - 1) F1 / k_b1 (a
-  build-up slower than the elastic rise) and the room L_peak1 leaves before x_L2. A sharper
+  build-up slower than the elastic rise) and the room the decay (L_peak1, or EXP_SPAN
+  L_peak1 in the exponential forms) leaves before x_L2. A sharper
   measured peak than the rule allows ends the fit at the bound (the peak's work, not its
   shape), never at an invalid vehicle: every bound a rule sets is moved inside by
   ``BOUND_MARGIN`` (1e-9) of that rule's own scale (the slope k / 2, the plateau's end x_L2 or
@@ -158,6 +159,9 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
         return eqx.tree_at(lambda v: v.honeycomb.peak_rise1, vehicle, None, **_NONE)
     if form not in EXP_TABLE_SPAN:
         raise jl.ConfigError("peak_form", form, "must be one of " + ", ".join(PEAK_FORMS))
+    if form == "rise_exp" and hc.peak_rise1 is None:
+        raise jl.ConfigError("honeycomb.peak_rise1_mm", 0.0, "the rise_exp form builds its "
+                             "exponential peak up over this rise: give one (> 0)")
     n = EXP_POINTS - 1 if form == "rise_exp" else EXP_POINTS
     u = jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)  # c_j / L_peak1
     table = (jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0) * jnp.exp(-u)
@@ -249,8 +253,8 @@ class _FormsHoneycomb(jl.Honeycomb):
 
 
 def forms_vehicle(vehicle: jl.Vehicle, form) -> jl.Vehicle:
-    """``vehicle`` (its primary peak on: peak_ratio1, peak_length1, and peak_rise1 where the
-    rise form is wanted) with the peak in the form of code ``form`` (``FORM_INDEX``; a traced
+    """``vehicle`` (its primary peak on: peak_ratio1, peak_length1, and peak_rise1 where a
+    built-up form is wanted) with the peak in the form of code ``form`` (``FORM_INDEX``; a traced
     number under jit), through ``_FormsHoneycomb``: one compiled landing for every form."""
     hc = vehicle.honeycomb
     kw = {f.name: getattr(hc, f.name) for f in dataclasses.fields(jl.Honeycomb)}

@@ -90,7 +90,10 @@ def _cmd_fit(args) -> int:
     smoothing_n = default_n if args.smoothing_n is None else args.smoothing_n
     _fit.check_integrator(integrator, smoothing_m, smoothing_n)
     peak_form = None if args.peak_form == "law" else args.peak_form
-    _fit.check_peak_form(names, peak_form)
+    from ._compare import peak_model_names
+
+    # --compare-models fits the peak model (peak_form's) beside the model without the peak
+    _fit.check_peak_form(peak_model_names(names) if args.compare_models else names, peak_form)
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
           f"parameters {', '.join(names)}, method {args.method}, integrator {integrator} "
           f"(dt {args.dt:g} s, smoothing {smoothing_m:g} m / {smoothing_n:g} N)",

@@ -347,7 +347,9 @@ def _check_excess_table(hc, k, F1, F2, k1, x1, x2, rise=None):
     done = x1 + (e[..., 0] / k1 if rise is None else rise) + length
     if np.any(~(done < x2)):
         raise ConfigError("honeycomb.excess_length1_mm", float(np.max(length)) * 1e3,
-                          f"the excess must end before x_L2: its onset and length end at "
+                          "the excess must end before x_L2: its onset"
+                          + (" and length" if rise is None else ", build-up (peak_rise1_mm) "
+                             "and length") + " end at "
                           f"{float(np.max(done)) * 1e3:.4g} mm, not < x_L2 = "
                           f"{float(np.min(x2)) * 1e3:.4g} mm")
     if np.any(~(F1 + e.max(axis=-1) < F2)):

@@ -209,9 +209,8 @@ class Honeycomb(eqx.Module):
                 # over peak_length1 (validate_vehicle: not with excess1)
                 rise, fall = jnp.expand_dims(self.peak_rise1, -1), jnp.expand_dims(L1, -1)
                 a = jnp.expand_dims(a1, -1)
-                ext = dict(t1_c=jnp.concatenate([jnp.zeros_like(rise), rise], axis=-1),
-                           t1_dc=jnp.concatenate([rise, fall], axis=-1),
-                           t1_slope=jnp.concatenate([a / rise, -a / fall], axis=-1))
+                ext = dict(t1_c=_cat(jnp.zeros_like(rise), rise), t1_dc=_cat(rise, fall),
+                           t1_slope=_cat(a / rise, -a / fall))
                 a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
             if table:  # the primary's excess from its table (validate_vehicle: not with r1)
                 e = self.excess1 * jnp.expand_dims(self.F1, -1)  # N, at the nodes c_j
@@ -224,12 +223,9 @@ class Honeycomb(eqx.Module):
                            t1_slope=(e_next - e) / dc)
                 if self.peak_rise1 is not None:  # built up from 0 to e_0 over the rise first
                     rise = jnp.expand_dims(self.peak_rise1, -1)
-                    ext = dict(t1_c=jnp.concatenate([jnp.zeros_like(rise), rise + ext["t1_c"]],
-                                                    axis=-1),
-                               t1_dc=jnp.concatenate([rise, jnp.broadcast_to(dc, e.shape)],
-                                                     axis=-1),
-                               t1_slope=jnp.concatenate([e[..., :1] / rise, ext["t1_slope"]],
-                                                        axis=-1))
+                    ext = dict(t1_c=_cat(jnp.zeros_like(rise), rise + ext["t1_c"]),
+                               t1_dc=_cat(rise, jnp.broadcast_to(dc, e.shape)),
+                               t1_slope=_cat(e[..., :1] / rise, ext["t1_slope"]))
                     a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
             ext.update(a1=a1, x_pk1=x_L1 + a1 / self.k_b1, L1=L1,
                        a2=a2, x_pk2=x_L3 + a2 / self.k_b3, L2=self.peak_length2,
@@ -243,6 +239,14 @@ class Honeycomb(eqx.Module):
     def x_L3(self):
         """Stroke at the end of the secondary elastic stage, x_L2 + (F2 - F1) / k_b3 [m]."""
         return self.x_L2 + (self.F2 - self.F1) / self.k_b3
+
+
+def _cat(*parts):
+    """The segments ``parts`` (last axis) joined, their leading (per-leg, batch) axes
+    broadcast to one shape first: a rise given per leg joins a table given once."""
+    lead = jnp.broadcast_shapes(*(jnp.shape(p)[:-1] for p in parts))
+    return jnp.concatenate([jnp.broadcast_to(p, lead + jnp.shape(p)[-1:]) for p in parts],
+                           axis=-1)
 
 
 class HoneycombCurve(eqx.Module):

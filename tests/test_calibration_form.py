@@ -188,6 +188,26 @@ def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_r
     assert len(err) == 1 and "peak_form = 'rise_exp': needs L_rise1" in err[0], err
 
 
+def test_compare_models_checks_the_peak_form_against_its_peak_model(tmp_path, capsys):
+    """``--compare-models`` fits the peak model (its peak parameters added), so the form is
+    checked against that model's parameters: ``--peak-form exp`` goes with the default
+    parameters, ``rise_exp`` needs L_rise1 and is refused, by name, before any fit."""
+    from calibration._compare import compare_models, peak_model_names
+    from jaxland.cli import main
+
+    assert peak_model_names(cal.DEFAULT_PARAMS) == PARAMS
+    cal_fit.check_peak_form(peak_model_names(cal.DEFAULT_PARAMS), "exp")
+    with pytest.raises(jl.ConfigError, match="needs L_rise1"):
+        compare_models([vr.drop_test(0.2, seed=5)], cal.DEFAULT_PARAMS, peak_form="rise_exp")
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=5)
+    vr.write_nominal(tmp_path)
+    capsys.readouterr()
+    assert main(["fit", str(toml), "--compare-models", "--peak-form", "rise_exp",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "peak_form = 'rise_exp': needs L_rise1" in err[0], err
+
+
 def test_the_shared_table_lands_as_each_forms_own_vehicle():
     """``forms_vehicle`` (one compiled landing for every form, the form a runtime code) lands
     as the vehicle in that form (``peak_form_vehicle``) up to rounding. Its derivatives are
