@@ -119,6 +119,16 @@ MUTATIONS = [
     M("crush_peak_position", "crush-peak position x_L1 + 2 a1 / k_b1",
       "x_pk1=x_L1 + a1 / self.k_b1", "x_pk1=x_L1 + 2.0 * a1 / self.k_b1",
       ("tests/test_laws.py", "tests/test_crush_peak.py")),
+    M("table_rise_half_slope", "a table's build-up over peak_rise1 at half its slope",
+      "t1_slope=_cat(e[..., :1] / rise, ext[\"t1_slope\"])",
+      "t1_slope=_cat(0.5 * e[..., :1] / rise, ext[\"t1_slope\"])",
+      ("tests/test_crush_peak.py",
+       "tests/test_calibration_form.py::test_the_shared_table_lands_as_each_forms_own_vehicle")),
+    M("rise_exp_bound_without_span", "the built-up exponential's rise bounded as if its decay "
+      "were L_peak1 long", "- _span(form) * v(\"L_peak1\") - m * hc.x_L2)",
+      "- v(\"L_peak1\") - m * hc.x_L2)",
+      ("tests/test_calibration_form.py::"
+       "test_the_built_up_exp_forms_rise_is_bounded_by_its_own_tables_room",), ("calibration",)),
 ]
 
 
