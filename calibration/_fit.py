@@ -502,8 +502,7 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     veh = peak_form_vehicle(vehicle, "linear") if alt not in RISE_FORMS else vehicle
     if alt in RISE_FORMS and veh.honeycomb.peak_rise1 is None:
         veh = _rise_start(veh, names)
-    if alt in EXP_TABLE_SPAN:  # a table's room is EXP_SPAN times shorter
-        veh = _inside_form(veh, names, alt)
+    veh = _inside_form(veh, names, alt)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
         dt=problem.solver.dt, save_dt=problem.solver.save_dt, integrator=problem.integrator,
@@ -515,19 +514,28 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
 
 def _inside_form(vehicle: jl.Vehicle, names, form: str) -> jl.Vehicle:
     """``vehicle`` with each crush-peak value that lies outside its interval in ``form``
-    (``interval``: the exponential forms leave their L_peak1 EXP_SPAN times less room than the
-    linear form whose fit starts them) moved to 0.9 of the way from the interval's lower end,
-    so that a refit in that form starts inside its rules instead of failing; values already
-    inside are kept. The peak ratio first, then the length, then the rise: each interval
-    depends on the ones before."""
+    (``interval``) moved inside, so that a refit in that form starts inside its rules instead
+    of failing; values already inside are kept. A value above the interval (the exponential
+    forms leave their L_peak1 EXP_SPAN times less room than the linear form whose fit starts
+    them) goes to 0.9 of the way from its lower end; a value on its lower end (a fit that ran
+    a value onto a bound ends there up to rounding) to ``START_ABOVE_BOUND`` of the way. The
+    peak ratio first, then the length, then the rise: each interval depends on the ones
+    before."""
     for n in ("peak1", "L_peak1", "L_rise1"):
         if n in names:
             vals = get_values(vehicle, names)
             lo, hi = interval(n, names, vals, vehicle, form)
             x = vals[names.index(n)]
             if not lo < x < hi:
-                vehicle = set_values(vehicle, (n,), [lo + 0.9 * (hi - lo)])
+                at = START_ABOVE_BOUND if x <= lo else 0.9
+                vehicle = set_values(vehicle, (n,), [lo + at * (hi - lo)])
     return vehicle
+
+
+# where a refit's start moves a value that lies on the lower end of its interval, as a
+# fraction of the interval: the transform's slope there is about this (at_bound's limit is
+# 1e-6), so the optimiser moves it freely, and it is far below any value's scatter
+START_ABOVE_BOUND = 1e-3
 
 
 def precompile_forms(problem: CalibrationProblem, form: str):

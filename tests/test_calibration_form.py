@@ -389,3 +389,14 @@ def test_an_exp_refit_starts_inside_its_own_bounds():
     inside = set_values(veh, ("L_peak1",), [0.5 * (lo_exp + hi_exp)])
     _, kept = cal_fit._form_problem(base, inside, "exp")
     assert float(kept.honeycomb.peak_length1) == 0.5 * (lo_exp + hi_exp)
+    # a fit that ended with L_peak1 on its lower bound (up to rounding): every form's refit
+    # starts just inside it, where its transform would otherwise refuse the value
+    lo_lin = interval("L_peak1", PARAMS, vals, veh)[0]
+    on_bound = set_values(veh, ("L_peak1",), [lo_lin * (1.0 - 1e-15)])
+    for alt in PEAK_FORMS:
+        prob, start = cal_fit._form_problem(base, on_bound, alt)
+        names = prob.names
+        lo, hi = interval("L_peak1", names, get_values(start, names), start, alt)
+        L = float(start.honeycomb.peak_length1)
+        assert lo < L <= lo + cal_fit.START_ABOVE_BOUND * (hi - lo) * (1 + 1e-12), alt
+        prob.theta_from(start, [0.0])  # inside: no ConfigError
