@@ -461,10 +461,10 @@ def check_peak_form(names, peak_form: str | None) -> None:
     if "peak1" not in names:
         raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
                              "parameters")
-    if ("L_rise1" in names) != (peak_form == "rise_exp"):
+    if ("L_rise1" in names) != (peak_form in RISE_FORMS):
         raise jl.ConfigError("peak_form", peak_form,
                              "needs L_rise1 among the fitted parameters (the exponential "
-                             "decay built up over L_rise1)" if peak_form == "rise_exp" else
+                             "decay built up over L_rise1)" if peak_form in RISE_FORMS else
                              "cannot be combined with L_rise1 (the built-up form: "
                              "peak_form='rise_exp' builds up the exponential decay)")
 

@@ -147,6 +147,17 @@ def set_values(vehicle: jl.Vehicle, names, values) -> jl.Vehicle:
                        tuple(jnp.asarray(x, dtype=jnp.float64) for x in values), **_NONE)
 
 
+def exp_table(excess, n: int):
+    """The exponential forms' table: ``excess`` (peak1 - 1, ratio of F1) times exp(-c_j /
+    L_peak1) at its n nodes c_j = j EXP_SPAN L_peak1 / n (the last axis)."""
+    return excess * jnp.exp(-(jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)))
+
+
+def _after(e):
+    """Each node's next value along the last axis, 0 past the last."""
+    return jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
+
+
 def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
     """``vehicle`` with its primary peak (peak_ratio1, peak_length1, peak_rise1) in ``form``
     (``PEAK_FORMS``); jit-safe. ``linear`` switches the rise off; ``rise`` keeps it (the
@@ -163,8 +174,7 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
         raise jl.ConfigError("honeycomb.peak_rise1_mm", 0.0, "the rise_exp form builds its "
                              "exponential peak up over this rise: give one (> 0)")
     n = EXP_POINTS - 1 if form == "rise_exp" else EXP_POINTS
-    u = jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)  # c_j / L_peak1
-    table = (jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0) * jnp.exp(-u)
+    table = exp_table(jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0, n)
     rise = hc.peak_rise1 if form == "rise_exp" else None
     return eqx.tree_at(
         lambda v: (v.honeycomb.peak_ratio1, v.honeycomb.peak_rise1, v.honeycomb.excess1,
@@ -205,16 +215,12 @@ class _FormsHoneycomb(jl.Honeycomb):
         rise = length if self.peak_rise1 is None else jnp.where(is_rise, self.peak_rise1,
                                                                 length)
         # exp: peak_form_vehicle's table (ratios of F1), then Honeycomb.curve's uniform grid
-        u = jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)
-        e = (col(self.peak_ratio1) - 1.0) * jnp.exp(-u) * col(self.F1)
+        e = exp_table(col(self.peak_ratio1) - 1.0, n) * col(self.F1)
         span = EXP_SPAN * length
         dc = col(span / n)
-        e_next = jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
         # rise_exp: the rise, then the table of n - 1 nodes over the same span
-        u_r = jnp.arange(n - 1, dtype=jnp.float64) * (EXP_SPAN / (n - 1))
-        e_r = (col(self.peak_ratio1) - 1.0) * jnp.exp(-u_r) * col(self.F1)
+        e_r = exp_table(col(self.peak_ratio1) - 1.0, n - 1) * col(self.F1)
         dc_r = jnp.broadcast_to(col(span / (n - 1)), e_r.shape)
-        e_r_next = jnp.concatenate([e_r[..., 1:], jnp.zeros_like(e_r[..., :1])], axis=-1)
         w_r = jnp.concatenate([col(rise), dc_r], axis=-1)
 
         def starts(widths):  # each segment starts where the ones before it end
@@ -228,9 +234,9 @@ class _FormsHoneycomb(jl.Honeycomb):
                      segments(rise, length), segments(a / rise, -a / length),
                      segments(zero, a)),
             "exp": (e[..., 0], span, dc * jnp.arange(n, dtype=jnp.float64),
-                    jnp.broadcast_to(dc, e.shape), (e_next - e) / dc, e),
+                    jnp.broadcast_to(dc, e.shape), (_after(e) - e) / dc, e),
             "rise_exp": (zero, rise + span, starts(w_r), w_r,
-                         jnp.concatenate([col(e_r[..., 0] / rise), (e_r_next - e_r) / dc_r],
+                         jnp.concatenate([col(e_r[..., 0] / rise), (_after(e_r) - e_r) / dc_r],
                                          axis=-1),
                          jnp.concatenate([col(zero), e_r], axis=-1)),
         }
@@ -243,8 +249,7 @@ class _FormsHoneycomb(jl.Honeycomb):
 
         a1, widths, e_c = pick(0), pick(3), pick(5)
         # the integral of e over [0, c_j]: the trapezoids of the segments before (exact)
-        e_end = jnp.concatenate([e_c[..., 1:], jnp.zeros_like(e_c[..., :1])], axis=-1)
-        area = jnp.cumsum(0.5 * (e_c + e_end) * widths, axis=-1)
+        area = jnp.cumsum(0.5 * (e_c + _after(e_c)) * widths, axis=-1)
         integral = jnp.concatenate([jnp.zeros_like(area[..., :1]), area[..., :-1]], axis=-1)
         return eqx.tree_at(
             lambda c: (c.a1, c.x_pk1, c.L1, c.t1_c, c.t1_dc, c.t1_slope, c.t1_e, c.t1_int), cv,

@@ -204,14 +204,12 @@ class Honeycomb(eqx.Module):
                                                              self.unload_ratio))
             a1, a2 = (r1 - 1.0) * self.F1, (r2 - 1.0) * self.F2
             L1 = self.peak_length1
+            seg = None  # the primary's excess as a table: (starts, widths, slopes) past onset
             if self.peak_rise1 is not None and self.peak_ratio1 is not None:
-                # the peak that builds up: a two-segment table, 0 -> a1 over the rise, a1 -> 0
-                # over peak_length1 (validate_vehicle: not with excess1)
-                rise, fall = jnp.expand_dims(self.peak_rise1, -1), jnp.expand_dims(L1, -1)
-                a = jnp.expand_dims(a1, -1)
-                ext = dict(t1_c=_cat(jnp.zeros_like(rise), rise), t1_dc=_cat(rise, fall),
-                           t1_slope=_cat(a / rise, -a / fall))
-                a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
+                # the law's linear fall as a one-segment table, a1 -> 0 over peak_length1
+                # (validate_vehicle: not with excess1), to be built up over the rise below
+                fall = jnp.expand_dims(L1, -1)
+                seg = (jnp.zeros_like(fall), fall, -jnp.expand_dims(a1, -1) / fall)
             if table:  # the primary's excess from its table (validate_vehicle: not with r1)
                 e = self.excess1 * jnp.expand_dims(self.F1, -1)  # N, at the nodes c_j
                 n = e.shape[-1]
@@ -219,14 +217,17 @@ class Honeycomb(eqx.Module):
                 dc = jnp.expand_dims(L1 / n, -1)  # m, the grid step
                 e_next = jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
                 a1 = e[..., 0]
-                ext = dict(t1_c=dc * jnp.arange(n, dtype=jnp.float64), t1_dc=dc,
-                           t1_slope=(e_next - e) / dc)
-                if self.peak_rise1 is not None:  # built up from 0 to e_0 over the rise first
-                    rise = jnp.expand_dims(self.peak_rise1, -1)
-                    ext = dict(t1_c=_cat(jnp.zeros_like(rise), rise + ext["t1_c"]),
-                               t1_dc=_cat(rise, jnp.broadcast_to(dc, e.shape)),
-                               t1_slope=_cat(e[..., :1] / rise, ext["t1_slope"]))
-                    a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
+                seg = (dc * jnp.arange(n, dtype=jnp.float64), dc, (e_next - e) / dc)
+            if seg is not None and self.peak_rise1 is not None:
+                # built up first: one segment 0 -> a1 over the rise, then the table
+                rise = jnp.expand_dims(self.peak_rise1, -1)
+                c, dc, slope = seg
+                seg = (_cat(jnp.zeros_like(rise), rise + c),
+                       _cat(rise, jnp.broadcast_to(dc, slope.shape)),
+                       _cat(jnp.expand_dims(a1, -1) / rise, slope))
+                a1, L1 = jnp.zeros_like(a1), self.peak_rise1 + L1
+            if seg is not None:
+                ext = dict(t1_c=seg[0], t1_dc=seg[1], t1_slope=seg[2])
             ext.update(a1=a1, x_pk1=x_L1 + a1 / self.k_b1, L1=L1,
                        a2=a2, x_pk2=x_L3 + a2 / self.k_b3, L2=self.peak_length2,
                        k_u=self.k_b3 * rho, q=1.0 - 1.0 / rho)
