@@ -119,9 +119,9 @@ MUTATIONS = [
     M("crush_peak_position", "crush-peak position x_L1 + 2 a1 / k_b1",
       "x_pk1=x_L1 + a1 / self.k_b1", "x_pk1=x_L1 + 2.0 * a1 / self.k_b1",
       ("tests/test_laws.py", "tests/test_crush_peak.py")),
-    M("table_rise_half_slope", "a table's build-up over peak_rise1 at half its slope",
-      "t1_slope=_cat(e[..., :1] / rise, ext[\"t1_slope\"])",
-      "t1_slope=_cat(0.5 * e[..., :1] / rise, ext[\"t1_slope\"])",
+    M("table_rise_half_slope", "a crush peak's build-up over peak_rise1 at half its slope",
+      "_cat(jnp.expand_dims(a1, -1) / rise, slope))",
+      "_cat(0.5 * jnp.expand_dims(a1, -1) / rise, slope))",
       ("tests/test_crush_peak.py",
        "tests/test_calibration_form.py::test_the_shared_table_lands_as_each_forms_own_vehicle")),
     M("rise_exp_bound_without_span", "the built-up exponential's rise bounded as if its decay "
