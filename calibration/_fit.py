@@ -40,8 +40,8 @@ benchmarks/results/bench_fit.json):
    largest shift of each parameter added in quadrature: the interval to quote under misfit.
 7. **Peak shape** (``model_form_spread``), whenever the fit has the primary crush peak: the
    final stage refitted from the optimum with the peak in each of its other forms (the law's
-   linear fall, the law's built-up peak, an exponential decay, and that decay built up:
-   ``PEAK_FORMS``). A peak shape
+   linear fall, the law's built-up peak, an exponential decay, and that decay built up
+   linearly or smoothly: ``PEAK_FORMS``). A peak shape
    the law lacks biases every channel alike, so the residuals can look clean and the channels
    agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
    the best) bracket that bias, and the largest shift among them is added in quadrature to
@@ -456,8 +456,9 @@ def check_peak_form(names, peak_form: str | None) -> None:
     if peak_form is None:
         return
     if peak_form not in EXP_TABLE_SPAN:
-        raise jl.ConfigError("peak_form", peak_form, "must be None, " + " or ".join(
-            f"'{f}'" for f in EXP_TABLE_SPAN))
+        *first, last = (f"'{f}'" for f in EXP_TABLE_SPAN)
+        raise jl.ConfigError("peak_form", peak_form, "must be None, " + ", ".join(first)
+                             + " or " + last)
     if "peak1" not in names:
         raise jl.ConfigError("peak_form", peak_form, "needs peak1 among the fitted "
                              "parameters")
@@ -465,8 +466,9 @@ def check_peak_form(names, peak_form: str | None) -> None:
         raise jl.ConfigError("peak_form", peak_form,
                              "needs L_rise1 among the fitted parameters (the exponential "
                              "decay built up over L_rise1)" if peak_form in RISE_FORMS else
-                             "cannot be combined with L_rise1 (the built-up form: "
-                             "peak_form='rise_exp' builds up the exponential decay)")
+                             "cannot be combined with L_rise1 (the built-up forms: "
+                             "peak_form='rise_exp' or 'smooth_exp' build up the exponential "
+                             "decay)")
 
 
 def peak_form_of(names, peak_form: str | None) -> str | None:
@@ -819,7 +821,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     channels : channels to fit (default: all present)
     peak_form : the primary crush peak's form when peak1 is fitted: None (the law's: linear,
         or built up when L_rise1 is fitted), ``"exp"`` or, with L_rise1 fitted,
-        ``"rise_exp"`` (``PEAK_FORMS``)
+        ``"rise_exp"`` or ``"smooth_exp"`` (``PEAK_FORMS``)
     model_form : the peak-shape (model-form) term of the uncertainty: ``"auto"`` (default)
         computes it when the fit has the primary crush peak (peak1 fitted), True / False
         force it on (with the peak) or off. On: the values are refitted in each other peak
@@ -1035,7 +1037,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                    "rise": "fit with L_rise1 among the parameters and without peak_form",
                    "exp": "fit without L_rise1, with peak_form='exp' (--peak-form exp)",
                    "rise_exp": "fit with L_rise1 among the parameters and "
-                               "peak_form='rise_exp' (--peak-form rise_exp)"}[best]
+                               "peak_form='rise_exp' (--peak-form rise_exp)",
+                   "smooth_exp": "fit with L_rise1 among the parameters and "
+                                 "peak_form='smooth_exp' (--peak-form smooth_exp)"}[best]
             warn(
                 f"the data reject the crush peak's {form} form: the {best} form fits them "
                 f"better by a misfit-adjusted AIC of {mform['forms'][form]['daic_adjusted']:.3g}"

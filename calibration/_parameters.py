@@ -16,7 +16,10 @@ keeps it physical while the optimiser works on an unconstrained number.
   L_peak1: the bounds take the peak's form); r in (1, the
   largest peak those leave room for), and r1 F1 < F2; L_rise1 between (r1 - 1) F1 / k_b1 (a
   build-up slower than the elastic rise) and the room the decay (L_peak1, or EXP_SPAN
-  L_peak1 in the exponential forms) leaves before x_L2. A sharper
+  L_peak1 in the exponential forms) leaves before x_L2; in the smooth form, whose build-up
+  lies inside its table, between the length whose steepest build-up is k_b1 and
+  SMOOTH_RISE_MAX L_peak1 (L_peak1 there at least 2 e (r1 - 1) F1 / k_b1, so that interval
+  stays open). A sharper
   measured peak than the rule allows ends the fit at the bound (the peak's work, not its
   shape), never at an invalid vehicle: every bound a rule sets is moved inside by
   ``BOUND_MARGIN`` (1e-9) of that rule's own scale (the slope k / 2, the plateau's end x_L2 or
@@ -35,6 +38,8 @@ this transform (delta method).
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
 
 import equinox as eqx
 import jax
@@ -99,12 +104,23 @@ _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None 
 # EXP_POINTS segments). The exp forms' steepest fall, on their first
 # segment, is 0.96 of the linear form's slope (peak1 - 1) F1 / L_peak1, so the linear form's
 # lower bound on L_peak1 holds for them; their table ends EXP_SPAN L_peak1 past the onset, so
-# their room before x_L2 is EXP_SPAN times shorter (``_bounds``' ``form``).
-PEAK_FORMS = ("linear", "rise", "exp", "rise_exp")
-RISE_FORMS = ("rise", "rise_exp")  # the forms that fit L_rise1
+# their room before x_L2 is EXP_SPAN times shorter (``_bounds``' ``form``). ``smooth_exp``,
+# an excess that builds up smoothly, A (1 - exp(-c / L_rise1)) exp(-c / L_peak1), A such
+# that its top is (peak1 - 1) F1 (``smooth_table``): it starts at 0 with its steepest
+# build-up, A / L_rise1, and approaches the decay, with no corner where the build-up ends;
+# the EXP_POINTS-node table over EXP_SPAN L_peak1 holds the build-up too. Its steepest fall
+# is below (peak1 - 1) F1 / L_peak1 (1 as L_rise1 -> 0, 0.5 at L_rise1 = L_peak1), so the
+# linear form's lower bound on L_peak1 holds for it as well.
+PEAK_FORMS = ("linear", "rise", "exp", "rise_exp", "smooth_exp")
+RISE_FORMS = ("rise", "rise_exp", "smooth_exp")  # the forms that fit L_rise1
 SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
 EXP_SPAN, EXP_POINTS = 8.0, 97
-EXP_TABLE_SPAN = {"exp": EXP_SPAN, "rise_exp": EXP_SPAN}  # in L_peak1; the law's forms: 1
+# in L_peak1; the law's forms: 1
+EXP_TABLE_SPAN = {"exp": EXP_SPAN, "rise_exp": EXP_SPAN, "smooth_exp": EXP_SPAN}
+# the smooth form's longest build-up, in L_peak1: its table's cut at EXP_SPAN L_peak1 then
+# leaves at most 0.6 % of its top (as L_rise1 / L_peak1 grows the form tends to c exp(-c /
+# L_peak1), which the bump-shaped peaks of records ask for)
+SMOOTH_RISE_MAX = 16.0
 # how far inside each rule-set bound the transform keeps a value, in units of the rule's own
 # scale (module docstring): rounding (1e-16) cannot cross it, no measurement can see it
 BOUND_MARGIN = 1e-9
@@ -153,6 +169,21 @@ def exp_table(excess, n: int):
     return excess * jnp.exp(-(jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)))
 
 
+def smooth_top(r):
+    """The top of (1 - exp(-x / r)) exp(-x) over x >= 0, r = L_rise1 / L_peak1 > 0: at x =
+    r log(1 + 1 / r) it is (r / (1 + r))^r / (1 + r)."""
+    return jnp.exp(r * jnp.log(r / (1.0 + r))) / (1.0 + r)
+
+
+def smooth_table(excess, n: int, r):
+    """The smooth form's table: ``excess`` (peak1 - 1, ratio of F1) times (1 - exp(-x_j / r))
+    exp(-x_j) / ``smooth_top(r)`` at its n nodes x_j = j EXP_SPAN / n (in L_peak1; the last
+    axis), r = L_rise1 / L_peak1: 0 at the onset, ``excess`` at its top."""
+    x = jnp.arange(n, dtype=jnp.float64) * (EXP_SPAN / n)
+    r = jnp.expand_dims(r, -1)
+    return excess * (-jnp.expm1(-x / r)) * jnp.exp(-x) / smooth_top(r)
+
+
 def _after(e):
     """Each node's next value along the last axis, 0 past the last."""
     return jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
@@ -162,7 +193,9 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
     """``vehicle`` with its primary peak (peak_ratio1, peak_length1, peak_rise1) in ``form``
     (``PEAK_FORMS``); jit-safe. ``linear`` switches the rise off; ``rise`` keeps it (the
     vehicle must have one); ``exp`` replaces the linear peak by its exponential table;
-    ``rise_exp`` by that table, EXP_POINTS - 1 nodes long, after the rise (which it keeps)."""
+    ``rise_exp`` by that table, EXP_POINTS - 1 nodes long, after the rise (which it keeps);
+    ``smooth_exp`` by its table (``smooth_table``), which holds its build-up (the rise is
+    read and switched off)."""
     hc = vehicle.honeycomb
     if form == "rise":
         return vehicle
@@ -170,11 +203,16 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
         return eqx.tree_at(lambda v: v.honeycomb.peak_rise1, vehicle, None, **_NONE)
     if form not in EXP_TABLE_SPAN:
         raise jl.ConfigError("peak_form", form, "must be one of " + ", ".join(PEAK_FORMS))
-    if form == "rise_exp" and hc.peak_rise1 is None:
-        raise jl.ConfigError("honeycomb.peak_rise1_mm", 0.0, "the rise_exp form builds its "
+    if form in RISE_FORMS and hc.peak_rise1 is None:
+        raise jl.ConfigError("honeycomb.peak_rise1_mm", 0.0, f"the {form} form builds its "
                              "exponential peak up over this rise: give one (> 0)")
     n = EXP_POINTS - 1 if form == "rise_exp" else EXP_POINTS
-    table = exp_table(jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0, n)
+    excess = jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0
+    if form == "smooth_exp":
+        table = smooth_table(excess, n, jnp.asarray(hc.peak_rise1, dtype=jnp.float64)
+                             / jnp.asarray(hc.peak_length1, dtype=jnp.float64))
+    else:
+        table = exp_table(excess, n)
     rise = hc.peak_rise1 if form == "rise_exp" else None
     return eqx.tree_at(
         lambda v: (v.honeycomb.peak_ratio1, v.honeycomb.peak_rise1, v.honeycomb.excess1,
@@ -188,7 +226,8 @@ class _FormsHoneycomb(jl.Honeycomb):
     form ``form`` (``FORM_INDEX``: a number, traced under jit). Every form is the law's
     tabulated excess with EXP_POINTS segments, each of its own width: ``linear`` one falling
     segment, ``rise`` a rising and a falling one, ``exp`` ``peak_form_vehicle``'s exponential
-    table, ``rise_exp`` a rising segment and that table one node shorter; the segments a form
+    table, ``rise_exp`` a rising segment and that table one node shorter, ``smooth_exp`` its
+    table (``smooth_table``) on the exponential table's nodes; the segments a form
     does not use have width and slope 0 and add exactly 0. So one
     compiled program serves every form (``forms_vehicle``); the curve is that of the form's
     own vehicle (``peak_form_vehicle``) up to rounding."""
@@ -210,7 +249,7 @@ class _FormsHoneycomb(jl.Honeycomb):
 
         a = cv.a1  # (r1 - 1) F1
         zero = jnp.zeros_like(a)
-        is_rise = (form == FORM_INDEX["rise"]) | (form == FORM_INDEX["rise_exp"])
+        is_rise = functools.reduce(jnp.logical_or, [form == FORM_INDEX[f] for f in RISE_FORMS])
         # the rise's width only where the form has one (a finite divisor in every form)
         rise = length if self.peak_rise1 is None else jnp.where(is_rise, self.peak_rise1,
                                                                 length)
@@ -222,6 +261,8 @@ class _FormsHoneycomb(jl.Honeycomb):
         e_r = exp_table(col(self.peak_ratio1) - 1.0, n - 1) * col(self.F1)
         dc_r = jnp.broadcast_to(col(span / (n - 1)), e_r.shape)
         w_r = jnp.concatenate([col(rise), dc_r], axis=-1)
+        # smooth_exp: its table on the exp table's nodes (r = 1 where the form has no rise)
+        e_s = smooth_table(col(self.peak_ratio1) - 1.0, n, rise / length) * col(self.F1)
 
         def starts(widths):  # each segment starts where the ones before it end
             ends = jnp.cumsum(widths, axis=-1)
@@ -239,11 +280,13 @@ class _FormsHoneycomb(jl.Honeycomb):
                          jnp.concatenate([col(e_r[..., 0] / rise), (_after(e_r) - e_r) / dc_r],
                                          axis=-1),
                          jnp.concatenate([col(zero), e_r], axis=-1)),
+            "smooth_exp": (e_s[..., 0], span, dc * jnp.arange(n, dtype=jnp.float64),
+                           jnp.broadcast_to(dc, e_s.shape), (_after(e_s) - e_s) / dc, e_s),
         }
 
         def pick(i):  # every form's numbers are finite: no NaN in the unselected branches
             out = tables["exp"][i]
-            for f in ("rise_exp", "rise", "linear"):
+            for f in ("smooth_exp", "rise_exp", "rise", "linear"):
                 out = jnp.where(form == FORM_INDEX[f], tables[f][i], out)
             return out
 
@@ -300,6 +343,13 @@ def _span(form):
     return out
 
 
+def _in_form(form, name, a, b):
+    """``a`` where the primary peak's ``form`` (``_span``'s argument) is ``name``, else ``b``."""
+    if form is None or isinstance(form, str):
+        return a if form == name else b
+    return jnp.where(jnp.asarray(form) == FORM_INDEX[name], a, b)
+
+
 def _bounds(n, names, values, vehicle, form=None):
     """(lo, hi) of a crush-peak or unloading parameter from the vehicle's rules (hi None: no
     upper bound), given the other values (fitted or the vehicle's) and the primary peak's form
@@ -312,8 +362,18 @@ def _bounds(n, names, values, vehicle, form=None):
     hc = vehicle.honeycomb
     if n == "L_rise1":  # the build-up (r1 - 1) F1 / L_r < k_b1; the rise and fall end in x_L2
         a = (v("peak1") - 1.0) * v("F1")
-        return (a / v("k_b1") * (1.0 + m),
-                hc.x_L2 - v("F1") / v("k_b1") - _span(form) * v("L_peak1") - m * hc.x_L2)
+        lo = a / v("k_b1") * (1.0 + m)
+        hi = hc.x_L2 - v("F1") / v("k_b1") - _span(form) * v("L_peak1") - m * hc.x_L2
+        if form is None or form == "smooth_exp" or not isinstance(form, str):
+            # smooth_exp: its steepest build-up a / (L_r smooth_top(L_r / L_p)) < k_b1 holds
+            # for L_r >= e a L_p / (k_b1 L_p - e a) (smooth_top(r) >= 1 / (e (1 + r))), which
+            # L_peak1's bound keeps below L_p; its table holds the build-up: L_r up to
+            # SMOOTH_RISE_MAX L_p
+            lp = v("L_peak1")
+            den = jnp.maximum(v("k_b1") * lp - math.e * a, 1e-300)
+            lo = _in_form(form, "smooth_exp", math.e * a * lp / den * (1.0 + m), lo)
+            hi = _in_form(form, "smooth_exp", SMOOTH_RISE_MAX * lp * (1.0 - m), hi)
+        return lo, hi
     if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
         return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3") * (1.0 - m)
     first = n in ("peak1", "L_peak1")
@@ -324,20 +384,30 @@ def _bounds(n, names, values, vehicle, form=None):
     room = (hc.x_L2 - v("F1") / v("k_b1") if first
             else hc.x_L4 - hc.x_L2 - (v("F2") - v("F1")) / v("k_b3")) - m * end
     span = _span(form) if first else 1.0  # the peak's decay ends span L past its onset
+    # the smooth form's L >= smooth a also leaves its build-up room (L_rise1's bound above)
+    smooth = (2.0 * math.e / v("k_b1")) if first else None
     if n in ("peak1", "peak2"):  # bound the peak a = (r - 1) F
         if length in names:  # the length's interval below must stay open
             a_hi = 0.999 * room / (2.0 * span / v("k") + 1.0 / v(k_el))
+            if first:
+                a_hi = _in_form(form, "smooth_exp", 0.999 * room / (
+                    span * jnp.maximum(2.0 / v("k"), smooth) + 1.0 / v(k_el)), a_hi)
         else:  # the fixed length: falling slope a / L <= k / 2, the peak ends in the room
             L = hc.peak_length1 if first else hc.peak_length2
             a_hi = jnp.minimum(0.5 * v("k") * L * (1.0 - m), v(k_el) * (room - span * L))
+            if first:
+                a_hi = _in_form(form, "smooth_exp", jnp.minimum(a_hi, L / smooth * (1.0 - m)),
+                                a_hi)
         if first:  # r1 F1 < F2: the primary's peak stays below the secondary plateau
             a_hi = jnp.minimum(a_hi, v("F2") - v("F1") - m * v("F2"))
         return 1.0, 1.0 + a_hi / v(force)
     a = (v(ratio) - 1.0) * v(force)
     # falling slope a / L <= k / 2; the peak's rise a / k_el and decay span L end in the room,
     # and the primary's leaves RISE_ROOM of it, so that L_rise1's interval stays open at any L
-    return (2.0 * a / v("k") * (1.0 + m),
-            (room - a / v(k_el) - (RISE_ROOM * room if first else 0.0)) / span)
+    lo = 2.0 * a / v("k") * (1.0 + m)
+    if first:
+        lo = _in_form(form, "smooth_exp", jnp.maximum(lo, smooth * a * (1.0 + m)), lo)
+    return lo, (room - a / v(k_el) - (RISE_ROOM * room if first else 0.0)) / span
 
 
 def interval(n, names, values, vehicle, form=None) -> tuple[float, float] | None:

@@ -198,10 +198,11 @@ class CalibrationProblem:
     channels : channels to fit (default: every channel any drop has)
     peak_form : the primary crush peak's form (``PEAK_FORMS``; None: the vehicle's own law).
         ``exp`` reads peak1 and L_peak1 as an exponential peak's height and decay length,
-        ``rise_exp`` too, built up over L_rise1 first
+        ``rise_exp`` too, built up linearly over L_rise1 first, ``smooth_exp`` built up
+        smoothly (``_parameters.smooth_table``)
     shared_forms : compile functions that serve every peak form (module docstring), shared
         with the problems of the same drops in the other forms; needs peak1 among ``params``.
-        The form is then ``peak_form`` (``rise`` or ``rise_exp`` with L_rise1 among
+        The form is then ``peak_form`` (one of ``RISE_FORMS`` with L_rise1 among
         ``params``), or None: ``rise`` with L_rise1 among ``params``, else ``linear``
     peak_switch : compile functions whose primary crush peak (the law's linear one) is
         switched on or off at run time (module docstring), shared with the problem of the

@@ -278,15 +278,19 @@ def add_subcommands(subparsers) -> None:
                         "L_peak1), report which the data support (likelihood ratio adjusted "
                         "for misfit, AIC, BIC) and where each misfits (model_comparison.json, "
                         "figures/model_comparison.png); the supported model is the fit written")
-    f.add_argument("--peak-form", choices=("law", "exp", "rise_exp"), default="law",
+    f.add_argument("--peak-form", choices=("law", "exp", "rise_exp", "smooth_exp"),
+                   default="law",
                    help="the fitted crush peak's form (with peak1, L_peak1): law, the law's "
                         "linear fall (built up over L_rise1 when that is fitted); exp, an "
                         "exponential decay of length L_peak1; rise_exp, that decay built up "
-                        "over L_rise1 (which must be fitted) (default law)")
+                        "linearly over L_rise1; smooth_exp, that decay built up smoothly, "
+                        "(1 - exp(-c / L_rise1)) exp(-c / L_peak1) (with L_rise1 fitted for "
+                        "both) (default law)")
     f.add_argument("--no-model-form", action="store_true",
                    help="leave out the peak-shape (model-form) term, on by default when the "
                         "fit has the crush peak: the values refitted in the peak's other forms "
-                        "(linear, built up, exponential, built-up exponential) and the largest "
+                        "(linear, built up, exponential, built-up and smoothly built-up "
+                        "exponential) and the largest "
                         "shift among those the data support added to the total standard error")
     f.add_argument("--no-peak-model-term", action="store_true",
                    help="leave out the missing-peak term, on by default when the residuals "

@@ -21,12 +21,14 @@ import calibration as cal
 import jaxland as jl
 from calibration import _fit as cal_fit, virtual_rig as vr
 from calibration._parameters import (
+    BOUND_MARGIN,
     EXP_POINTS,
     EXP_SPAN,
     FORM_INDEX,
     PEAK_FORMS,
     RISE_FORMS,
     SHAPE_PARAMS,
+    SMOOTH_RISE_MAX,
     at_bound,
     forms_vehicle,
     from_unconstrained,
@@ -128,11 +130,77 @@ def test_the_exp_form_is_an_exponential_peak_of_the_same_height_and_slope():
     assert float(peak_form_vehicle(risen, "rise").honeycomb.peak_rise1) == 1e-3
 
 
+def _top(r):
+    """max over x of (1 - exp(-x / r)) exp(-x), on a dense grid (not the closed form)."""
+    x = np.linspace(0.0, 3.0 * r * np.log(1.0 + 1.0 / r) + 1e-3, 2_000_001)
+    return float(np.max(-np.expm1(-x / r) * np.exp(-x)))
+
+
+def test_the_smooth_form_builds_up_from_zero_to_its_height():
+    """``smooth_exp``: the excess (peak1 - 1) (1 - exp(-c / L_rise1)) exp(-c / L_peak1),
+    scaled to its top, tabulated over EXP_SPAN L_peak1 (its build-up inside the table, the
+    rise switched off); the vehicle validates; without a rise it is refused by name."""
+    veh = set_values(vr.truth_vehicle(), ("peak1", "L_peak1", "L_rise1"),
+                     np.array([1.2, 1.5e-3, 1.0e-3]))
+    hc = peak_form_vehicle(veh, "smooth_exp").honeycomb
+    assert hc.peak_ratio1 is None and hc.peak_rise1 is None
+    table, length = np.asarray(hc.excess1), float(hc.excess_length1)
+    assert table.shape == (EXP_POINTS,) and length == pytest.approx(EXP_SPAN * 1.5e-3)
+    c = np.arange(EXP_POINTS) * length / EXP_POINTS
+    expect = 0.2 * -np.expm1(-c / 1.0e-3) * np.exp(-c / 1.5e-3) / _top(1.0 / 1.5)
+    np.testing.assert_allclose(table, expect, rtol=1e-10, atol=0)
+    assert table[0] == 0.0 and 0.199 < table.max() <= 0.2
+    jl.validate_vehicle(peak_form_vehicle(veh, "smooth_exp"))
+    with pytest.raises(jl.ConfigError, match="peak_rise1_mm"):
+        peak_form_vehicle(set_values(vr.truth_vehicle(), ("peak1", "L_peak1"),
+                                     np.array([1.2, 1.5e-3])), "smooth_exp")
+
+
+def test_the_smooth_forms_build_up_stays_below_k_b1():
+    """The smooth form's steepest build-up, at its onset, is (peak1 - 1) F1 / (L_rise1
+    top(L_rise1 / L_peak1)): L_rise1's lower bound keeps it below k_b1 (within e of it: the
+    bound uses top >= 1 / (e (1 + r))), its upper bound is SMOOTH_RISE_MAX L_peak1, and
+    L_peak1's lower bound leaves that interval open where the ground is stiff (2 e a / k_b1
+    above the falling slope's 2 a / k). Coordinates run onto either bound give vehicles the
+    table's rules accept, in the form's own functions and the shared ones alike."""
+    names = PARAMS + ("L_rise1",)
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    veh = switch_on(set_values(drop.vehicle, ("L_rise1",), [1e-3]), names)
+    vals = get_values(veh, names)
+    a = (vals[names.index("peak1")] - 1.0) * vals[names.index("F1")]
+    k_b1, L = vals[names.index("k_b1")], vals[names.index("L_peak1")]
+    lo, hi = interval("L_rise1", names, vals, veh, "smooth_exp")
+    steepest = a / (lo * _top(lo / L))
+    assert k_b1 / np.e < steepest < k_b1
+    assert hi == pytest.approx(SMOOTH_RISE_MAX * L, rel=1e-8)
+    assert lo < interval("L_rise1", names, vals, veh, "rise")[0] * np.e * 2
+    stiff = set_values(veh, ("k",), [20.0 * k_b1])
+    v_s = get_values(stiff, names)
+    lo_exp = interval("L_peak1", names, v_s, stiff, "exp")[0]
+    lo_smooth = interval("L_peak1", names, v_s, stiff, "smooth_exp")[0]
+    assert lo_exp < lo_smooth == pytest.approx(2.0 * np.e * a / k_b1 * (1 + BOUND_MARGIN))
+
+    kw = dict(window_s=0.03, pre_s=cal_fit.PRE_S)
+    j = names.index("L_rise1")
+    for shared in (False, True):
+        prob = CalibrationProblem([drop], names, vehicle=veh, peak_form="smooth_exp",
+                                  shared_forms=shared, **kw)
+        for z, bound in ((-40.0, lo), (40.0, hi)):
+            theta = prob.theta_from(veh, [0.0])
+            theta[j] = z
+            assert prob.values(theta)[j] == pytest.approx(bound, rel=1e-9)
+            hc = prob.vehicle_at(theta).honeycomb  # validated
+            assert hc.peak_rise1 is None and hc.excess1.shape == (EXP_POINTS,)
+            r, failed = prob.residuals(theta)
+            assert not failed and np.all(np.isfinite(r))
+
+
 def test_bad_peak_form_and_model_form_are_refused_by_name():
     drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
     for kw, rule in ((dict(params=cal.DEFAULT_PARAMS, peak_form="exp"), "needs peak1"),
                      (dict(params=PARAMS + ("L_rise1",), peak_form="exp"), "L_rise1"),
-                     (dict(params=PARAMS, peak_form="cosine"), "None, 'exp' or 'rise_exp'"),
+                     (dict(params=PARAMS, peak_form="cosine"),
+                      "None, 'exp', 'rise_exp' or 'smooth_exp'"),
                      (dict(params=PARAMS, peak_form="rise_exp"), "needs L_rise1"),
                      (dict(params=PARAMS, model_form="yes"), "'auto', True or False"),
                      (dict(params=cal.DEFAULT_PARAMS, model_form=True), "needs peak1")):
@@ -154,38 +222,40 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
     assert args.func(args) == 0
     text = capsys.readouterr().out
     assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
-    assert "peak shape: fitted as linear" in text and "best supported: rise_exp" in text
+    assert "peak shape: fitted as linear" in text and "best supported: smooth_exp" in text
     rep = json.loads((out / "fit_report.json").read_text())
     assert rep["interval_reported"] == "std_error_total"
-    assert rep["misfit"]["model_form"]["best_supported"] == "rise_exp"
+    assert rep["misfit"]["model_form"]["best_supported"] == "smooth_exp"
     k_b1 = rep["parameters"]["k_b1"]
     assert k_b1["std_error_total"] > 2.0 * max(k_b1["std_error"], k_b1["std_error_hac"])
 
 
+@pytest.mark.parametrize("form", ["rise_exp", "smooth_exp"])
 def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_rise(
-        tmp_path, capsys):
-    """``jaxland fit --peak-form rise_exp``: with L_rise1 among the parameters the fitted
-    vehicle is the law's rise with the exponential table (it loads and validates), and the
-    report names the form; without L_rise1, exit 2 and one line naming the field."""
+        tmp_path, capsys, form):
+    """``jaxland fit --peak-form rise_exp`` (or ``smooth_exp``): with L_rise1 among the
+    parameters the fitted vehicle is the law's rise with the exponential table (the smooth
+    form: its table, which holds the build-up; it loads and validates), and the report names
+    the form; without L_rise1, exit 2 and one line naming the field."""
     from jaxland.cli import main
 
     toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=5, artefacts=dict(peak_mode="physical"))
     vr.write_nominal(tmp_path)
     params = ",".join(PARAMS + ("L_rise1",))
     out = tmp_path / "fit"
-    assert main(["fit", str(toml), "--params", params, "--peak-form", "rise_exp",
+    assert main(["fit", str(toml), "--params", params, "--peak-form", form,
                  "--windows", "0.01,0.03", "--refine-window-s", "0.1", "--no-plots", "--quiet",
                  "--out", str(out)]) == 0
     hc = jl.load_vehicle(out / "fitted_vehicle.toml").honeycomb
-    assert hc.peak_ratio1 is None and hc.peak_rise1 is not None
-    assert hc.excess1.shape == (EXP_POINTS - 1,)
+    assert hc.peak_ratio1 is None and (hc.peak_rise1 is not None) == (form == "rise_exp")
+    assert hc.excess1.shape == (EXP_POINTS - (form == "rise_exp"),)
     rep = json.loads((out / "fit_report.json").read_text())
-    assert rep["misfit"]["model_form"]["form"] == "rise_exp"
+    assert rep["misfit"]["model_form"]["form"] == form
     capsys.readouterr()
-    assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-form", "rise_exp",
+    assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-form", form,
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "peak_form = 'rise_exp': needs L_rise1" in err[0], err
+    assert len(err) == 1 and f"peak_form = '{form}': needs L_rise1" in err[0], err
 
 
 def test_compare_models_checks_the_peak_form_against_its_peak_model(tmp_path, capsys):
