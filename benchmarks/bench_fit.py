@@ -8,20 +8,19 @@ central finite differences of the calibration loss.
     .venv/bin/python benchmarks/bench_fit.py --coverage 20 [--quick]
     .venv/bin/python benchmarks/bench_fit.py --fit-time [--quick]
 
-``--coverage N`` measures, over N noise seeds, how often the reported 95 % intervals (value
-+/- 1.96 standard errors, the classical and the HAC one) contain the truth, on rig data the
-model can represent and on rig data with artefacts it lacks (the rig's crush-peak shape; that
-peak with a 500 Hz two-pole low-pass on every sensor), and how often they contain the
-pseudo-truth (the same fit on the artefact record without noise: what the wrong model
-converges to; intervals that are honest about the scatter cover it even where the model's
-bias keeps them off the truth). It stores its result under "coverage" in bench_fit.json
-(the rest of the file kept); ``--quick`` (3 seeds) writes out/bench_fit_quick.json instead and
-never touches the committed results. ``--peak-model`` (``peak_model_study``) fits the
-crush-peak model to rig records whose peak shape differs from the law's, into "peak_model".
-``--fit-time`` times cold fits (``FIT_TIME_CASES``: the default fit, the crush-peak model on
-rig records, a joint fit, the lab-format record), each in a fresh process so that the
-compilation counts, with the optimiser's work and the load average of the shared machine,
-into "fit_time".
+``--coverage N`` measures, over N noise seeds, how often the reported 95 % intervals (value +/-
+1.96 standard errors, the classical and the HAC one) contain the truth, on rig data the model
+can represent and on rig data with artefacts it lacks (the rig's crush-peak shape; that peak
+with a 500 Hz two-pole low-pass on every sensor), and how often they contain the pseudo-truth
+(the same fit on the artefact record without noise, weighted by the rig's noise: what the wrong
+model converges to; intervals that are honest about the scatter cover it even where the model's
+bias keeps them off the truth). It stores its result under "coverage" in bench_fit.json (the
+rest of the file kept); ``--quick`` (3 seeds) writes out/bench_fit_quick.json instead and never
+touches the committed results. ``--peak-model`` (``peak_model_study``) fits the crush-peak
+model to rig records whose peak shape differs from the law's, into "peak_model". ``--fit-time``
+times cold fits (``FIT_TIME_CASES``: the default fit, the crush-peak model on rig records, a
+joint fit, the lab-format record), each in a fresh process so that the compilation counts, with
+the optimiser's work and the load average of the shared machine, into "fit_time".
 
 Variants (``VARIANTS``): ``euler`` (symplectic Euler, hard switches) and ``verlet_smooth``
 (velocity Verlet with 1e-6 m / 10 N switch smoothing, the gradient-quality study's fitting
@@ -191,6 +190,31 @@ def _fit_or_compare(drops, params, compare: bool):
     return cmp["_results"][chosen], time.perf_counter() - t0
 
 
+def _clean_drop(height: float, **kw):
+    """The rig's noise-free record weighted as its noisy ones are (by the rig's noise, not the
+    loader's floor, whose ratios between the channels differ): what the fit converges to
+    without the scatter, its pseudo-truth."""
+    clean = vr.drop_test(height, noise=None, **kw)
+    clean.noise_std.update({c: vr.NOISE[c] for c in clean.noise_std})
+    return clean
+
+
+def _coverage_case(rig: dict, truth, names):
+    """(drop_test keywords, fitted parameters, compare) of a ``COVERAGE_CASES`` entry."""
+    kw = {k: v for k, v in rig.items() if k not in ("truth_peak", "fit_extra", "compare")}
+    if "truth_peak" in rig:
+        kw["vehicle"] = set_values(truth, ("peak1", "L_peak1"), np.array(rig["truth_peak"]))
+    return kw, names + tuple(rig.get("fit_extra", ())), bool(rig.get("compare"))
+
+
+def _pseudo_truth(height: float, rig: dict, truth, names) -> np.ndarray:
+    kw, params, compare = _coverage_case(rig, truth, names)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cal.MisfitWarning)
+        pseudo, _ = _fit_or_compare([_clean_drop(height, **kw)], params, compare)
+    return pseudo.values[:len(names)]
+
+
 def coverage(n_seeds: int, height: float = 0.2, only: str | None = None) -> dict:
     """Coverage of the 95 % intervals over ``n_seeds`` noise seeds per ``COVERAGE_CASES``
     (``only``: the cases whose label contains it)."""
@@ -203,16 +227,8 @@ def coverage(n_seeds: int, height: float = 0.2, only: str | None = None) -> dict
     for label, rig in COVERAGE_CASES.items():
         if only and only not in label:
             continue
-        compare = bool(rig.get("compare"))
-        kw = {k: v for k, v in rig.items() if k not in ("truth_peak", "fit_extra", "compare")}
-        if "truth_peak" in rig:
-            kw["vehicle"] = set_values(truth, ("peak1", "L_peak1"), np.array(rig["truth_peak"]))
-        params = names + tuple(rig.get("fit_extra", ()))  # the coverage: of the first n
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", cal.MisfitWarning)
-            pseudo, _ = _fit_or_compare([vr.drop_test(height, noise=None, **kw)], params,
-                                        compare)
-        p_pseudo = pseudo.values[:n]
+        kw, params, compare = _coverage_case(rig, truth, names)  # the coverage: of names
+        p_pseudo = _pseudo_truth(height, rig, truth, names)
         rows = []
         for seed in range(n_seeds):
             with warnings.catch_warnings():
@@ -474,10 +490,7 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
                     **_recovery_form(r, base, p_true))
 
     for shape in vr.PEAK_SHAPES:
-        # the noise-free record weighted as the noisy ones (by the rig's noise, not the
-        # loader's floor): what the fit converges to on this shape, without the scatter
-        clean = vr.drop_test(height, peak_shape=shape, noise=None, **rig)
-        clean.noise_std.update({c: vr.NOISE[c] for c in clean.noise_std})
+        clean = _clean_drop(height, peak_shape=shape, **rig)
         kw = dict(params=names)
         if model == "true_shape":  # the rig's table in the model; started at the truth (at
             # the nominal k the folds table's fall is steeper than the rule's k / 2): this
@@ -669,6 +682,22 @@ def main_coverage(args) -> int:
         atomic_write_text(path, json.dumps(data, indent=2) + "\n")
         print(f"rewrote the coverage summaries of {path}")
         return 0
+    if args.coverage_pseudo_truth:  # refit the stored cases' pseudo-truths (not their seeds)
+        path = Path(args.out) / "bench_fit.json"
+        data = json.loads(path.read_text())
+        cov_ = data["coverage"]
+        truth, names = vr.truth_vehicle(), tuple(cov_["params"])
+        for label, case in cov_["cases"].items():
+            p = _pseudo_truth(cov_["drop_height_m"], case["rig"], truth, names)
+            case["pseudo_truth"] = dict(zip(names, p.tolist()))
+            case.update(coverage_summary(case, names))
+            print(f"[coverage] {label}: pseudo-truth "
+                  + ", ".join(f"{n} {e:+.2%}" for n, e in
+                              case["bias_of_pseudo_truth_rel"].items()), flush=True)
+        from calibration._report import atomic_write_text
+
+        atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+        return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
            else "peak_recovery" if args.peak_recovery
            else "offset_coverage" if args.offset_coverage else "coverage")
@@ -727,6 +756,10 @@ def main(argv=None) -> int:
     ap.add_argument("--coverage-summary", action="store_true",
                     help="recompute the coverage summaries from the runs stored in "
                          "bench_fit.json (no fits)")
+    ap.add_argument("--coverage-pseudo-truth", action="store_true",
+                    help="refit each stored coverage case's pseudo-truth (the noise-free "
+                         "record weighted by the rig's noise) and recompute its summary; the "
+                         "seeds' fits are kept")
     ap.add_argument("--peak-model", action="store_true",
                     help="only the crush-peak model study (into bench_fit.json's "
                          "'peak_model'): rig peak shapes unlike the law's, prediction, joint fit")
@@ -755,7 +788,8 @@ def main(argv=None) -> int:
     if args.one_fit:
         print(json.dumps(one_fit(args.one_fit)))
         return 0
-    if args.coverage or args.quick or args.coverage_summary or args.peak_model or \
+    if args.coverage or args.quick or args.coverage_summary or args.coverage_pseudo_truth or \
+            args.peak_model or \
             args.fit_time or args.peak_recovery or args.offset_coverage:
         return main_coverage(args)
     if args.replot:

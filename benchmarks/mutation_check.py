@@ -125,10 +125,19 @@ MUTATIONS = [
       ("tests/test_crush_peak.py",
        "tests/test_calibration_form.py::test_the_shared_table_lands_as_each_forms_own_vehicle")),
     M("rise_exp_bound_without_span", "the built-up exponential's rise bounded as if its decay "
-      "were L_peak1 long", "- _span(form) * v(\"L_peak1\") - m * hc.x_L2)",
-      "- v(\"L_peak1\") - m * hc.x_L2)",
+      "were L_peak1 long", "- _span(form) * v(\"L_peak1\") - m * hc.x_L2\n",
+      "- v(\"L_peak1\") - m * hc.x_L2\n",
       ("tests/test_calibration_form.py::"
        "test_the_built_up_exp_forms_rise_is_bounded_by_its_own_tables_room",), ("calibration",)),
+    M("smooth_rise_bound_as_linear", "the smooth form's build-up bounded as if it were the "
+      "linear rise (a / k_b1)", "math.e * a * lp / den * (1.0 + m)", "a / v(\"k_b1\") * (1.0 + m)",
+      ("tests/test_calibration_form.py::test_the_smooth_forms_build_up_stays_below_k_b1",),
+      ("calibration",)),
+    M("smooth_top_without_factor", "the smooth form's top without its 1 / (1 + r)",
+      "return jnp.exp(r * jnp.log(r / (1.0 + r))) / (1.0 + r)",
+      "return jnp.exp(r * jnp.log(r / (1.0 + r)))",
+      ("tests/test_calibration_form.py::test_the_smooth_form_builds_up_from_zero_to_its_height",),
+      ("calibration",)),
 ]
 
 
