@@ -671,6 +671,9 @@ def fit_time(quick: bool = False) -> dict:
 
 
 def main_coverage(args) -> int:
+    if args.coverage_summary and args.coverage_pseudo_truth:
+        raise SystemExit("--coverage-summary and --coverage-pseudo-truth: give one (the "
+                         "second recomputes the summaries too)")
     if args.coverage_summary:  # recompute the summaries from the stored runs (no fits)
         path = Path(args.out) / "bench_fit.json"
         data = json.loads(path.read_text())
@@ -697,6 +700,7 @@ def main_coverage(args) -> int:
         from calibration._report import atomic_write_text
 
         atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+        print(f"rewrote the coverage pseudo-truths and summaries of {path}")
         return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
            else "peak_recovery" if args.peak_recovery

@@ -133,6 +133,24 @@ MUTATIONS = [
       "linear rise (a / k_b1)", "math.e * a * lp / den * (1.0 + m)", "a / v(\"k_b1\") * (1.0 + m)",
       ("tests/test_calibration_form.py::test_the_smooth_forms_build_up_stays_below_k_b1",),
       ("calibration",)),
+    M("smooth_den_floor_tiny", "the smooth form's rise-bound divisor floored at 1e-300 (its "
+      "derivative is 0 * inf where another form is selected)",
+      "0.5 * v(\"k_b1\") * lp)", "1e-300)",
+      ("tests/test_calibration_form.py::"
+       "test_the_smooth_forms_bounds_stay_open_and_differentiable_on_stiff_ground",),
+      ("calibration",)),
+    M("smooth_peak_bound_without_floor", "peak1's upper bound in the smooth form, L_peak1 "
+      "held, without its floor on L_peak1 (2 e a / k_b1)",
+      "jnp.minimum(a_hi, L / smooth * (1.0 - m))", "a_hi",
+      ("tests/test_calibration_form.py::"
+       "test_the_smooth_forms_bounds_stay_open_and_differentiable_on_stiff_ground",),
+      ("calibration",)),
+    M("smooth_fitted_peak_bound_without_floor", "peak1's upper bound in the smooth form, "
+      "L_peak1 fitted, without its floor on L_peak1 (2 e a / k_b1)",
+      "span * jnp.maximum(2.0 / v(\"k\"), smooth)", "span * 2.0 / v(\"k\")",
+      ("tests/test_calibration_form.py::"
+       "test_the_smooth_forms_bounds_stay_open_and_differentiable_on_stiff_ground",),
+      ("calibration",)),
     M("smooth_top_without_factor", "the smooth form's top without its 1 / (1 + r)",
       "return jnp.exp(r * jnp.log(r / (1.0 + r))) / (1.0 + r)",
       "return jnp.exp(r * jnp.log(r / (1.0 + r)))",

@@ -17,9 +17,9 @@ keeps it physical while the optimiser works on an unconstrained number.
   largest peak those leave room for), and r1 F1 < F2; L_rise1 between (r1 - 1) F1 / k_b1 (a
   build-up slower than the elastic rise) and the room the decay (L_peak1, or EXP_SPAN
   L_peak1 in the exponential forms) leaves before x_L2; in the smooth form, whose build-up
-  lies inside its table, between the length whose steepest build-up is k_b1 and
-  SMOOTH_RISE_MAX L_peak1 (L_peak1 there at least 2 e (r1 - 1) F1 / k_b1, so that interval
-  stays open). A sharper
+  lies inside its table, between a length that keeps its steepest build-up below k_b1
+  (conservative by up to a factor e) and SMOOTH_RISE_MAX L_peak1 (L_peak1 there at least
+  2 e (r1 - 1) F1 / k_b1, so that interval stays open). A sharper
   measured peak than the rule allows ends the fit at the bound (the peak's work, not its
   shape), never at an invalid vehicle: every bound a rule sets is moved inside by
   ``BOUND_MARGIN`` (1e-9) of that rule's own scale (the slope k / 2, the plateau's end x_L2 or
@@ -118,7 +118,7 @@ EXP_SPAN, EXP_POINTS = 8.0, 97
 # in L_peak1; the law's forms: 1
 EXP_TABLE_SPAN = {"exp": EXP_SPAN, "rise_exp": EXP_SPAN, "smooth_exp": EXP_SPAN}
 # the smooth form's longest build-up, in L_peak1: its table's cut at EXP_SPAN L_peak1 then
-# leaves at most 0.6 % of its top (as L_rise1 / L_peak1 grows the form tends to c exp(-c /
+# leaves under 0.7 % of its top (as L_rise1 / L_peak1 grows the form tends to c exp(-c /
 # L_peak1), which the bump-shaped peaks of records ask for)
 SMOOTH_RISE_MAX = 16.0
 # how far inside each rule-set bound the transform keeps a value, in units of the rule's own
@@ -205,7 +205,9 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
         raise jl.ConfigError("peak_form", form, "must be one of " + ", ".join(PEAK_FORMS))
     if form in RISE_FORMS and hc.peak_rise1 is None:
         raise jl.ConfigError("honeycomb.peak_rise1_mm", 0.0, f"the {form} form builds its "
-                             "exponential peak up over this rise: give one (> 0)")
+                             "exponential peak up over this rise: give one (> 0)"
+                             if form == "rise_exp" else "the smooth_exp form's build-up "
+                             "length scale (1 - exp(-c / L_rise1)): give one (> 0)")
     n = EXP_POINTS - 1 if form == "rise_exp" else EXP_POINTS
     excess = jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0
     if form == "smooth_exp":
@@ -364,13 +366,14 @@ def _bounds(n, names, values, vehicle, form=None):
         a = (v("peak1") - 1.0) * v("F1")
         lo = a / v("k_b1") * (1.0 + m)
         hi = hc.x_L2 - v("F1") / v("k_b1") - _span(form) * v("L_peak1") - m * hc.x_L2
-        if form is None or form == "smooth_exp" or not isinstance(form, str):
+        if form == "smooth_exp" or (form is not None and not isinstance(form, str)):
             # smooth_exp: its steepest build-up a / (L_r smooth_top(L_r / L_p)) < k_b1 holds
             # for L_r >= e a L_p / (k_b1 L_p - e a) (smooth_top(r) >= 1 / (e (1 + r))), which
             # L_peak1's bound keeps below L_p; its table holds the build-up: L_r up to
-            # SMOOTH_RISE_MAX L_p
+            # SMOOTH_RISE_MAX L_p. Inside L_peak1's bounds den >= k_b1 L_p / 2; the floor
+            # keeps the other forms' derivatives finite where L_p is shorter
             lp = v("L_peak1")
-            den = jnp.maximum(v("k_b1") * lp - math.e * a, 1e-300)
+            den = jnp.maximum(v("k_b1") * lp - math.e * a, 0.5 * v("k_b1") * lp)
             lo = _in_form(form, "smooth_exp", math.e * a * lp / den * (1.0 + m), lo)
             hi = _in_form(form, "smooth_exp", SMOOTH_RISE_MAX * lp * (1.0 - m), hi)
         return lo, hi

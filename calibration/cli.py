@@ -284,8 +284,9 @@ def add_subcommands(subparsers) -> None:
                         "linear fall (built up over L_rise1 when that is fitted); exp, an "
                         "exponential decay of length L_peak1; rise_exp, that decay built up "
                         "linearly over L_rise1; smooth_exp, that decay built up smoothly, "
-                        "(1 - exp(-c / L_rise1)) exp(-c / L_peak1) (with L_rise1 fitted for "
-                        "both) (default law)")
+                        "(1 - exp(-c / L_rise1)) exp(-c / L_peak1), peak1 its top and L_rise1 "
+                        "the build-up's length scale (with L_rise1 fitted for both) (default "
+                        "law)")
     f.add_argument("--no-model-form", action="store_true",
                    help="leave out the peak-shape (model-form) term, on by default when the "
                         "fit has the crush peak: the values refitted in the peak's other forms "

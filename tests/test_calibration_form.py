@@ -195,6 +195,44 @@ def test_the_smooth_forms_build_up_stays_below_k_b1():
             assert not failed and np.all(np.isfinite(r))
 
 
+def test_the_smooth_forms_bounds_stay_open_and_differentiable_on_stiff_ground():
+    """Where the ground is much stiffer than k_b1 the smooth form's own floor on L_peak1
+    (2 e a / k_b1) binds: peak1's upper bound keeps the intervals after it open, with L_peak1
+    fitted and with it fixed, and the transform's reverse-mode derivatives stay finite in
+    every form, also where L_peak1 lies below the smooth form's floor (its branch unselected)."""
+    names = PARAMS + ("L_rise1",)
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    veh = switch_on(set_values(drop.vehicle, ("L_rise1",), [1e-3]), names)
+    k_b1, f1 = get_values(veh, ("k_b1", "F1"))
+    # a secondary stage far stronger, so that its rule (r1 F1 < F2) leaves peak1 to the room
+    stiff = set_values(veh, ("k", "F2"), [20.0 * k_b1, 20.0 * f1])
+    i_r, i_l = names.index("peak1"), names.index("L_peak1")
+
+    def steepest(ratio, length, rise):  # the smooth form's build-up at its onset [N/m]
+        return (ratio - 1.0) * f1 / (rise * _top(rise / length))
+
+    top = get_values(stiff, names)
+    top[i_r] = interval("peak1", names, top, stiff, "smooth_exp")[1]
+    lo_l, hi_l = interval("L_peak1", names, top, stiff, "smooth_exp")
+    assert lo_l < hi_l
+    top[i_l] = lo_l * (1 + 1e-9)
+    lo_r, hi_r = interval("L_rise1", names, top, stiff, "smooth_exp")
+    assert lo_r < hi_r and steepest(top[i_r], top[i_l], lo_r) < k_b1
+    fixed = cal.DEFAULT_PARAMS + ("peak1", "L_rise1")  # L_peak1 held at 1 mm
+    short = set_values(stiff, ("L_peak1",), [1e-3])
+    v_f = get_values(short, fixed)
+    v_f[fixed.index("peak1")] = interval("peak1", fixed, v_f, short, "smooth_exp")[1]
+    lo_r, hi_r = interval("L_rise1", fixed, v_f, short, "smooth_exp")
+    assert lo_r < hi_r and steepest(v_f[fixed.index("peak1")], 1e-3, lo_r) < k_b1
+
+    z = to_unconstrained(stiff, names, "linear")
+    z[i_l] = -12.0  # L_peak1 near the linear form's floor 2 a / k, far below 2 e a / k_b1
+    jac = jax.jit(jax.jacrev(lambda z, code: from_unconstrained(z, names, stiff, code)))
+    for form in PEAK_FORMS:
+        j = np.asarray(jac(jnp.asarray(z), jnp.asarray(FORM_INDEX[form])))
+        assert np.all(np.isfinite(j)), form
+
+
 def test_bad_peak_form_and_model_form_are_refused_by_name():
     drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
     for kw, rule in ((dict(params=cal.DEFAULT_PARAMS, peak_form="exp"), "needs peak1"),
