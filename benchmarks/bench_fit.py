@@ -165,6 +165,11 @@ COVERAGE_CASES = {
         peak_mode="physical", peak_shape="exp", fit_extra=("peak1", "L_peak1")),
     "physical folds peak, fitted with the linear peak": dict(
         peak_mode="physical", peak_shape="folds", fit_extra=("peak1", "L_peak1")),
+    # a bump that starts flat, which no peak form is near: with the linear peak, with its rise
+    "physical slow peak, fitted with the linear peak": dict(
+        peak_mode="physical", peak_shape="slow", fit_extra=("peak1", "L_peak1")),
+    "physical slow peak, fitted with the peak and its rise": dict(
+        peak_mode="physical", peak_shape="slow", fit_extra=("peak1", "L_peak1", "L_rise1")),
     # --compare-models: the model the data support (no peak, or the linear peak with its
     # peak-shape term) is the one reported
     "representable, --compare-models": dict(crush_peak=0.0, compare=True),
@@ -274,7 +279,9 @@ def _form_row(r, n: int) -> dict:
                     r.std_errors_total[:n] ** 2 - term ** 2, 0.0)).tolist(),
                 form_term=term.tolist(), best_form=mf["best_supported"],
                 plausible_forms=mf["plausible"], failed_forms=mf["failed"],
-                best_form_values=[best["values"][p] for p in r.names[:n]])
+                best_form_values=[best["values"][p] for p in r.names[:n]],
+                best_form_shape={p: best["values"][p] for p in ("peak1", "L_peak1", "L_rise1")
+                                 if p in best["values"]})
 
 
 def coverage_summary(case: dict, names) -> dict:
@@ -523,6 +530,7 @@ def _recovery_form(r, base, p_true) -> dict:
         return dict(model_form=False)
     v = r.values[:len(base)]
     return dict(model_form=True, best_form=row["best_form"],
+                best_form_shape=row["best_form_shape"],
                 plausible_forms=row["plausible_forms"], failed_forms=row["failed_forms"],
                 best_form_rel_error=dict(zip(base, (np.array(row["best_form_values"])
                                                     / p_true - 1).tolist())),

@@ -19,7 +19,8 @@ what a real rig records, with what a real rig adds:
   crush peak rises elastically and falls linearly, ``Honeycomb.peak_ratio1``): ``"bump"``
   (the default above), ``"exp"`` (a jump at the crush onset decaying as exp(-p / p0)) and
   ``"folds"`` (a fold-by-fold ripple, |cos(pi p / (2 p0))| exp(-p / (4 p0)): every wall fold
-  re-peaks, decaying);
+  re-peaks, decaying) and ``"slow"`` (a bump that starts flat, u^2 exp(2 (1 - u)): the
+  overshoot builds up slowly at first; no peak form of ``calibration`` is near it);
 * ``peak_mode`` says where the crush peak acts. ``"sensor"`` (the default, and the bundled
   records'): the multiplier above on the two force channels only, a sensor-side artefact; the
   stroke and the body acceleration are those of the drop without a peak, so no honeycomb law
@@ -103,7 +104,7 @@ def truth_vehicle(base: jl.Vehicle | None = None, *,
     return jl.validate_vehicle(set_values(base, names, vals))
 
 
-PEAK_SHAPES = ("bump", "exp", "folds")
+PEAK_SHAPES = ("bump", "exp", "folds", "slow")
 
 
 def _crush_shape(p, shape: str = "bump"):
@@ -115,6 +116,8 @@ def _crush_shape(p, shape: str = "bump"):
         return np.where(p > 0.0, np.exp(-u), 0.0)
     if shape == "folds":
         return np.where(p > 0.0, np.abs(np.cos(0.5 * np.pi * u)) * np.exp(-0.25 * u), 0.0)
+    if shape == "slow":
+        return u * u * np.exp(2.0 * (1.0 - u))
     raise jl.ConfigError("peak_shape", shape, "must be one of " + ", ".join(PEAK_SHAPES))
 
 
