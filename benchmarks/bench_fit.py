@@ -419,6 +419,43 @@ OFFSET_STUDY_SEEDS = 20000  # first noise seed of --offset-coverage
 OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as long
 
 
+RATE_STUDY_RATES_HZ = (5000.0, 20000.0)  # the rig's rate, and 4 times it
+RATE_STUDY_CASE = "physical crush peak (+10 %, 1 mm), fitted with the peak"
+
+
+def sample_rate_study(n_seeds: int, height: float = 0.2) -> dict:
+    """The coverage case ``RATE_STUDY_CASE`` (the law's own peak in the truth and the model:
+    representable data) over ``n_seeds`` noise seeds at each of ``RATE_STUDY_RATES_HZ``: per
+    parameter, the reported (total) interval's coverage and the values' scatter over the
+    seeds against their mean reported standard error (1 where the error is right)."""
+    truth = vr.truth_vehicle()
+    names = cal.DEFAULT_PARAMS
+    p_true = get_values(truth, names)
+    kw, params, _ = _coverage_case(COVERAGE_CASES[RATE_STUDY_CASE], truth, names)
+    n = len(names)
+    out = dict(case=RATE_STUDY_CASE, params=list(names), drop_height_m=height, z=Z95,
+               seeds=[1000, 1000 + n_seeds - 1], rates={})
+    for rate in RATE_STUDY_RATES_HZ:
+        vals, se = [], []
+        for seed in range(1000, 1000 + n_seeds):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                r, _ = _fit([vr.drop_test(height, seed=seed, sample_rate_Hz=rate, **kw)],
+                            params=params)
+            vals.append(r.values[:n])
+            se.append(r.std_errors_total[:n])
+        vals, se = np.array(vals), np.array(se)
+        inside = np.abs(vals - p_true) <= Z95 * se
+        out["rates"][f"{rate:g}"] = dict(
+            sample_rate_Hz=rate, coverage=dict(zip(names, inside.mean(axis=0).tolist())),
+            scatter_over_se=dict(zip(names, (vals.std(axis=0, ddof=1)
+                                             / se.mean(axis=0)).tolist())),
+            mean_se_rel=dict(zip(names, (se.mean(axis=0) / p_true).tolist())))
+        print(f"[sample rate] {rate:g} Hz: k_b1 coverage {inside[:, 3].mean():.2f}, scatter / "
+              f"SE {vals[:, 3].std(ddof=1) / se[:, 3].mean():.2f}", flush=True)
+    return out
+
+
 def offset_coverage(n_seeds: int, height: float = 0.2) -> dict:
     """Coverage of the classical 95 % intervals on representable rig data (no peak) over
     ``n_seeds`` noise seeds, with the record starting ``OFFSET_STUDY_PRE_TRIGGER_S`` before
@@ -712,8 +749,11 @@ def main_coverage(args) -> int:
         return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
            else "peak_recovery" if args.peak_recovery
-           else "offset_coverage" if args.offset_coverage else "coverage")
-    if args.offset_coverage:
+           else "offset_coverage" if args.offset_coverage
+           else "sample_rate_study" if args.sample_rate_study else "coverage")
+    if args.sample_rate_study:
+        result = sample_rate_study(3 if args.quick else args.sample_rate_study)
+    elif args.offset_coverage:
         result = offset_coverage(5 if args.quick else args.offset_coverage)
     elif args.peak_recovery:
         result = peak_recovery(2 if args.quick else args.peak_recovery,
@@ -795,6 +835,10 @@ def main(argv=None) -> int:
                     help="coverage of the classical intervals on representable data over N "
                          "seeds, with a short and a long free fall before touchdown (the "
                          "sensors' offsets; bench_fit.json's 'offset_coverage')")
+    ap.add_argument("--sample-rate-study", type=int, default=0, metavar="N",
+                    help="the law's own peak fitted with it (representable data) over N seeds "
+                         "at 5 and 20 kHz: each parameter's coverage and scatter over its "
+                         "reported error (bench_fit.json's 'sample_rate_study')")
     ap.add_argument("--one-fit", metavar="CASE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one_fit:
@@ -802,7 +846,8 @@ def main(argv=None) -> int:
         return 0
     if args.coverage or args.quick or args.coverage_summary or args.coverage_pseudo_truth or \
             args.peak_model or \
-            args.fit_time or args.peak_recovery or args.offset_coverage:
+            args.fit_time or args.peak_recovery or args.offset_coverage or \
+            args.sample_rate_study:
         return main_coverage(args)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"
