@@ -212,12 +212,12 @@ def _coverage_case(rig: dict, truth, names):
     return kw, names + tuple(rig.get("fit_extra", ())), bool(rig.get("compare"))
 
 
-def _pseudo_truth(height: float, rig: dict, truth, names) -> np.ndarray:
-    kw, params, compare = _coverage_case(rig, truth, names)
+def _pseudo_truth(height: float, kw: dict, params, compare: bool, n: int) -> np.ndarray:
+    """The first ``n`` values of the case's fit (``_coverage_case``) to ``_clean_drop``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cal.MisfitWarning)
         pseudo, _ = _fit_or_compare([_clean_drop(height, **kw)], params, compare)
-    return pseudo.values[:len(names)]
+    return pseudo.values[:n]
 
 
 def coverage(n_seeds: int, height: float = 0.2, only: str | None = None) -> dict:
@@ -233,7 +233,7 @@ def coverage(n_seeds: int, height: float = 0.2, only: str | None = None) -> dict
         if only and only not in label:
             continue
         kw, params, compare = _coverage_case(rig, truth, names)  # the coverage: of names
-        p_pseudo = _pseudo_truth(height, rig, truth, names)
+        p_pseudo = _pseudo_truth(height, kw, params, compare, n)
         rows = []
         for seed in range(n_seeds):
             with warnings.catch_warnings():
@@ -736,7 +736,8 @@ def main_coverage(args) -> int:
         cov_ = data["coverage"]
         truth, names = vr.truth_vehicle(), tuple(cov_["params"])
         for label, case in cov_["cases"].items():
-            p = _pseudo_truth(cov_["drop_height_m"], case["rig"], truth, names)
+            p = _pseudo_truth(cov_["drop_height_m"], *_coverage_case(case["rig"], truth, names),
+                              len(names))
             case["pseudo_truth"] = dict(zip(names, p.tolist()))
             case.update(coverage_summary(case, names))
             print(f"[coverage] {label}: pseudo-truth "

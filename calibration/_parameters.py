@@ -336,20 +336,20 @@ def _span(form):
     """How many L_peak1 the primary peak's decay spans in ``form``: a name of PEAK_FORMS (None:
     the vehicle's own law) or a form's code (``FORM_INDEX``, traced under jit). EXP_SPAN for
     the exponential forms (their table), 1 for the law's linear fall, built up or not."""
-    if form is None or isinstance(form, str):
-        return EXP_TABLE_SPAN.get(form, 1.0)
-    code = jnp.asarray(form)
     out = 1.0
     for f, span in EXP_TABLE_SPAN.items():
-        out = jnp.where(code == FORM_INDEX[f], span, out)
+        out = _in_form(form, f, lambda span=span: span, out)
     return out
 
 
 def _in_form(form, name, a, b):
-    """``a`` where the primary peak's ``form`` (``_span``'s argument) is ``name``, else ``b``."""
+    """``a()`` where the primary peak's ``form`` (``_span``'s argument) is ``name``, else
+    ``b``: a name of PEAK_FORMS (or None) picks in Python, calling ``a`` only for ``name``;
+    a form's code (traced under jit) selects with ``where`` (``a()``'s value must be finite
+    in every form)."""
     if form is None or isinstance(form, str):
-        return a if form == name else b
-    return jnp.where(jnp.asarray(form) == FORM_INDEX[name], a, b)
+        return a() if form == name else b
+    return jnp.where(jnp.asarray(form) == FORM_INDEX[name], a(), b)
 
 
 def _bounds(n, names, values, vehicle, form=None):
@@ -366,17 +366,19 @@ def _bounds(n, names, values, vehicle, form=None):
         a = (v("peak1") - 1.0) * v("F1")
         lo = a / v("k_b1") * (1.0 + m)
         hi = hc.x_L2 - v("F1") / v("k_b1") - _span(form) * v("L_peak1") - m * hc.x_L2
-        if form == "smooth_exp" or (form is not None and not isinstance(form, str)):
-            # smooth_exp: its steepest build-up a / (L_r smooth_top(L_r / L_p)) < k_b1 holds
-            # for L_r >= e a L_p / (k_b1 L_p - e a) (smooth_top(r) >= 1 / (e (1 + r))), which
-            # L_peak1's bound keeps below L_p; its table holds the build-up: L_r up to
-            # SMOOTH_RISE_MAX L_p. Inside L_peak1's bounds den >= k_b1 L_p / 2; the floor
-            # keeps the other forms' derivatives finite where L_p is shorter
-            lp = v("L_peak1")
+        # smooth_exp: its steepest build-up a / (L_r smooth_top(L_r / L_p)) < k_b1 holds for
+        # L_r >= e a L_p / (k_b1 L_p - e a) (smooth_top(r) >= 1 / (e (1 + r))), which
+        # L_peak1's bound keeps below L_p; its table holds the build-up: L_r up to
+        # SMOOTH_RISE_MAX L_p. Inside L_peak1's bounds den >= k_b1 L_p / 2; the floor keeps
+        # the other forms' derivatives finite where L_p is shorter
+        lp = v("L_peak1")
+
+        def smooth_lo():
             den = jnp.maximum(v("k_b1") * lp - math.e * a, 0.5 * v("k_b1") * lp)
-            lo = _in_form(form, "smooth_exp", math.e * a * lp / den * (1.0 + m), lo)
-            hi = _in_form(form, "smooth_exp", SMOOTH_RISE_MAX * lp * (1.0 - m), hi)
-        return lo, hi
+            return math.e * a * lp / den * (1.0 + m)
+
+        return (_in_form(form, "smooth_exp", smooth_lo, lo),
+                _in_form(form, "smooth_exp", lambda: SMOOTH_RISE_MAX * lp * (1.0 - m), hi))
     if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
         return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3") * (1.0 - m)
     first = n in ("peak1", "L_peak1")
@@ -393,13 +395,14 @@ def _bounds(n, names, values, vehicle, form=None):
         if length in names:  # the length's interval below must stay open
             a_hi = 0.999 * room / (2.0 * span / v("k") + 1.0 / v(k_el))
             if first:
-                a_hi = _in_form(form, "smooth_exp", 0.999 * room / (
+                a_hi = _in_form(form, "smooth_exp", lambda: 0.999 * room / (
                     span * jnp.maximum(2.0 / v("k"), smooth) + 1.0 / v(k_el)), a_hi)
         else:  # the fixed length: falling slope a / L <= k / 2, the peak ends in the room
             L = hc.peak_length1 if first else hc.peak_length2
             a_hi = jnp.minimum(0.5 * v("k") * L * (1.0 - m), v(k_el) * (room - span * L))
             if first:
-                a_hi = _in_form(form, "smooth_exp", jnp.minimum(a_hi, L / smooth * (1.0 - m)),
+                a_hi = _in_form(form, "smooth_exp",
+                                lambda: jnp.minimum(a_hi, L / smooth * (1.0 - m)),
                                 a_hi)
         if first:  # r1 F1 < F2: the primary's peak stays below the secondary plateau
             a_hi = jnp.minimum(a_hi, v("F2") - v("F1") - m * v("F2"))
@@ -409,7 +412,8 @@ def _bounds(n, names, values, vehicle, form=None):
     # and the primary's leaves RISE_ROOM of it, so that L_rise1's interval stays open at any L
     lo = 2.0 * a / v("k") * (1.0 + m)
     if first:
-        lo = _in_form(form, "smooth_exp", jnp.maximum(lo, smooth * a * (1.0 + m)), lo)
+        lo = _in_form(form, "smooth_exp", lambda: jnp.maximum(lo, smooth * a * (1.0 + m)),
+                      lo)
     return lo, (room - a / v(k_el) - (RISE_ROOM * room if first else 0.0)) / span
 
 
