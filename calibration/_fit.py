@@ -1033,13 +1033,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                  MisfitWarning, stacklevel=2)
         best = mform["best_supported"]
         if form not in mform["plausible"]:
-            how = {"linear": "fit without L_rise1 and without peak_form",
-                   "rise": "fit with L_rise1 among the parameters and without peak_form",
-                   "exp": "fit without L_rise1, with peak_form='exp' (--peak-form exp)",
-                   "rise_exp": "fit with L_rise1 among the parameters and "
-                               "peak_form='rise_exp' (--peak-form rise_exp)",
-                   "smooth_exp": "fit with L_rise1 among the parameters and "
-                                 "peak_form='smooth_exp' (--peak-form smooth_exp)"}[best]
+            rise = best in RISE_FORMS  # how to fit in the best form, from its two traits
+            how = (("fit with L_rise1 among the parameters" if rise else "fit without L_rise1")
+                   + ((" and " if rise else ", with ")
+                      + f"peak_form='{best}' (--peak-form {best})" if best in EXP_TABLE_SPAN
+                      else " and without peak_form"))
             warn(
                 f"the data reject the crush peak's {form} form: the {best} form fits them "
                 f"better by a misfit-adjusted AIC of {mform['forms'][form]['daic_adjusted']:.3g}"
