@@ -235,7 +235,7 @@ def _cmd_predict(args) -> int:
 def add_subcommands(subparsers) -> None:
     """Register ``fit`` and ``predict`` on an argparse subparsers object."""
     from ._fit import INTEGRATOR, INTEGRATORS, REFINE_WINDOW_S, ROBUST_K, SMOOTHING, WINDOWS_S
-    from ._parameters import DEFAULT_PARAMS, PARAMS
+    from ._parameters import DEFAULT_PARAMS, EXP_TABLE_SPAN, PARAMS
 
     f = subparsers.add_parser(
         "fit", help="calibrate the quarter model to drop-test traces; write the fitted "
@@ -278,8 +278,7 @@ def add_subcommands(subparsers) -> None:
                         "L_peak1), report which the data support (likelihood ratio adjusted "
                         "for misfit, AIC, BIC) and where each misfits (model_comparison.json, "
                         "figures/model_comparison.png); the supported model is the fit written")
-    f.add_argument("--peak-form", choices=("law", "exp", "rise_exp", "smooth_exp"),
-                   default="law",
+    f.add_argument("--peak-form", choices=("law", *EXP_TABLE_SPAN), default="law",
                    help="the fitted crush peak's form (with peak1, L_peak1): law, the law's "
                         "linear fall (built up over L_rise1 when that is fitted); exp, an "
                         "exponential decay of length L_peak1; rise_exp, that decay built up "
