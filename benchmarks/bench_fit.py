@@ -421,6 +421,7 @@ OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as
 
 RATE_STUDY_RATES_HZ = (5000.0, 20000.0)  # the rig's rate, and 4 times it
 RATE_STUDY_CASE = "physical crush peak (+10 %, 1 mm), fitted with the peak"
+RATE_STUDY_BLOCK = 40  # seeds per block of the study's per-block figures
 
 
 def sample_rate_study(n_seeds: int, height: float = 0.2) -> dict:
@@ -446,10 +447,22 @@ def sample_rate_study(n_seeds: int, height: float = 0.2) -> dict:
             se.append(r.std_errors_total[:n])
         vals, se = np.array(vals), np.array(se)
         inside = np.abs(vals - p_true) <= Z95 * se
+
+        def summary(sel):
+            return dict(coverage=dict(zip(names, inside[sel].mean(axis=0).tolist())),
+                        scatter_over_se=dict(zip(names, (vals[sel].std(axis=0, ddof=1)
+                                                         / se[sel].mean(axis=0)).tolist())),
+                        bias_over_scatter=dict(zip(names, ((vals[sel] - p_true).mean(axis=0)
+                                                           / vals[sel].std(axis=0, ddof=1))
+                                                   .tolist())))
+        # the same figures per block of RATE_STUDY_BLOCK seeds: how far a block's own
+        # coverage and scatter wander from the whole study's (their sampling error)
+        blocks = [dict(seeds=[1000 + b, 1000 + min(b + RATE_STUDY_BLOCK, n_seeds) - 1],
+                       **summary(slice(b, b + RATE_STUDY_BLOCK)))
+                  for b in range(0, n_seeds, RATE_STUDY_BLOCK)
+                  if n_seeds - b >= RATE_STUDY_BLOCK]
         out["rates"][f"{rate:g}"] = dict(
-            sample_rate_Hz=rate, coverage=dict(zip(names, inside.mean(axis=0).tolist())),
-            scatter_over_se=dict(zip(names, (vals.std(axis=0, ddof=1)
-                                             / se.mean(axis=0)).tolist())),
+            sample_rate_Hz=rate, **summary(slice(None)), blocks=blocks,
             mean_se_rel=dict(zip(names, (se.mean(axis=0) / p_true).tolist())))
         print(f"[sample rate] {rate:g} Hz: k_b1 coverage {inside[:, 3].mean():.2f}, scatter / "
               f"SE {vals[:, 3].std(ddof=1) / se[:, 3].mean():.2f}", flush=True)

@@ -749,6 +749,27 @@ def calibration_offset_coverage() -> str:
                   rows)
 
 
+
+def calibration_sample_rate() -> str:
+    """The law's own peak fitted with it at two sample rates (``sample_rate_study`` in
+    bench_fit.json): per parameter, the total interval's coverage and the scatter over its
+    reported error, over all seeds and over each block of seeds."""
+    c = _load("bench_fit.json")["sample_rate_study"]
+    params = c["params"]
+    rows = []
+    for r in c["rates"].values():
+        parts = [(f"{c['seeds'][0]}-{c['seeds'][1]} (all)", r)]
+        parts += [(f"{b['seeds'][0]}-{b['seeds'][1]}", b) for b in r.get("blocks", [])]
+        for seeds, x in parts:
+            rows.append([f"{r['sample_rate_Hz'] / 1e3:g}", seeds,
+                         " ".join(f"{x['coverage'][p]:.2f}" for p in params),
+                         " ".join(f"{x['scatter_over_se'][p]:.2f}" for p in params)])
+    return _table(["sample rate [kHz]", "seeds",
+                   f"total 95 % interval covers the truth, per parameter ({', '.join(params)}) "
+                   "[-]",
+                   "scatter over the seeds / mean reported standard error, per parameter [-]"],
+                  rows)
+
 # --- design (design.json) -----------------------------------------------------------------------
 
 def _p(c) -> str:
@@ -867,6 +888,7 @@ TABLES = {
     "calibration-prediction": calibration_prediction,
     "calibration-coverage": calibration_coverage,
     "calibration-offset-coverage": calibration_offset_coverage,
+    "calibration-sample-rate": calibration_sample_rate,
     "design-verification": design_verification,
     "design-variables": design_variables,
     "design-wall": design_wall,
