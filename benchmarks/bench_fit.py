@@ -421,6 +421,7 @@ OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as
 
 RATE_STUDY_RATES_HZ = (5000.0, 20000.0)  # the rig's rate, and 4 times it
 RATE_STUDY_CASE = "physical crush peak (+10 %, 1 mm), fitted with the peak"
+RATE_STUDY_SEEDS = 1000  # first noise seed of --sample-rate-study (the coverage study's too)
 RATE_STUDY_BLOCK = 40  # seeds per block of the study's per-block figures
 
 
@@ -434,11 +435,12 @@ def sample_rate_study(n_seeds: int, height: float = 0.2) -> dict:
     p_true = get_values(truth, names)
     kw, params, _ = _coverage_case(COVERAGE_CASES[RATE_STUDY_CASE], truth, names)
     n = len(names)
+    first = RATE_STUDY_SEEDS
     out = dict(case=RATE_STUDY_CASE, params=list(names), drop_height_m=height, z=Z95,
-               seeds=[1000, 1000 + n_seeds - 1], rates={})
+               seeds=[first, first + n_seeds - 1], rates={})
     for rate in RATE_STUDY_RATES_HZ:
         vals, se = [], []
-        for seed in range(1000, 1000 + n_seeds):
+        for seed in range(first, first + n_seeds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 r, _ = _fit([vr.drop_test(height, seed=seed, sample_rate_Hz=rate, **kw)],
@@ -457,10 +459,9 @@ def sample_rate_study(n_seeds: int, height: float = 0.2) -> dict:
                                                    .tolist())))
         # the same figures per block of RATE_STUDY_BLOCK seeds: how far a block's own
         # coverage and scatter wander from the whole study's (their sampling error)
-        blocks = [dict(seeds=[1000 + b, 1000 + min(b + RATE_STUDY_BLOCK, n_seeds) - 1],
+        blocks = [dict(seeds=[first + b, first + b + RATE_STUDY_BLOCK - 1],
                        **summary(slice(b, b + RATE_STUDY_BLOCK)))
-                  for b in range(0, n_seeds, RATE_STUDY_BLOCK)
-                  if n_seeds - b >= RATE_STUDY_BLOCK]
+                  for b in range(0, n_seeds - RATE_STUDY_BLOCK + 1, RATE_STUDY_BLOCK)]
         out["rates"][f"{rate:g}"] = dict(
             sample_rate_Hz=rate, **summary(slice(None)), blocks=blocks,
             mean_se_rel=dict(zip(names, (se.mean(axis=0) / p_true).tolist())))

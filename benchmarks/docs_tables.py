@@ -749,7 +749,6 @@ def calibration_offset_coverage() -> str:
                   rows)
 
 
-
 def calibration_sample_rate() -> str:
     """The law's own peak fitted with it at two sample rates (``sample_rate_study`` in
     bench_fit.json): per parameter, the total interval's coverage and the scatter over its
@@ -769,6 +768,7 @@ def calibration_sample_rate() -> str:
                    "[-]",
                    "scatter over the seeds / mean reported standard error, per parameter [-]"],
                   rows)
+
 
 # --- design (design.json) -----------------------------------------------------------------------
 
