@@ -288,8 +288,11 @@ class _FormsHoneycomb(jl.Honeycomb):
 
         def pick(i):  # every form's numbers are finite: no NaN in the unselected branches
             out = tables["exp"][i]
-            for f in ("smooth_exp", "rise_exp", "rise", "linear"):
-                out = jnp.where(form == FORM_INDEX[f], tables[f][i], out)
+            # from exp's numbers, each other form's where it is the form; this order sets how
+            # XLA contracts the slopes' arithmetic, so the bits of every form's curve
+            for f in reversed(PEAK_FORMS):
+                if f != "exp":
+                    out = _in_form(form, f, lambda f=f: tables[f][i], out)
             return out
 
         a1, widths, e_c = pick(0), pick(3), pick(5)
