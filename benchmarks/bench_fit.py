@@ -733,34 +733,28 @@ def main_coverage(args) -> int:
     if args.coverage_summary and args.coverage_pseudo_truth:
         raise SystemExit("--coverage-summary and --coverage-pseudo-truth: give one (the "
                          "second recomputes the summaries too)")
-    if args.coverage_summary:  # recompute the summaries from the stored runs (no fits)
-        path = Path(args.out) / "bench_fit.json"
-        data = json.loads(path.read_text())
-        cov_ = data["coverage"]
-        for case in cov_["cases"].values():
-            case.update(coverage_summary(case, cov_["params"]))
-        from calibration._report import atomic_write_text
-
-        atomic_write_text(path, json.dumps(data, indent=2) + "\n")
-        print(f"rewrote the coverage summaries of {path}")
-        return 0
-    if args.coverage_pseudo_truth:  # refit the stored cases' pseudo-truths (not their seeds)
+    if args.coverage_summary or args.coverage_pseudo_truth:
+        # the stored runs' summaries recomputed (no fits); with --coverage-pseudo-truth each
+        # case's pseudo-truth refitted first (not its seeds)
         path = Path(args.out) / "bench_fit.json"
         data = json.loads(path.read_text())
         cov_ = data["coverage"]
         truth, names = vr.truth_vehicle(), tuple(cov_["params"])
         for label, case in cov_["cases"].items():
-            p = _pseudo_truth(cov_["drop_height_m"], *_coverage_case(case["rig"], truth, names),
-                              len(names))
-            case["pseudo_truth"] = dict(zip(names, p.tolist()))
-            case.update(coverage_summary(case, names))
-            print(f"[coverage] {label}: pseudo-truth "
-                  + ", ".join(f"{n} {e:+.2%}" for n, e in
-                              case["bias_of_pseudo_truth_rel"].items()), flush=True)
+            if args.coverage_pseudo_truth:
+                p = _pseudo_truth(cov_["drop_height_m"],
+                                  *_coverage_case(case["rig"], truth, names), len(names))
+                case["pseudo_truth"] = dict(zip(names, p.tolist()))
+            case.update(coverage_summary(case, cov_["params"]))
+            if args.coverage_pseudo_truth:
+                print(f"[coverage] {label}: pseudo-truth "
+                      + ", ".join(f"{n} {e:+.2%}" for n, e in
+                                  case["bias_of_pseudo_truth_rel"].items()), flush=True)
         from calibration._report import atomic_write_text
 
         atomic_write_text(path, json.dumps(data, indent=2) + "\n")
-        print(f"rewrote the coverage pseudo-truths and summaries of {path}")
+        print(f"rewrote the coverage {'pseudo-truths and ' if args.coverage_pseudo_truth else ''}"
+              f"summaries of {path}")
         return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
            else "peak_recovery" if args.peak_recovery
