@@ -4,6 +4,10 @@ structure of their compiled time step, written as ``bench_landing.json`` plus
 ``bench_landing.png``.
 
     python benchmarks/bench_landing.py [--quick] [--batch 1000] [--out DIR]
+    python benchmarks/bench_landing.py --accelerator [--quick] [--out DIR]
+
+``--accelerator`` runs only the per-landing-step comparison, on a GPU, at GPU-sized batches,
+and writes ``bench_landing_accelerator.json`` plus ``.png``.
 
 Timings are medians of repeats after compile, measured side by side in one run (the machines
 are noisy); they are never asserted by tests. The per-landing-step comparison runs the two
@@ -40,9 +44,11 @@ def _compile_and_time(fn, args, repeats):
 def loop_body_counts(hlo_text: str) -> dict:
     """What the compiled time step is made of: in the innermost while body of an optimised
     XLA module, the number of kernels XLA launches per step (fusions and the unfused copies
-    and library calls), the matrix products (``dot``: library calls on XLA:CPU), the
-    reductions and all operations inside the fusions (XLA duplicates cheap elementwise work
-    into every fusion that consumes it, so this counts the work done per step)."""
+    and library calls; ``kernels``, their sum, is what a GPU launches per step, where XLA:CPU
+    with batch fusion runs the whole loop as one kernel), the matrix products (``dot``:
+    library calls on XLA:CPU), the reductions and all operations inside the fusions (XLA
+    duplicates cheap elementwise work into every fusion that consumes it, so this counts the
+    work done per step)."""
     comps, cur = {}, None
     for line in hlo_text.splitlines():
         head = re.match(r"^(?:ENTRY )?%?([\w.\-]+) .*\{\s*$", line)
@@ -74,7 +80,8 @@ def loop_body_counts(hlo_text: str) -> dict:
             fused.update(ops(re.search(r"calls=%?([\w.\-]+)", line).group(1)))
     trivial = ("parameter", "constant", "broadcast", "bitcast", "get-tuple-element", "tuple")
     return dict(
-        fusions=top["fusion"], copies=top["copy"], dots=top["dot"] + fused["dot"],
+        fusions=top["fusion"], copies=top["copy"],
+        kernels=top["fusion"] + top["copy"] + top["custom-call"], dots=top["dot"] + fused["dot"],
         custom_calls=top["custom-call"], reduces=top["reduce"] + fused["reduce"],
         fused_ops=sum(v for k, v in fused.items() if k not in trivial),
         divides=fused["divide"], sqrts=fused["sqrt"])
@@ -98,12 +105,13 @@ def dispatches_per_step(compiled, args, n_steps: int) -> float:
                and e.get("name") == "ThunkExecutor::Execute") / n_steps
 
 
-def per_landing_step(vehicle, solver, sizes, repeats, trace_solver=None):
+def per_landing_step(vehicle, solver, sizes, repeats, trace_solver=None, dispatches=True):
     """ns per landing-step of both models, single landing (jit) and vmapped batches, run
     interleaved repeat by repeat, in wall time and in the process's CPU time (all threads:
     fairer on a shared machine); with the loop-body counts of each compiled program and its
     kernel dispatches per step (``dispatches_per_step``, on ``trace_solver``'s shorter
-    landing when given, so that a loop run kernel by kernel leaves a small trace)."""
+    landing when given, so that a loop run kernel by kernel leaves a small trace; not counted
+    with ``dispatches`` off: the trace's events are XLA:CPU's)."""
     def compiled_for(model, n, solv):
         tilt = dict(roll=0.01) if model == "full" else {}  # the full model's general path
         if n == 0:
@@ -132,16 +140,19 @@ def per_landing_step(vehicle, solver, sizes, repeats, trace_solver=None):
     out = {}
     for (model, n), (compiled, args, compile_s, times, cpu) in runs.items():
         run_s, per = statistics.median(times), max(n, 1) * solver.n_steps
-        if trace_solver is None:
-            dispatches = dispatches_per_step(compiled, args, solver.n_steps)
+        if not dispatches:
+            n_dispatches = None
+        elif trace_solver is None:
+            n_dispatches = dispatches_per_step(compiled, args, solver.n_steps)
         else:
             short, short_args, _ = compiled_for(model, n, trace_solver)
-            dispatches = dispatches_per_step(short, short_args, trace_solver.n_steps)
+            n_dispatches = dispatches_per_step(short, short_args, trace_solver.n_steps)
         out.setdefault(model, []).append(dict(
             batch=n, compile_s=compile_s, run_s=run_s, cpu_s=statistics.median(cpu),
+            us_per_step=run_s / solver.n_steps * 1e6,
             ns_per_landing_step=run_s / per * 1e9,
             cpu_ns_per_landing_step=statistics.median(cpu) / per * 1e9,
-            dispatches_per_step=dispatches,
+            dispatches_per_step=n_dispatches,
             loop_body=loop_body_counts(compiled.as_text())))
     ratio = {str(q["batch"]): f["ns_per_landing_step"] / q["ns_per_landing_step"]
              for q, f in zip(out["quarter"], out["full"])}
@@ -223,6 +234,55 @@ def run_benchmark(out_dir: Path, *, quick: bool = False, batch: int = 1000) -> d
     return result
 
 
+# batch sizes of --accelerator: 0 is one landing under jit; a GPU runs 10^3 to 10^5 landings at
+# nearly the same cost per step, so its sizes span that range
+ACCEL_SIZES = (0, 1024, 16384, 131072)
+
+
+def run_accelerator(out_dir: Path, *, quick: bool = False) -> dict:
+    """The per-landing-step comparison (``per_landing_step``) on this machine's accelerator,
+    with its scenes, step and landing unchanged and GPU-sized batches (``ACCEL_SIZES``):
+    ns per landing-step of both models and what each compiled time step is made of. On a GPU
+    every fusion, copy and library call left in the loop body is one kernel launch per step
+    (XLA:CPU, with batch fusion, runs the whole loop as one kernel instead). Writes
+    ``bench_landing_accelerator.json`` and ``.png``."""
+    vehicle = jl.paper_vehicle()
+    solver = Solver(dt=1e-5, t_end=0.02 if quick else 0.3, save_dt=1e-3)
+    steps = per_landing_step(vehicle, solver, (0, 4) if quick else ACCEL_SIZES,
+                             2 if quick else 3, dispatches=False)
+    result = dict(scene="as bench_landing.json's per_landing_step, on the accelerator",
+                  machine=machine(), device_kind=jax.devices()[0].device_kind,
+                  xla_flags=os.environ.get("XLA_FLAGS", ""),
+                  backend=jax.default_backend(), per_landing_step=steps, quick=quick)
+    write_json(out_dir / "bench_landing_accelerator.json", result, indent=2)
+    _plot_accelerator(result, out_dir / "bench_landing_accelerator.png")
+    return result
+
+
+def _plot_accelerator(result: dict, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    steps = result["per_landing_step"]
+    fig = Figure(figsize=(10, 4), layout="constrained")
+    ax1, ax2 = fig.subplots(1, 2)
+    for model, rows in steps["models"].items():
+        batched = [r for r in rows if r["batch"] > 0]
+        n = [r["batch"] for r in batched]
+        k = batched[-1]["loop_body"]["kernels"]
+        ax1.loglog(n, [r["ns_per_landing_step"] for r in batched], "o-", label=f"{model} model")
+        ax2.loglog(n, [r["us_per_step"] for r in batched], "o-",
+                   label=f"{model} model ({k} kernels per step at {n[-1]})")
+    ax1.set_xlabel("batch size [landings]")
+    ax1.set_ylabel("time per landing and step [ns]")
+    ax2.set_xlabel("batch size [landings]")
+    ax2.set_ylabel("time per step of the whole batch [us]")
+    for ax in (ax1, ax2):
+        ax.legend()
+    fig.suptitle(f"{result['device_kind']}: {steps['t_end_s']:g} s landings at "
+                 f"dt = {steps['dt_s']:g} s (vmapped batches)")
+    save_png(fig, path)
+
+
 def _plot(result: dict, path: Path) -> None:
     from matplotlib.figure import Figure
 
@@ -270,10 +330,22 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_out_args(p)
     p.add_argument("--batch", type=int, default=1000, help="largest vmapped batch (default 1000)")
+    p.add_argument("--accelerator", action="store_true",
+                   help="only the per-landing-step comparison, on this machine's GPU, at batches "
+                        f"of {', '.join(str(n) for n in ACCEL_SIZES[1:])} "
+                        "(bench_landing_accelerator.json; refused where JAX's backend is the CPU, "
+                        "unless --quick)")
     args = p.parse_args(argv)
     if args.batch < 1:
         p.error(f"--batch {args.batch}: must be at least 1")
+    if args.accelerator and jax.default_backend() == "cpu" and not args.quick:
+        p.error("--accelerator: JAX's backend here is the CPU; run it on a machine with a GPU")
     out = out_dir(args.out, args.quick)
+    if args.accelerator:
+        result = run_accelerator(out, quick=args.quick)
+        print(json.dumps(result["per_landing_step"], indent=2))
+        print(f"wrote {out / 'bench_landing_accelerator.json'} and bench_landing_accelerator.png")
+        return 0
     result = run_benchmark(out, quick=args.quick, batch=args.batch)
     print(json.dumps(result, indent=2))
     print(f"wrote {out / 'bench_landing.json'} and bench_landing.png")

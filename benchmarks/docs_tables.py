@@ -330,6 +330,23 @@ def performance_steps() -> str:
                    "full step: fusions / dots / reduces / fused ops"], rows)
 
 
+def performance_steps_accelerator() -> str:
+    """bench_landing.py --accelerator: the per-landing-step comparison on one GPU, with the
+    kernels each compiled time step launches (bench_landing_accelerator.json)."""
+    b = _load("bench_landing_accelerator.json")["per_landing_step"]
+    q, f = b["models"]["quarter"], b["models"]["full"]
+    rows = []
+    for rq, rf in zip(q, f):
+        what = "one landing (jit)" if rq["batch"] == 0 else f"vmapped batch of {rq['batch']}"
+        rows.append([what, _g(rq["ns_per_landing_step"], 3), _g(rf["ns_per_landing_step"], 3),
+                     f"{b['full_over_quarter'][str(rq['batch'])]:.1f}",
+                     f"{rq['us_per_step']:.1f} / {rf['us_per_step']:.1f}",
+                     f"{rq['loop_body']['kernels']} / {rf['loop_body']['kernels']}"])
+    return _table(["run", "quarter [ns per landing-step]", "full 3-D [ns per landing-step]",
+                   "full / quarter [-]", "one step of the whole batch, quarter / full [us]",
+                   "kernels per step, quarter / full [-]"], rows)
+
+
 def performance_montecarlo() -> str:
     """Per model and setting (the spec's default, the step study's choice), throughput on 1 and
     2 devices, and the issue's target at the chosen step (bench_montecarlo.json)."""
@@ -871,6 +888,7 @@ TABLES = {
     "cli-cache": cli_cache,
     "fusion": fusion,
     "performance-steps": performance_steps,
+    "performance-steps-accelerator": performance_steps_accelerator,
     "performance-montecarlo": performance_montecarlo,
     "performance-montecarlo-side-by-side": montecarlo_side_by_side,
     "montecarlo-step": montecarlo_step,

@@ -20,6 +20,7 @@ def _results_status() -> str:
     people may be editing other results files in a shared working tree meanwhile), plus the
     modification times of the ignored raw dumps."""
     paths = ["benchmarks/results/bench_landing.json", "benchmarks/results/bench_landing.png",
+             "benchmarks/results/bench_landing_accelerator*",
              "benchmarks/results/integrators.json", "benchmarks/results/integrators_*.png"]
     status = subprocess.run(["git", "status", "--porcelain", "--", *paths], cwd=ROOT,
                             capture_output=True, text=True, check=True).stdout
@@ -69,6 +70,29 @@ def test_bench_landing_quick_writes_json_and_plot(tmp_path):
         for r in runs:
             assert r["dispatches_per_step"] < 0.1, (model, r["batch"], r["dispatches_per_step"])
             assert r["loop_body"]["dots"] == 0, (model, r["batch"])
+
+
+def test_bench_landing_accelerator_refused_on_cpu_and_quick_runs(tmp_path):
+    """``--accelerator`` measures a GPU: on a CPU backend it is refused before any work, and
+    its smoke run writes the comparison with each loop's kernel count."""
+    before = _results_status()
+    refused = subprocess.run([sys.executable, str(BENCH / "bench_landing.py"), "--accelerator",
+                              "--out", str(tmp_path / "full")], cwd=ROOT, capture_output=True,
+                             text=True, timeout=120)
+    assert refused.returncode == 2 and "backend here is the CPU" in refused.stderr
+    assert not (tmp_path / "full").exists()
+    run = subprocess.run([sys.executable, str(BENCH / "bench_landing.py"), "--accelerator",
+                          "--quick", "--out", str(tmp_path)], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    data = json.loads((tmp_path / "bench_landing_accelerator.json").read_text())
+    for model, runs in data["per_landing_step"]["models"].items():
+        for r in runs:
+            body = r["loop_body"]
+            assert body["kernels"] == body["fusions"] + body["copies"] + body["custom_calls"]
+            assert body["kernels"] > 0 and r["us_per_step"] > 0, (model, r["batch"])
+    assert (tmp_path / "bench_landing_accelerator.png").read_bytes().startswith(b"\x89PNG")
+    assert _results_status() == before
 
 
 def test_bench_design_gradient_modes_run_and_agree():
