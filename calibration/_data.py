@@ -354,6 +354,52 @@ class DropTest:
             if sig_c < floor:
                 sig_c, src = floor, f"floor ({NOISE_FLOOR_REL:g} of the channel's range)"
             self.noise_std[col], self.noise_source[col] = sig_c, src
+        self._check_plausible()
+
+    def _check_plausible(self) -> None:
+        """Refuse, by name, what no drop test of this vehicle can record and a wrong unit or
+        sign gives: a stroke beyond the strut's length (mm under an _m header) or running
+        negative through the impact (compression is positive); a force that after touchdown
+        stays under a tenth of the leg's share of the weight (kN under an _N header, a flipped
+        sign); and a given touchdown time after the impact has begun. (A body acceleration's
+        free-fall level is not checked: the offset makes a specific force kinematic.)"""
+        t, t0, v = self.time_s, self.touchdown_time_s, self.vehicle
+        after = t >= t0
+        if self.touchdown_given_s is not None and "normal_force_N" in self.channels:
+            f = self.channels["normal_force_N"]  # raw: the offsets assume the touchdown
+            f = f - float(np.median(f[:max(MIN_PRE_SAMPLES // 2, 3)]))
+            early = f[t < t0 - 0.5 / self.sample_rate_Hz]
+            peak = float(np.max(f))
+            if early.size and float(np.max(early)) > 0.25 * peak:
+                i = int(np.argmax(early > 0.25 * peak))
+                raise _err("touchdown_time_s", t0, f"comes after the impact has begun: the "
+                           f"normal force is up {early[i]:.4g} N ({early[i] / peak:.0%} of "
+                           f"its rise) at {t[i]:.6g} s; give the time the foot meets the "
+                           "ground, or leave it out to detect it")
+        g = float(v.g)
+        share = float(v.m_body / v.n_legs + v.m_foot) * g  # N, one leg's weight at rest
+        length = float(np.min(np.asarray(v.leg.L_h0)))
+        for col, vals in self.corrected.items():
+            base = base_channel(col)
+            noise = self.noise_std[col]
+            if base == "stroke_m":
+                top = float(np.max(np.abs(vals)))
+                if top > length:
+                    raise _err(f"{self.source}: {col}", f"{top:.4g} m", "exceeds the strut's "
+                               f"length ({length:.4g} m, leg.L_h0_m): a stroke in mm? (a "
+                               f"{col.replace('_m', '_mm')} column is converted)")
+                lo, hi = float(np.min(vals[after])), float(np.max(vals[after]))
+                if -lo > 4.0 * max(hi, 0.0) and -lo > 20.0 * noise:
+                    raise _err(f"{self.source}: {col}", f"{lo:.4g} m", "runs negative after "
+                               f"touchdown (up to {hi:.3g} m the other way): a stroke is "
+                               "positive in compression; flip its sign")
+            elif base in ("normal_force_N", "buffer_force_N"):
+                peak = float(np.max(vals[after]))
+                if peak < 0.1 * share:
+                    raise _err(f"{self.source}: {col}", f"peak {peak:.4g} N", "stays under a "
+                               f"tenth of the {share:.4g} N the leg carries at rest: a force "
+                               f"in kN (a {col.replace('_N', '_kN')} column is converted), or "
+                               "its sign flipped (compression positive)?")
 
     def _check_free_fall(self) -> None:
         """The drop height the free fall from release to touchdown implies against the
@@ -597,6 +643,11 @@ def _meta_paths(path: Path) -> tuple[Path, dict]:
             meta = tomllib.load(fh)
     except FileNotFoundError:
         raise _err("metadata", str(meta_path), "file does not exist") from None
+    except IsADirectoryError:
+        raise _err("DATA", str(meta_path), "is a folder: give a drop test's metadata TOML (or "
+                   "its CSV)") from None
+    except OSError as err:
+        raise _err("metadata", str(meta_path), f"cannot be read: {err.strerror}") from None
     except tomllib.TOMLDecodeError as err:
         raise _err("metadata", str(meta_path), f"is not valid TOML: {err}") from None
     return meta_path, meta
@@ -667,11 +718,27 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
         raise _err(f"{where}: {err.field}", err.value, err.rule) from None
 
 
+def check_drop_names(drops, paths) -> None:
+    """Refuse two drop tests of one name (``DropTest.name``, the metadata file's stem): each
+    drop's outputs are named after it, and in a fit each drop counts once, so a drop given
+    twice (as its TOML and its CSV too) or two drops of one name would silently overwrite or
+    double-count."""
+    seen = {}
+    for d, p in zip(drops, paths):
+        if d.name in seen:
+            raise _err("DATA", f"{seen[d.name]} and {p}", f"are both drop test {d.name!r}: a "
+                       "drop is given once, and drops need different names (their outputs are "
+                       "named after them)")
+        seen[d.name] = p
+
+
 def load_drop_tests(paths, *, vehicle: jl.Vehicle | None = None) -> list[DropTest]:
-    """``load_drop_test`` for each path; the drops must share one vehicle configuration."""
+    """``load_drop_test`` for each path; the drops must share one vehicle configuration and
+    have different names (``check_drop_names``)."""
     drops = [load_drop_test(p, vehicle=vehicle) for p in paths]
     if not drops:
         raise _err("DATA", "<none>", "give at least one drop test")
+    check_drop_names(drops, paths)
     first = jl.vehicle_to_toml(drops[0].vehicle)
     for d in drops[1:]:
         if jl.vehicle_to_toml(d.vehicle) != first:

@@ -8,6 +8,7 @@ staging folder and moved into place only once all of them exist.
 
 from __future__ import annotations
 
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -80,8 +81,16 @@ def _cmd_fit(args) -> int:
     vehicle = jl.load_vehicle(args.config) if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
     windows = _floats("--windows", args.windows)
-    refine = args.refine_window_s if args.refine_window_s and args.refine_window_s > 0 else None
-    robust = args.robust if args.robust and args.robust > 0 else None
+    for flag, v in (("--refine-window-s", args.refine_window_s), ("--robust", args.robust)):
+        if not (math.isfinite(v) and v >= 0.0):
+            raise jl.ConfigError(flag, v, "must be a finite number >= 0 (0: off)")
+    if args.max_iter < 1:
+        raise jl.ConfigError("--max-iter", args.max_iter, "must be at least 1")
+    if not (math.isfinite(args.dt) and args.dt > 0.0):
+        raise jl.ConfigError("--dt", args.dt, "must be a finite step > 0 [s]")
+    refine = args.refine_window_s if args.refine_window_s > 0 else None
+    robust = args.robust if args.robust > 0 else None
+    start = _start(args.start)
     integrator = args.integrator
     if not (isinstance(integrator, str) and integrator in _fit.INTEGRATORS):
         _fit.check_integrator(integrator, 0.0, 0.0)  # refuses it by name
@@ -98,7 +107,7 @@ def _cmd_fit(args) -> int:
           f"parameters {', '.join(names)}, method {args.method}, integrator {integrator} "
           f"(dt {args.dt:g} s, smoothing {smoothing_m:g} m / {smoothing_n:g} N)",
           file=sys.stderr)
-    fit_kw = dict(vehicle=vehicle, start=_start(args.start), windows=windows,
+    fit_kw = dict(vehicle=vehicle, start=start, windows=windows,
                   refine_window_s=refine, robust=robust, method=args.method,
                   max_iter=args.max_iter, dt=args.dt, integrator=integrator,
                   smoothing_m=smoothing_m, smoothing_N=smoothing_n,
@@ -211,12 +220,13 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_predict(args) -> int:
-    from ._data import load_drop_test
+    from ._data import check_drop_names, load_drop_test
     from ._predict import predict
 
     out = _out_dir(args.out)
     vehicle = jl.load_vehicle(args.config)
     drops = [load_drop_test(p, vehicle=vehicle) for p in args.data]
+    check_drop_names(drops, args.data)
     preds = [predict(vehicle, d) for d in drops]
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
         for p in preds:

@@ -292,6 +292,72 @@ def test_the_cli_refuses_a_contradicting_drop_height_with_exit_2_and_one_line(tm
     assert "contradicts the record's free fall" in err[0]
 
 
+def _wrong(ch, col, how):
+    out = dict(ch)
+    out[col] = how(ch[col])
+    return out
+
+
+@pytest.mark.parametrize("how,needle", [
+    (lambda ch: _wrong(ch, "stroke_m", lambda x: x * 1e3),
+     r"stroke_m = '\d\d\.\d+ m': exceeds the strut's length.*in mm"),
+    (lambda ch: _wrong(ch, "stroke_m", lambda x: -x), r"stroke_m = '-0\.0\d+ m': runs negative"),
+    (lambda ch: _wrong(ch, "normal_force_N", lambda x: x * 1e-3),
+     "normal_force_N = 'peak .*under a tenth of the .* N the leg carries at rest.*kN"),
+    (lambda ch: _wrong(ch, "buffer_force_N", lambda x: -x), "buffer_force_N.*sign flipped"),
+])
+def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
+    """What no drop of this vehicle records: a stroke beyond the strut's length, one that runs
+    negative through the impact, a force that never reaches a tenth of the leg's weight."""
+    t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
+    cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2)  # as recorded
+    with pytest.raises(jl.ConfigError, match=needle):
+        cal.DropTest.from_arrays(t, how(ch), sample_rate_Hz=RATE, drop_height_m=0.2)
+
+
+def test_a_touchdown_time_after_the_impact_began_is_refused():
+    """A given touchdown time sets the free fall the offsets come from: one inside the impact
+    would subtract the impact itself. Refused; the true time and one a little early load."""
+    t, ch, info = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
+    t0 = info["touchdown_time_in_record_s"]
+    for ok in (t0, t0 - 0.005):
+        cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2,
+                                 touchdown_time_s=ok)
+    with pytest.raises(jl.ConfigError, match="touchdown_time_s = .*after the impact has begun"):
+        cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2,
+                                 touchdown_time_s=t0 + 0.02)
+
+
+def test_the_cli_refuses_a_drop_given_twice_a_folder_and_bad_fit_flags(tmp_path, capsys):
+    """Each with exit 2 and one line, before any fit: a drop given as its TOML and its CSV
+    (it would count twice), two drops of one name in predict (one output file each), a folder
+    as DATA, and flags outside their range (which used to mean 'off')."""
+    t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        jl.atomic_write_csv(tmp_path / sub / "d.csv", {"time_s": t, **ch}, digits=9)
+        (tmp_path / sub / "d.toml").write_text("[drop_test]\ndrop_height_m = 0.2\n"
+                                               "sample_rate_Hz = 5000.0\n")
+    a, b = str(tmp_path / "a" / "d.toml"), str(tmp_path / "b" / "d.toml")
+    cfg = str(tmp_path / "v.toml")
+    (tmp_path / "v.toml").write_text(jl.vehicle_to_toml(TRUTH))
+    cases = [
+        (["fit", a, a.replace(".toml", ".csv")], "are both drop test 'd'"),
+        (["predict", "--config", cfg, a, b], "are both drop test 'd'"),
+        (["fit", str(tmp_path / "a")], "is a folder"),
+        (["fit", a, "--robust", "-1"], "--robust = -1.0: must be a finite number >= 0"),
+        (["fit", a, "--refine-window-s", "nan"], "--refine-window-s = nan"),
+        (["fit", a, "--max-iter", "0"], "--max-iter = 0: must be at least 1"),
+        (["fit", a, "--start", "k=abc"], "--start k = 'abc'"),
+    ]
+    for argv, needle in cases:
+        out = tmp_path / "out"
+        assert main([*argv, "--out", str(out)]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], (argv, err)
+        assert not out.exists()
+
+
 def test_the_bundled_lab_record_loads_with_every_conversion_logged():
     """data/synthetic/drop_h0.20m_lab: four legs in kN and mm, time in ms, the body channel in
     g of specific force, a time axis from release, delivered CFC 600 filtered (SYNTHETIC)."""
