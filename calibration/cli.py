@@ -229,6 +229,8 @@ def _cmd_predict(args) -> int:
     check_drop_names(drops, args.data)
     preds = [predict(vehicle, d) for d in drops]
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
+        (staging / "vehicle.toml").write_text(f"# the vehicle predicted with (--config "
+                                              f"{args.config})\n" + jl.vehicle_to_toml(vehicle))
         for p in preds:
             p.to_json(staging / f"prediction_{p.drop.name}.json")
             if not args.no_plots:
@@ -238,7 +240,8 @@ def _cmd_predict(args) -> int:
         for k, v in p.metrics.items():
             print(f"  {k:<22} data {v['data']:<12.6g} model {v['model']:<12.6g} "
                   f"error {v['rel_error']:+.2%}")
-    print(f"wrote {out}/prediction_*.json" + ("" if args.no_plots else ", figures/*.png"))
+    print(f"wrote {out}/prediction_*.json, vehicle.toml"
+          + ("" if args.no_plots else ", figures/*.png"))
     return 0
 
 

@@ -102,11 +102,25 @@ def check_out(out) -> Path:
                 raise ConfigError("--out", str(out), "exists and is not a folder" if p == out
                                   else f"lies below {p}, which is a file")
             break
+    _check_writable(out, p)
     if out.is_dir() and not (out / MARKER).exists() and any(
             not c.name.startswith(".") and not _known_output(c.name) for c in out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
                           f"{MARKER}): give a new or empty folder, its files would be replaced")
     return out
+
+
+def _check_writable(out: Path, folder: Path) -> None:
+    """Refuse ``out`` when nothing can be created in ``folder``, the nearest folder of it that
+    exists (where the staging folder goes): tried with an empty folder, removed at once, since
+    permission bits say nothing for root or for special file systems."""
+    from ._errors import ConfigError
+
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".jaxland-probe-", dir=folder))
+    except OSError as err:
+        raise ConfigError("--out", str(out), f"cannot be written: creating a folder in {folder} "
+                          f"fails ({err.strerror})") from None
 
 
 # What jaxland's commands write: a folder holding only these (written before the marker existed)

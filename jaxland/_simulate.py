@@ -181,7 +181,10 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         "result": Result(int(s["result"])).name.lower(),
         "dt_s": solver.dt,
         "n_steps": int(s["n_steps"]),
-        "t_end_s": solver.t_end,
+        # the time reached: the run ends on its last whole save interval, which the request
+        # need not be a multiple of
+        "t_end_s": float(s["t_end_s"]),
+        "t_end_requested_s": solver.t_end,
         "touchdown_time_s": impacts[0][0] if impacts else None,
         "impacts": [{"start_s": a, "end_s": b} for a, b in impacts],
         "n_impacts": len(impacts),

@@ -397,6 +397,9 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     assert abs(m["peak_buffer_force_N"]["rel_error"]) <= 0.05
     assert abs(m["peak_body_accel_mps2"]["rel_error"]) <= 0.05
     assert (out / "figures" / "prediction_drop_h0.30m.png").exists()
+    # the folder records the vehicle it predicted with
+    assert jl.vehicle_to_toml(jl.load_vehicle(out / "vehicle.toml")) == \
+        jl.vehicle_to_toml(jl.load_vehicle(cli_fit / "fitted_vehicle.toml"))
 
 
 @pytest.mark.parametrize("argv,needle", [

@@ -61,6 +61,26 @@ def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, n
     assert not out.exists() or not any(out.iterdir())
 
 
+def test_an_output_folder_that_cannot_be_written_is_refused_before_the_run(capsys):
+    """Not after the simulation, as a traceback: nothing can be created in /proc (a file
+    system that refuses new folders even to root, where permission bits say nothing)."""
+    assert main(["simulate", "--t-end", "0.05", "--out", "/proc/jaxland-out"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out = '/proc/jaxland-out': cannot be written" in err[0], err
+
+
+def test_a_t_end_between_save_points_is_recorded_as_the_time_reached(tmp_path, capsys):
+    """A run ends on a whole save interval: 1.5 steps of 1e-4 s run 2. The summary records
+    the time reached beside the request, and the command says so."""
+    out = tmp_path / "run"
+    assert main(["simulate", "--dt", "1e-4", "--t-end", "0.00015", "--no-plots",
+                 "--out", str(out)]) == 0
+    assert "note: ran to 0.0002 s, not 0.00015 s" in capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["t_end_s"] == pytest.approx(2e-4, rel=1e-12)
+    assert summary["t_end_requested_s"] == 1.5e-4 and summary["n_steps"] == 2
+
+
 def test_simulate_refuses_bad_config_file(tmp_path, capsys):
     cfg = tmp_path / "bad.toml"
     cfg.write_text("[ground]\ngamma = 1.5\n")

@@ -120,6 +120,41 @@ def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
     ref = {k: v for k, v in quarter_run.columns().items() if np.asarray(v).dtype.kind in "fiub"}
     assert set(ref) <= set(got.files) and "leg0_max_stroke_m" in ref
     _assert_same_outputs(got, ref)
+    # the folder records its inputs: the vehicle run (loadable) and the versions
+    assert jl.vehicle_to_toml(jl.load_vehicle(tmp_path / "mc" / "vehicle.toml")) == \
+        jl.vehicle_to_toml(jl.paper_vehicle())
+    assert summary["environment"]["jaxland"] == jl.__version__
+    # flags that cannot hold are refused before any work: several processes without a
+    # coordinator (it used to run as one), more samples than the host can hold
+    for flags, needle in ((["--num-processes", "2"], "--num-processes = 2: needs --coordinator"),
+                          (["--n", "1000000000000"], "montecarlo.n = 1000000000000: its "
+                                                     "per-sample results take up to")):
+        bad = subprocess.run([*cli, *flags, "--out", str(tmp_path / "bad")], env=env,
+                             capture_output=True, text=True, timeout=120)
+        err = bad.stderr.strip().splitlines()
+        assert bad.returncode == 2 and len(err) == 1 and needle in err[0], (flags, err)
+        assert not (tmp_path / "bad").exists()
+
+
+def test_a_run_without_a_successful_landing_is_refused_and_writes_nothing(tmp_path, capsys):
+    """Every sample outside the documented envelope: no probability exists (0/0), so the run
+    is refused by name (exit 2) instead of reporting P = 0; the summary's probability is None."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "out_of_envelope.toml"
+    # a sink speed of 15 +/- 1000 m/s: about 1 draw in 80 inside [0, 30] m/s; these two are not
+    spec.write_text(QUARTER_TOML.replace("n = 12", "n = 2").replace("t_end_s = 0.3",
+                                                                     "t_end_s = 0.02")
+                    .replace('dist = "truncnormal"\nmean = 2.0\nstd = 0.3\nlow = 1.0\n'
+                             'high = 3.0', 'dist = "normal"\nmean = 15.0\nstd = 1000.0'))
+    assert main(["montecarlo", str(spec), "--out", str(tmp_path / "mc")]) == 2
+    err = [e for e in capsys.readouterr().err.strip().splitlines()
+           if not e.startswith("montecarlo: ")]  # the progress line
+    assert len(err) == 1 and "no landing succeeded (scene outside the documented envelope" \
+        in err[0], err
+    assert not (tmp_path / "mc").exists()
+    r = run_montecarlo(load_montecarlo_spec(spec), progress=False)
+    assert r.summary["tip_over"]["n"] == 0 and r.summary["tip_over"]["probability"] is None
 
 
 TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,

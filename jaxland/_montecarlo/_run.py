@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._config import paper_vehicle, validate_vehicle
+from .. import __version__
+from .._config import paper_vehicle, validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
 from .._files import atomic_write_csv, flat_columns, staged
 from .._models import MODELS
@@ -122,6 +123,7 @@ class MonteCarloResult:
     failure: np.ndarray  # (n,) jaxland.Result codes, 0 = successful (see ``reasons``)
     summary: dict
     reasons: dict = field(default_factory=lambda: {int(r): r.message for r in Result})
+    vehicle: Vehicle | None = None  # the vehicle the landings ran (save: vehicle.toml)
 
     def columns(self) -> dict:
         """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names."""
@@ -129,10 +131,15 @@ class MonteCarloResult:
                 **flat_columns(self.inputs, self.outputs), "failure_code": self.failure}
 
     def save(self, out_dir) -> list[Path]:
-        """Write samples.csv and samples.npz (every sample with its inputs), summary.json and
-        the figures into ``out_dir``, all through a staging folder."""
+        """Write samples.csv and samples.npz (every sample with its inputs), summary.json,
+        vehicle.toml (the vehicle run, where known) and the figures into ``out_dir``, all
+        through a staging folder."""
         out = Path(out_dir)
         with staged(out, "montecarlo") as staging:
+            if self.vehicle is not None:
+                (staging / "vehicle.toml").write_text(
+                    "# the vehicle the landings ran, before each sample's dispersions\n"
+                    + vehicle_to_toml(self.vehicle))
             cols = self.columns()
             atomic_write_csv(staging / "samples.csv", cols)
             np.savez_compressed(staging / "samples.npz", **cols)
@@ -177,6 +184,25 @@ def default_chunk(model: str, devices) -> int:
     return DEFAULT_CHUNK[kind][model]
 
 
+# host memory a sample's results take at most (inputs, outcomes, failure code, its samples.csv
+# row), a generous bound: the full model's come to about 0.5 KiB
+HOST_BYTES_PER_SAMPLE = 1024
+
+
+def _check_host_memory(n: int) -> None:
+    """Refuse, before any work, a run whose per-sample results cannot fit in this machine's
+    memory (they are gathered on the host)."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # no sysconf here: not checked
+        return
+    need = n * HOST_BYTES_PER_SAMPLE
+    if need > total:
+        raise ConfigError("montecarlo.n", n, f"its per-sample results take up to "
+                          f"{need / 2**30:.3g} GiB on the host, more than this machine's "
+                          f"{total / 2**30:.3g} GiB: run fewer samples")
+
+
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
                    chunk: int | None = None, devices=None, progress: bool | str = True,
                    share_program: bool = False) -> MonteCarloResult:
@@ -188,6 +214,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     with this flag, so that one compilation serves several vehicles (a design's verification);
     otherwise the vehicle is a constant of the program, which steps faster than the shared one."""
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
+    _check_host_memory(spec.n)
     model = spec.resolved_model()
     solver = mc_solver(spec, model, spec.dt, spec.method)
     devices = list(jax.local_devices() if devices is None else devices)
@@ -270,7 +297,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
-    return MonteCarloResult(inputs, outputs, failure, summary)
+    return MonteCarloResult(inputs, outputs, failure, summary, vehicle=vehicle)
 
 
 RETRIED = (Result.NONFINITE, Result.LEDGER, Result.CLOSURE, Result.STEP_ABOVE_LIMIT)
@@ -371,9 +398,10 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
             np.isfinite(outputs["settled_time_s"])]) if "settled_time_s" in outputs else None),
         retry_method=("euler_implicit" if spec.method == "euler" else spec.method)
         if outputs["retried"].any() else None,
-        tip_over=dict(count=k_tip, n=n_ok, probability=k_tip / max(n_ok, 1),
+        # over the successful landings; None where there is none (0/0 is no probability)
+        tip_over=dict(count=k_tip, n=n_ok, probability=k_tip / n_ok if n_ok else None,
                       ci95_wilson=wilson_interval(k_tip, n_ok)),
-        bottoming=dict(count=k_bot, n=n_ok, probability=k_bot / max(n_ok, 1),
+        bottoming=dict(count=k_bot, n=n_ok, probability=k_bot / n_ok if n_ok else None,
                        ci95_wilson=wilson_interval(k_bot, n_ok)),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
@@ -391,6 +419,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
             ranking=sensitivity(inputs, target, ok)),
         dispersion={k: vars(v) for k, v in spec.dispersion.items()},
         fixed=spec.fixed,
-        environment=dict(jax=jax.__version__, backend=jax.default_backend(),
+        environment=dict(jaxland=__version__, jax=jax.__version__,
+                         backend=jax.default_backend(),
                          xla_flags=os.environ.get("XLA_FLAGS", "")),
     )

@@ -41,10 +41,11 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
     ok = result.failure == 0  # Result.SUCCESSFUL
     rows = _outcomes(result)
     s = result.summary
+    tip, bot = (s[k]["probability"] for k in ("tip_over", "bottoming"))
     title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; "
-             f"P(tip-over) = {s['tip_over']['probability']:.3g} "
-             f"[{s['tip_over']['ci95_wilson'][0]:.3g}, {s['tip_over']['ci95_wilson'][1]:.3g}], "
-             f"P(bottoming) = {s['bottoming']['probability']:.3g}")
+             + ("no landing succeeded" if tip is None else
+                f"P(tip-over) = {tip:.3g} [{s['tip_over']['ci95_wilson'][0]:.3g}, "
+                f"{s['tip_over']['ci95_wilson'][1]:.3g}], P(bottoming) = {bot:.3g}"))
     paths = []
 
     fig = Figure(figsize=(4.2 * len(rows), 3.6), layout="constrained")

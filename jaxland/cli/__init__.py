@@ -85,8 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--coordinator", metavar="HOST:PORT",
                    help="run as one of --num-processes processes (jax.distributed; process 0 "
                         "listens on HOST:PORT and writes the outputs)")
-    m.add_argument("--num-processes", type=int, default=1, help="processes in the run")
-    m.add_argument("--process-id", type=int, default=0, help="this process, 0 .. N-1")
+    m.add_argument("--num-processes", type=int, default=None,
+                   help="processes in the run (with --coordinator)")
+    m.add_argument("--process-id", type=int, default=None,
+                   help="this process, 0 .. N-1 (with --coordinator)")
     m.add_argument("--devices", type=int, default=None,
                    help="CPU devices to shard each chunk over (default: one per core; a GPU "
                         "run uses its GPUs)")

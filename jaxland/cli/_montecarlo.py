@@ -9,15 +9,43 @@ from ._common import out_dir, use_cpu_cores
 LOW_SIDE = ("min_stability_margin_m",)
 
 
+def _no_successful_landing(s: dict) -> None:
+    """Refuse a run in which no landing succeeded, before anything is written: its
+    probabilities and envelopes would be 0/0. Bad input (exit 2) where every landing was
+    outside the documented envelope or did not touch down, a numerical failure (exit 3) where
+    any failed numerically."""
+    from .._errors import ConfigError, SimulationError
+    from .._solvers import Result
+
+    why = dict(s["failures"])
+    if s["n_no_touchdown"]:
+        why[Result.NO_TOUCHDOWN.message] = s["n_no_touchdown"]
+    text = ", ".join(f"{k}: {v}" for k, v in why.items())
+    if set(why) <= {Result.OUTSIDE_ENVELOPE.message, Result.NO_TOUCHDOWN.message}:
+        raise ConfigError("dispersion", f"{s['n']} samples", f"no landing succeeded ({text}), so "
+                          "there is no probability or envelope to report: keep the dispersions "
+                          "inside the documented envelope and t_end_s long enough to touch down")
+    raise SimulationError(f"none of the {s['n']} landings succeeded ({text}): there is no "
+                          "probability or envelope to report")
+
+
 def cmd_montecarlo(args) -> int:
     from .._config import load_vehicle, paper_vehicle
+    from .._errors import ConfigError
     from .._montecarlo import init_distributed, load_montecarlo_spec, run_montecarlo
 
+    if args.coordinator is None:
+        for flag, v in (("--num-processes", args.num_processes),
+                        ("--process-id", args.process_id)):
+            if v is not None:
+                raise ConfigError(flag, v, "needs --coordinator HOST:PORT (a run of several "
+                                  "processes); without it the run is one process")
     out = out_dir(args.out)
     use_cpu_cores(args.devices)  # before any JAX work
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
-        init_distributed(args.coordinator, args.num_processes, args.process_id)
+        init_distributed(args.coordinator, 1 if args.num_processes is None else
+                         args.num_processes, 0 if args.process_id is None else args.process_id)
     spec = load_montecarlo_spec(args.spec)
     if args.n is not None:
         spec.n = args.n
@@ -30,8 +58,10 @@ def cmd_montecarlo(args) -> int:
 
     if jax.process_index() != 0:
         return 0
-    result.save(out)
     s = result.summary
+    if s["tip_over"]["n"] == 0:
+        _no_successful_landing(s)
+    result.save(out)
     tip, bot = s["tip_over"], s["bottoming"]
     print(f"jaxland montecarlo: {s['n']} landings, {s['model']} model, {s['devices']} device(s),"
           f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
@@ -58,7 +88,7 @@ def cmd_montecarlo(args) -> int:
         top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g})"
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
-    print(f"wrote {out}/samples.csv, samples.npz, summary.json, figures/*.png")
+    print(f"wrote {out}/samples.csv, samples.npz, summary.json, vehicle.toml, figures/*.png")
     return 0
 
 

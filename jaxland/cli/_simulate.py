@@ -123,7 +123,12 @@ def cmd_simulate(args) -> int:
                                 vehicle=vehicle, scene=scene)
     print(f"jaxland simulate: {model} model, drop {float(scene.drop_height):g} m, "
           f"sink {float(scene.sink_speed):g} m/s, {result.solver.method.name} dt "
-          f"{result.solver.dt:g} s, {args.t_end:g} s")
+          f"{result.solver.dt:g} s, {result.outcomes['t_end_s']:g} s")
+    reached = result.outcomes["t_end_s"]
+    if abs(reached - args.t_end) > 1e-9 * args.t_end:
+        print(f"  note: ran to {reached:g} s, not {args.t_end:g} s: a run ends on a whole save "
+              f"interval ({result.solver.save_dt:g} s); give a t_end that is a multiple of it",
+              file=sys.stderr)
     _print_summary(result.outcomes)
     print(f"wrote {out}/trajectory.csv, summary.json, scene.toml, vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
