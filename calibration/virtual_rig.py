@@ -50,7 +50,9 @@ artefact-free variants instead. Everything is seeded and reproducible.
 from __future__ import annotations
 
 import argparse
+import inspect
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -439,6 +441,32 @@ def write_truth(out_dir, vehicle=None) -> Path:
     return path
 
 
+# the files the rig writes into its folder (``main``): a folder holding others is not its own
+_RIG_FILES = re.compile(r"(drop_h\d+\.\d+m\w*\.(csv|toml)|\w+_vehicle\.toml)")
+
+
+def _check_args(args) -> None:
+    """The command line's values, refused by name before anything is simulated or written."""
+    from ._data import MIN_AFTER_S
+
+    for h in args.heights:
+        if not (math.isfinite(h) and h > 0.0):
+            raise jl.ConfigError("--heights", h, "each must be a drop height > 0 m")
+    pre = inspect.signature(record).parameters["pre_trigger_s"].default
+    if not (math.isfinite(args.duration) and args.duration > pre + MIN_AFTER_S):
+        raise jl.ConfigError("--duration", args.duration, f"must be > {pre + MIN_AFTER_S:g} s: "
+                             f"a record starts {pre:g} s before touchdown and a drop test needs "
+                             f">= {MIN_AFTER_S:g} s after it")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise jl.ConfigError("--out", str(out), "exists and is not a folder")
+    foreign = sorted(c.name for c in out.iterdir() if not c.name.startswith(".")
+                     and not _RIG_FILES.fullmatch(c.name)) if out.is_dir() else []
+    if foreign:
+        raise jl.ConfigError("--out", str(out), f"holds files the rig does not write "
+                             f"({', '.join(foreign[:3])}): give a new folder or the rig's own")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m calibration.virtual_rig",
                                 description="write synthetic drop tests with known truth")
@@ -452,6 +480,7 @@ def main(argv=None) -> int:
                         "release time, CFC 600)")
     args = p.parse_args(argv)
     try:
+        _check_args(args)
         write_truth(args.out)
         write_nominal(args.out)
         for i, h in enumerate(args.heights):

@@ -478,6 +478,28 @@ def test_virtual_rig_writes_labelled_data_and_truth(tmp_path, capsys):
                                           NAMES), P_TRUE, rtol=1e-11)
 
 
+@pytest.mark.parametrize("argv,needle", [
+    (["--heights", "-0.2"], "--heights = -0.2: each must be a drop height > 0 m"),
+    (["--duration", "0"], "--duration = 0.0: must be > 0.1 s"),
+    (["--duration", "0.08"], "--duration = 0.08: must be > 0.1 s"),  # no touchdown to load
+    (["--out", "FILE"], "exists and is not a folder"),
+    (["--out", "FOREIGN"], "holds files the rig does not write (mine.txt)"),
+])
+def test_virtual_rig_refuses_bad_arguments_before_writing(tmp_path, capsys, argv, needle):
+    """Exit 2 and one line, nothing written: it used to trace back on a negative height or a
+    zero duration, write a record too short to load, and write into someone else's folder."""
+    (tmp_path / "FILE").write_text("x")
+    (tmp_path / "FOREIGN").mkdir()
+    (tmp_path / "FOREIGN" / "mine.txt").write_text("mine")
+    argv = [a if a not in ("FILE", "FOREIGN") else str(tmp_path / a) for a in argv]
+    out = [] if "--out" in argv else ["--out", str(tmp_path / "rig")]
+    assert vr.main([*out, *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+    assert not (tmp_path / "rig").exists()
+    assert sorted(p.name for p in (tmp_path / "FOREIGN").iterdir()) == ["mine.txt"]
+
+
 def test_fit_progress_is_one_stderr_line_per_iteration(capsys):
     from calibration.cli import _Progress
 
