@@ -515,15 +515,17 @@ def _as_trace(name, vals) -> np.ndarray:
     return arr
 
 
-def _check_column_name(col: str) -> None:
+def _check_column_name(col: str, where: str = "") -> None:
+    """Refuse a column name that is no channel (``where``: the file, named in the message)."""
+    field_ = f"{where}: column {col!r}" if where else f"column {col!r}"
     m = LEG_COLUMN.match(col)
     if m:  # a leg's channel: the channel's rules, and the body's acceleration has no leg
         base = m.group(2)
         if base.startswith("body_accel") or base.startswith("time"):
-            raise _err(f"column {col!r}", col, f"{base.rpartition('_')[0] or base} takes no "
+            raise _err(field_, col, f"{base.rpartition('_')[0] or base} takes no "
                        "leg prefix (it is the body's); legs carry normal_force, buffer_force "
                        "and stroke")
-        _check_column_name(base)
+        _check_column_name(base, where)
         return
     if col in CHANNELS or col == TIME or col in CONVERSIONS:
         return
@@ -532,11 +534,11 @@ def _check_column_name(col: str) -> None:
         if col == name or base == name:
             right = f"{name}_{want}"
             got = "no unit suffix" if col == name else f"unit '{unit}'"
-            raise _err(f"column {col!r}", col, f"unit suffix missing or wrong ({got}): the "
+            raise _err(field_, col, f"unit suffix missing or wrong ({got}): the "
                        f"{name} channel must be in {_UNIT_WORDS[want]}, named {right!r} "
                        f"(or one of the converted units: "
                        f"{', '.join(c for c in CONVERSIONS if c.startswith(name))})")
-    raise _err(f"column {col!r}", col, "unknown column; known: " + ", ".join(
+    raise _err(field_, col, "unknown column; known: " + ", ".join(
         [TIME, *CHANNELS]) + " (per leg: leg<i>_normal_force_N, leg<i>_buffer_force_N, "
         "leg<i>_stroke_m)")
 
@@ -589,6 +591,7 @@ def _touchdown_speed(h, v0, v_td, g):
 
 def _read_csv(path: Path):
     text = jl.read_text(path, "data_file")  # refuses missing, folder and non-UTF-8 files
+    text = text.removeprefix("\ufeff")  # the byte-order mark some spreadsheets save first
     rows = [r for r in csv.reader(io.StringIO(text, newline=""))
             if r and not r[0].lstrip().startswith("#")]
     if not rows:
@@ -597,7 +600,7 @@ def _read_csv(path: Path):
     if TIME not in header and "time_ms" not in header:
         near = [h for h in header if h.startswith("time")]
         if near:
-            _check_column_name(near[0])
+            _check_column_name(near[0], path.name)
         raise _err(f"{path.name}: columns", ",".join(header), "missing column time_s (the "
                    "sample times in s)")
     seen = set()
@@ -605,7 +608,7 @@ def _read_csv(path: Path):
         if h in seen:
             raise _err(f"{path.name}: column {h!r}", h, "appears twice")
         seen.add(h)
-        _check_column_name(h)
+        _check_column_name(h, path.name)
     data = []
     for i, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):

@@ -76,6 +76,20 @@ def test_a_valid_record_loads_and_touchdown_offsets_and_noise_are_found(tmp_path
     assert cal.load_drop_test(tmp_path / "drop.csv").name == "drop"  # the CSV finds its TOML
 
 
+def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_the_file(
+        tmp_path):
+    t, f, x = _trace()
+    path = _write(tmp_path, ["time_s", "normal_force_N", "stroke_m"], _rows(t, f, x))
+    csv_path = tmp_path / "drop.csv"
+    csv_path.write_text("\ufeff" + csv_path.read_text())
+    d = cal.load_drop_test(path)
+    np.testing.assert_array_equal(d.channels["stroke_m"], x)
+    path = _write(tmp_path, ["time_s", "normal_force_N", "stroke_in"], _rows(t, f, x),
+                  name="inches")
+    with pytest.raises(jl.ConfigError, match="^inches.csv: column 'stroke_in'"):
+        cal.load_drop_test(path)
+
+
 @pytest.mark.parametrize("case,needle", [
     ("no_time", "missing column time_s"),
     ("no_channel", "need at least one data channel"),

@@ -96,6 +96,19 @@ def test_bench_is_not_a_subcommand(capsys):
     assert exc.value.code == 2 and "invalid choice: 'bench'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv,needle", [
+    (["simulate", "--drop-height", "abc"], "argument --drop-height: invalid float value"),
+    (["predict"], "the following arguments are required: DATA, --config"),
+    (["simulate", "--max-steps", "5.5"], "argument --max-steps: invalid int value"),
+])
+def test_argparse_errors_are_one_line_and_exit_2(capsys, argv, needle):
+    """Like every other refusal: one line (field, value, rule), no usage block in front."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and needle in err[0], err
+
+
 def test_simulate_3d_scene_from_file_and_flags(tmp_path, capsys):
     scene = tmp_path / "scene.toml"
     scene.write_text("[scene]\nroll_deg = 3.0\nhorizontal_speed_mps = 0.5\nheading_deg = 30\n")

@@ -240,6 +240,9 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         ("[montecarlo]\nn = 0\n", "montecarlo.n"),
         ("[montecarlo]\nsamples = 5\n", "montecarlo.samples"),
         ("[montecarlo]\nmethod = 'tsit5'\n", "montecarlo.method"),
+        ("[fixed]\ndrop_hieght_m = 0.0\n", "fixed.drop_hieght_m"),  # a typo, in its table
+        ("[montecarlo]\ndt_s = 3e-5\nt_end_s = 0.05\n",
+         "montecarlo.dt_s = 3e-05: must divide montecarlo.t_end_s = 0.05 s into whole steps"),
     ]
     for text, field in cases:
         path.write_text(text)

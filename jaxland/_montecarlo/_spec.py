@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from .._checks import NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
 from .._errors import ConfigError
 from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS
-from .._solvers import FIXED_STEP_METHODS
+from .._solvers import FIXED_STEP_METHODS, check_whole_steps
 from .._toml import read_toml
 
 
@@ -168,10 +168,11 @@ class MonteCarloSpec:
     ledger_check: float | None = spec_field(None, toml="ledger_check_s", check=_ledger_check)
 
     def __post_init__(self):
-        for key in [*self.dispersion, *self.fixed]:
-            if key not in DISPERSIBLE:
-                raise ConfigError(f"dispersion.{key}", "?",
-                                  "unknown input; known: " + ", ".join(sorted(DISPERSIBLE)))
+        for table, keys in (("dispersion", self.dispersion), ("fixed", self.fixed)):
+            for key in keys:
+                if key not in DISPERSIBLE:
+                    raise ConfigError(f"{table}.{key}", "?", "unknown input; known: "
+                                      + ", ".join(sorted(DISPERSIBLE)))
         for key, val in self.fixed.items():
             per_leg = DISPERSIBLE[key].component == "legs"
             vals = val if isinstance(val, list) and per_leg else [val]
@@ -196,6 +197,7 @@ class MonteCarloSpec:
         for f in dataclasses.fields(self):
             if "check" in f.metadata:
                 f.metadata["check"](f"montecarlo.{f.metadata['toml']}", getattr(self, f.name))
+        check_whole_steps(self.dt, self.t_end, "montecarlo.dt_s", "montecarlo.t_end_s")
 
     def smallest_model(self) -> str:
         """The quarter model if every dispersed or fixed input keeps the drop symmetric."""

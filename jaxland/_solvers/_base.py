@@ -229,6 +229,15 @@ class Solver(eqx.Module):
         return self
 
 
+def check_whole_steps(dt: float, t_end: float, dt_field: str, t_end_field: str) -> None:
+    """Refuse a step ``dt`` that does not divide ``t_end`` into whole steps, naming the spec's
+    own fields (a run without a trajectory ends on its one save interval, t_end)."""
+    ratio = t_end / dt
+    if abs(ratio - round(ratio)) > 1e-6 * ratio:
+        raise ConfigError(dt_field, dt, f"must divide {t_end_field} = {t_end:g} s into whole "
+                          f"steps (it gives {ratio:.6g})")
+
+
 def _finite_positive(x) -> bool:
     return (not isinstance(x, bool) and isinstance(x, numbers.Real) and math.isfinite(x)
             and x > 0)

@@ -22,8 +22,16 @@ EXIT_NUMERICAL = 3
 EXIT_INTERRUPTED = 130
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad input is one line (field, value, rule) and exit 2: argparse's own errors too,
+    without the usage block in front (``--help`` has it)."""
+
+    def error(self, message):
+        self.exit(EXIT_INVALID, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="jaxland", description="jaxland: landings of a legged vehicle on crushable "
         "honeycomb gear (quarter and full 3-D models), Monte Carlo, calibration, design.")
     from .. import __version__
