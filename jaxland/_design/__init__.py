@@ -60,7 +60,11 @@ from ._optimise import (
     optimise_design as optimise_design,
     step_schedule as step_schedule,
 )
-from ._problem import DesignProblem as DesignProblem, risk_measure as risk_measure
+from ._problem import (
+    DesignProblem as DesignProblem,
+    check_bounds as check_bounds,
+    risk_measure as risk_measure,
+)
 from ._spec import (
     CONSTRAINTS as CONSTRAINTS,
     VARIABLES as VARIABLES,

@@ -41,7 +41,7 @@ def _progress(quiet: bool, total: int):
 def _cmd_design(args) -> int:
     import jaxland as jl
 
-    from .._design import design_verified, load_design_spec, optimise_design
+    from .._design import check_bounds, design_verified, load_design_spec, optimise_design
 
     out = out_dir(args.out)
     use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
@@ -58,6 +58,7 @@ def _cmd_design(args) -> int:
         spec.montecarlo.n = max(args.verify_n, 1)
     vehicle = (jl.load_vehicle(args.config) if args.config else
                jl.load_vehicle(spec.vehicle) if spec.vehicle else jl.paper_vehicle())
+    check_bounds(spec, jl.validate_vehicle(vehicle))  # before the banner: one line if bad
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
