@@ -232,7 +232,14 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: Abst
     n_peak = float(np.max(summary["peak_normal_force_N"]))
     bottomed = bool(np.max(summary["max_stroke_m"]) > float(np.min(vehicle.honeycomb.x_L4)))
     fixed = not isinstance(method, Tsit5)
-    if fixed:
+    energy0 = float(summary["energy_initial_J"])
+    if fixed and not math.isfinite(energy0):
+        # no step helps: the numbers overflow from the start (a value's magnitude, not dt)
+        why = (f"the landing's initial energy is {energy0:.4g} J, not a finite number: a "
+               "configuration value too large for float64 arithmetic (check the vehicle's and "
+               "the scene's magnitudes)")
+        setting = f"{name} dt = {dt:.3g} s"
+    elif fixed:
         reached = float(step_limit_reached(summary, vehicle, solver, model))
         why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force "
                f"of {n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt "

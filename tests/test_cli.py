@@ -81,6 +81,18 @@ def test_a_t_end_between_save_points_is_recorded_as_the_time_reached(tmp_path, c
     assert summary["t_end_requested_s"] == 1.5e-4 and summary["n_steps"] == 2
 
 
+def test_a_config_that_overflows_is_named_not_blamed_on_the_step(tmp_path, capsys):
+    """A body of 1e308 kg passes the config's rules (> 0), but its energy overflows: the
+    failure says so instead of asking for a step of 'nan s'."""
+    cfg = tmp_path / "huge.toml"
+    cfg.write_text("[body]\nm_body_kg = 1e308\n")
+    assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--no-plots",
+                 "--out", str(tmp_path / "o")]) == 3
+    err = capsys.readouterr().err
+    assert "initial energy is inf J, not a finite number" in err and "nan s" not in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_simulate_refuses_bad_config_file(tmp_path, capsys):
     cfg = tmp_path / "bad.toml"
     cfg.write_text("[ground]\ngamma = 1.5\n")
