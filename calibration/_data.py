@@ -687,7 +687,11 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
         elif not isinstance(cfg, str):
             raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
         else:
-            vehicle = jl.load_vehicle(meta_path.parent / cfg)
+            try:
+                vehicle = jl.load_vehicle(meta_path.parent / cfg)
+            except jl.ConfigError as err:  # name the file the value is in
+                raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {err.field}",
+                           err.value, err.rule) from None
     cols = _read_csv(csv_path)
     time_conv = {}
     if "time_ms" in cols:

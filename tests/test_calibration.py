@@ -115,6 +115,7 @@ def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_t
     ("bad_leg", "must be an integer in [0, 4)"),
     ("no_rate", "sample_rate_Hz"),
     ("missing_config", "file does not exist"),
+    ("bad_config", "drop.toml: drop_test.vehicle_config bad.toml: ground.mu = -0.5"),
 ])
 def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     t, f, x = _trace()
@@ -169,6 +170,9 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
         meta.pop("sample_rate_Hz")
     elif case == "missing_config":
         meta["vehicle_config"] = "nowhere.toml"
+    elif case == "bad_config":
+        (tmp_path / "bad.toml").write_text("[ground]\nmu = -0.5\n")
+        meta["vehicle_config"] = "bad.toml"
     rows = _rows(*cols)
     if case == "missing_value":
         rows[400] = rows[400][:-1]

@@ -53,6 +53,7 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--drop-height", "-1"], "scene.drop_height_m = -1.0"),
     (["--touchdown-speed", "2", "--drop-height", "0.1"], "give either"),
     (["--dt", "1e-3"], "stability limit"),
+    (["--touchdown-speed", "-1"], "--touchdown-speed = -1.0: must be finite and in [0, 30]"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"

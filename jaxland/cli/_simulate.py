@@ -84,6 +84,12 @@ def _scene_from_args(args):
             raise ConfigError("--touchdown-speed", args.touchdown_speed,
                               "give either --touchdown-speed or --drop-height/--sink-speed")
         table["drop_height_m"], table["sink_speed_mps"] = 0.0, args.touchdown_speed
+        try:
+            return scene_from_dict(table)
+        except ConfigError as err:  # the flag the user gave, not the field it set
+            if err.field == "scene.sink_speed_mps":
+                raise ConfigError("--touchdown-speed", args.touchdown_speed, err.rule) from None
+            raise
     return scene_from_dict(table)
 
 
