@@ -156,7 +156,15 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         ground=_build(Ground, "ground", merged["ground"]),
         n_legs=n_legs,
     )
-    return validate_vehicle(veh) if validate else veh
+    if not validate:
+        return veh
+    try:
+        return validate_vehicle(veh)
+    except ConfigError as err:  # a plateau force the cells gave: name the cells too
+        if cells is not None and err.field in ("honeycomb.F1_N", "honeycomb.F2_N"):
+            raise ConfigError(f"{err.field} (from [honeycomb.cells])", err.value,
+                              err.rule) from None
+        raise
 
 
 def load_vehicle(path) -> Vehicle:

@@ -67,6 +67,8 @@ BAD = [
     ({"ground": {"k_tan_N_per_m": -5.0}}, "ground.k_tan_N_per_m", "-5.0", "> 0"),
     ({"honeycomb": {"x_L4_mm": 5000.0}}, "honeycomb.x_L4_mm", "5000", "shorter than the main"),
     ({"honeycomb": {"cells": 5}}, "honeycomb.cells", "5", "must be a table"),
+    ({"honeycomb": {"cells": {"secondary_cell_size_mm": 100.0}}},
+     "honeycomb.F2_N (from [honeycomb.cells])", "65.8", "must exceed F1_N"),
     ({"ground": {"k_N_per_m": 10**400}}, "ground.k_N_per_m", "", "too large"),
 ]
 
