@@ -102,7 +102,7 @@ def check_out(out) -> Path:
                 raise ConfigError("--out", str(out), "exists and is not a folder" if p == out
                                   else f"lies below {p}, which is a file")
             break
-    _check_writable(out, p)
+    _check_writable(out, out.parent if p == out else p)  # the staging folder's place
     if out.is_dir() and not (out / MARKER).exists() and any(
             not c.name.startswith(".") and not _known_output(c.name) for c in out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
@@ -111,9 +111,10 @@ def check_out(out) -> Path:
 
 
 def _check_writable(out: Path, folder: Path) -> None:
-    """Refuse ``out`` when nothing can be created in ``folder``, the nearest folder of it that
-    exists (where the staging folder goes): tried with an empty folder, removed at once, since
-    permission bits say nothing for root or for special file systems."""
+    """Refuse ``out`` when nothing can be created in ``folder``, where its staging folder goes
+    (``staged``: beside ``out``, or the nearest folder above that exists): tried with an empty
+    folder, removed at once, since permission bits say nothing for root or for special file
+    systems."""
     from ._errors import ConfigError
 
     try:
