@@ -346,6 +346,10 @@ class DropTest:
             self.offsets[col] = (float(np.mean(seg)) - free_fall if n_pre >= MIN_PRE_SAMPLES
                                  else 0.0)
             span = float(np.max(vals) - np.min(vals))
+            if not span > 0.0:  # its residuals would be weighted by 1 / noise = 1 / 0
+                raise _err(f"{self.source}: {col}", f"{float(vals[0]):.6g} throughout",
+                           "is constant over the whole record: it carries no information "
+                           "(leave the column out)")
             if seg.size >= MIN_NOISE_SAMPLES:
                 sig_c, src = float(np.std(seg, ddof=1)), "pre-touchdown segment std"
             else:

@@ -305,6 +305,10 @@ def _wrong(ch, col, how):
     (lambda ch: _wrong(ch, "normal_force_N", lambda x: x * 1e-3),
      "normal_force_N = 'peak .*under a tenth of the .* N the leg carries at rest.*kN"),
     (lambda ch: _wrong(ch, "buffer_force_N", lambda x: -x), "buffer_force_N.*sign flipped"),
+    (lambda ch: _wrong(ch, "stroke_m", lambda x: np.full_like(x, 1.5e-3)),
+     "stroke_m = '0.0015 throughout': is constant over the whole record"),
+    (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: np.full_like(x, -9.81)),
+     "body_accel_mps2 = '-9.81 throughout': is constant"),  # fit and predict divided by 0
 ])
 def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
     """What no drop of this vehicle records: a stroke beyond the strut's length, one that runs
