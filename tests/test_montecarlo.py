@@ -251,6 +251,15 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         assert str(err.value).startswith(field), str(err.value)
     with pytest.raises(jl.ConfigError, match="entirely outside the scene envelope"):
         MonteCarloSpec(dispersion={"roll_deg": Distribution("uniform", low=35, high=50)}, n=2)
+    # built in Python, checked as a TOML table is (it used to sample a 'lognormal' as a
+    # normal, a uniform from mean/std as NaN, and take a negative std)
+    for dist, needle in ((Distribution("lognormal", mean=0.0, std=0.5), "dist = 'lognormal'"),
+                         (Distribution("normal", std=-0.5), "std = -0.5: must be > 0"),
+                         (Distribution("uniform", low=3.0, high=1.0), "high = 1.0: must exceed"),
+                         (Distribution("uniform", mean=2.0, std=0.5), "low = -inf"),
+                         ({"dist": "normal"}, "must be a jaxland.Distribution")):
+        with pytest.raises(jl.ConfigError, match=needle):
+            MonteCarloSpec(dispersion={"sink_speed_mps": dist}, n=2)
     for text, field in [("dispersion = 3\n", "dispersion"), ("montecarlo = 5\n", "montecarlo"),
                         ("[fixed]\nroll_deg = 'abc'\n", "fixed.roll_deg"),
                         ("[montecarlo]\nseed = 9223372036854775807\n", "montecarlo.seed")]:

@@ -116,6 +116,15 @@ class Distribution:
                                   "is the bound)")
         return cls(kind, **{k: v for k, v in vals.items()})
 
+    def table(self) -> dict:
+        """The TOML table of this distribution (``from_dict``'s input): what a directly built
+        one is checked through."""
+        keys = {"normal": ("mean", "std"), "uniform": ("low", "high"),
+                "truncnormal": ("mean", "std", "low", "high")}.get(self.kind, ())
+        if self.kind == "constant":
+            return {"dist": "constant", "value": self.mean}
+        return {"dist": self.kind, **{k: getattr(self, k) for k in keys}}
+
     def sample(self, key, shape=()):
         if self.kind == "constant":
             return jnp.full(shape, self.mean)
@@ -173,6 +182,11 @@ class MonteCarloSpec:
                 if key not in DISPERSIBLE:
                     raise ConfigError(f"{table}.{key}", "?", "unknown input; known: "
                                       + ", ".join(sorted(DISPERSIBLE)))
+        for key, dist in self.dispersion.items():  # one built in Python, as a TOML one
+            if not isinstance(dist, Distribution):
+                raise ConfigError(f"dispersion.{key}", type(dist).__name__,
+                                  "must be a jaxland.Distribution")
+            Distribution.from_dict(key, dist.table())
         for key, val in self.fixed.items():
             per_leg = DISPERSIBLE[key].component == "legs"
             vals = val if isinstance(val, list) and per_leg else [val]
