@@ -22,7 +22,12 @@ __all__ = ["Honeycomb", "Leg", "Ground", "Vehicle", "field_info"]
 
 
 def _f64(x):
-    return jnp.asarray(x, dtype=jnp.float64)
+    try:
+        return jnp.asarray(x, dtype=jnp.float64)
+    except (TypeError, ValueError):  # a string, None, a ragged list: named, not a traceback
+        from ._errors import ConfigError
+
+        raise ConfigError("value", x, "must be a number or an array of numbers") from None
 
 
 def _opt_f64(x):

@@ -122,8 +122,34 @@ class Scene(eqx.Module):
         return cls(**out)
 
     def touchdown_speed(self, g=9.81):
-        """Vertical speed at first contact [m/s], sqrt(v0^2 + 2 g h)."""
-        return jnp.sqrt(self.sink_speed**2 + 2.0 * g * self.drop_height)
+        """Vertical speed at first contact [m/s] of the free fall from the scene's clearance,
+        the attitude held: sqrt(v0^2 + 2 g h) on level ground. On a slope the clearance is
+        measured along the ground normal n and the body falls vertically while its horizontal
+        motion moves it across the slope, so the clearance h + a t - (v0 t + g t^2 / 2) n_z
+        (a = horizontal velocity . n) reaches 0 at t*, and the speed is v0 + g t*."""
+        v0, h = self.sink_speed, self.drop_height
+        level = jnp.sqrt(v0**2 + 2.0 * g * h)
+        nz = jnp.cos(self.slope)
+        a = self.horizontal_speed * jnp.sin(self.slope) * jnp.cos(self.heading
+                                                                  - self.slope_direction)
+        b = v0 * nz - a
+        t = (jnp.sqrt(b * b + 2.0 * g * nz * h) - b) / (g * nz)
+        return jnp.where(self.slope == 0.0, level, v0 + g * t)
+
+    def inside_envelope(self):
+        """True (a jnp bool, also under jit and vmap) if every field lies in the documented
+        envelope that ``validate`` checks, finite; a landing outside it carries
+        ``Result.OUTSIDE_ENVELOPE``."""
+        ok = jnp.ones((), bool)
+        for name, field in SCENE_FIELDS.items():
+            x = jnp.asarray(getattr(self, name))
+            ok = ok & jnp.all(jnp.isfinite(x) & (x >= field.lo) & (x <= field.hi))
+        for name, (lo, hi) in OPTIONAL_LIMITS.items():
+            x = getattr(self, name)
+            if x is not None:
+                x = jnp.asarray(x)
+                ok = ok & jnp.all(jnp.isfinite(x) & (x >= lo) & (x <= hi))
+        return ok
 
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
@@ -155,7 +181,7 @@ class Scene(eqx.Module):
                               f"must be three finite numbers (x, y, z), each within +/-{hi:g} m")
         ps = concrete(self.plateau_scale)
         if ps is not None:
-            if n_legs is not None and ps.shape[-1] != n_legs:
+            if n_legs is not None and (ps.ndim == 0 or ps.shape[-1] != n_legs):
                 raise ConfigError("scene.plateau_scale", ps.tolist(),
                                   f"must have one entry per leg ({n_legs})")
             lo, hi = OPTIONAL_LIMITS["plateau_scale"]

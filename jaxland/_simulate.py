@@ -16,6 +16,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import __version__
@@ -59,21 +60,37 @@ def choose_model(scene: Scene) -> str:
 
 def get_model(model: str | AbstractModel, scene: Scene | None = None) -> AbstractModel:
     """The model object for a name (``"auto"``: ``choose_model(scene)``), or the object itself."""
-    if isinstance(model, AbstractModel):
-        return model
-    if model == "auto" and scene is not None:
-        model = choose_model(scene)
-    if model not in MODELS:
-        raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
-    return MODELS[model]
+    if not isinstance(model, AbstractModel):
+        if model == "auto" and scene is not None:
+            model = choose_model(scene)
+        if model not in MODELS:
+            raise ConfigError("model", model, f"must be one of auto, {', '.join(MODELS)}")
+        model = MODELS[model]
+    if model.name == "quarter" and scene is not None and _asymmetric(scene):
+        raise ConfigError("model", model.name, "the quarter model represents only symmetric "
+                          "vertical drops; this scene needs model='full'")
+    return model
+
+
+def _asymmetric(scene: Scene) -> bool:
+    """``scene`` is concrete and not a symmetric vertical drop (``is_symmetric``); a traced
+    scene (inside jit or vmap) cannot be checked here and passes."""
+    try:
+        return not is_symmetric(scene)
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+        return False
 
 
 def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
             model: str | AbstractModel = "auto"):
     """Pure landing: ``(trajectory, summary)`` dicts of jnp arrays. ``model`` is ``"quarter"``,
     ``"full"``, a model object, or ``"auto"`` (``choose_model``; needs a concrete scene, so
-    under jit name it). The summary's ``result`` is a ``Result`` code."""
-    return integrate(get_model(model, scene), vehicle, scene, solver)
+    under jit name it). The summary's ``result`` is a ``Result`` code, ``OUTSIDE_ENVELOPE`` for
+    a scene outside the documented envelope (``Scene.inside_envelope``)."""
+    traj, summary = integrate(get_model(model, scene), vehicle, scene, solver)
+    summary["result"] = jnp.where(scene.inside_envelope(), summary["result"],
+                                  int(Result.OUTSIDE_ENVELOPE)).astype(summary["result"].dtype)
+    return traj, summary
 
 
 def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),
@@ -208,7 +225,9 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
     out["classification"] = ("no_touchdown" if int(s["result"]) == Result.NO_TOUCHDOWN else
                              "tipped" if out["tipped_over"] else
                              "bottomed_out" if bottomed else "stable")
-    out["energy_closure_rel"] = float(s["energy_closure_max_J"]) / max(dissipated, 1e-12)
+    # relative to the energy dissipated: none without a touchdown (0 J: no ratio, not 1e9)
+    out["energy_closure_rel"] = (None if out["classification"] == "no_touchdown" else
+                                 float(s["energy_closure_max_J"]) / max(dissipated, 1e-12))
     return out
 
 
@@ -326,15 +345,15 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     integration blows up or an adaptive solver stalls.
     """
     scene = Scene() if scene is None else scene
+    for name, obj, cls in (("scene", scene, Scene), ("vehicle", vehicle, Vehicle)):
+        if obj is not None and not isinstance(obj, cls):
+            raise ConfigError(name, type(obj).__name__, f"must be a jaxland.{cls.__name__}")
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     scene.validate(vehicle.n_legs)
     if jax.tree.leaves(batch_axes(scene)):  # some field is batched
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "
                           "jax.vmap over jaxland.landing (see Scene.batch)")
-    if model == "quarter" and not is_symmetric(scene):
-        raise ConfigError("model", model, "the quarter model represents only symmetric vertical "
-                          "drops; this scene needs model='full'")
-    mod = get_model(model, scene)
+    mod = get_model(model, scene)  # refuses the quarter model for an asymmetric scene
     smoothing = {k: solver_options.pop(k) for k in ("smoothing_m", "smoothing_N")
                  if k in solver_options}
     method = integrator(method, **solver_options)  # options, before they are used

@@ -80,6 +80,8 @@ def test_a_t_end_between_save_points_is_recorded_as_the_time_reached(tmp_path, c
     summary = json.loads((out / "summary.json").read_text())
     assert summary["t_end_s"] == pytest.approx(2e-4, rel=1e-12)
     assert summary["t_end_requested_s"] == 1.5e-4 and summary["n_steps"] == 2
+    # nothing touched down, nothing was dissipated: no ledger error relative to it (was 1e8)
+    assert summary["classification"] == "no_touchdown" and summary["energy_closure_rel"] is None
 
 
 def test_a_config_that_overflows_is_named_not_blamed_on_the_step(tmp_path, capsys):

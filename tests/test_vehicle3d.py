@@ -34,6 +34,53 @@ def test_model_choice_is_the_smallest_exact_one():
         jl.simulate(Scene(roll=0.05), model="quarter")
 
 
+def test_the_quarter_model_is_refused_for_an_asymmetric_scene_everywhere():
+    """Not only by simulate: landing and landings used to run a rolled scene as the level drop
+    (max stroke 0.062 m, where the full model's worst leg crushes 0.096 m). A traced scene
+    (jit, vmap) cannot be checked and runs."""
+    v, solver = jl.paper_vehicle(), jl.Solver(dt=1e-5, t_end=1e-3, save_dt=1e-3)
+    with pytest.raises(jl.ConfigError, match="model = 'quarter': the quarter model represents"):
+        jl.landing(v, Scene(drop_height=0.0, sink_speed=2.0, roll=0.3), solver, "quarter")
+    with pytest.raises(jl.ConfigError, match="model = 'quarter'"):
+        jl.landings(v, Scene.batch(roll=jnp.array([0.0, 0.3])), solver, "quarter")
+    with pytest.raises(jl.ConfigError, match="model = 'quarter'"):
+        jl.landing(v, Scene(plateau_scale=jnp.array([0.5, 1.0, 1.5, 1.0])), solver, "quarter")
+    jl.landings(v, Scene.batch(drop_height=jnp.array([0.0, 0.1])), solver, "quarter")
+
+
+def test_a_landing_outside_the_envelope_says_so_and_bad_scenes_are_named():
+    """jl.landing and jl.landings carry OUTSIDE_ENVELOPE for such a scene (they used to report
+    SUCCESSFUL); scene values that are no numbers are refused by name."""
+    v, solver = jl.paper_vehicle(), jl.Solver(dt=1e-5, t_end=1e-3, save_dt=1e-3)
+    out = int(jl.Result.OUTSIDE_ENVELOPE)
+    assert int(jl.landing(v, Scene(drop_height=-0.1), solver, "quarter")[1]["result"]) == out
+    codes = jl.landings(v, Scene.batch(drop_height=jnp.array([0.0, 0.05, 60.0])), solver,
+                        "quarter")[1]["result"]
+    assert codes.tolist() == [int(jl.Result.SUCCESSFUL), int(jl.Result.NO_TOUCHDOWN), out]
+    for make, needle in ((lambda: Scene(drop_height="abc"), "value = 'abc': must be a number"),
+                         (lambda: jl.simulate(Scene(plateau_scale=0.9)),
+                          "scene.plateau_scale = 0.9: must have one entry per leg"),
+                         (lambda: jl.simulate({"drop_height": 0.1}),
+                          "scene = 'dict': must be a jaxland.Scene")):
+        with pytest.raises(jl.ConfigError, match=needle):
+            make()
+
+
+@pytest.mark.parametrize("scene", [
+    dict(slope=0.52),  # 29.8 deg: the clearance is along the normal, the fall vertical
+    dict(slope=0.2, horizontal_speed=2.0, heading=0.3, slope_direction=0.1),  # downhill
+    dict(slope=0.15, horizontal_speed=2.0, heading=3.24),  # uphill
+])
+def test_touchdown_speed_on_a_slope_is_the_simulated_one(scene):
+    """The outcome touchdown_speed_mps against the body's vertical speed at the simulated
+    touchdown (free fall, so linear between samples); sqrt(v0^2 + 2 g h) was 7 % low at 30
+    deg."""
+    r = jl.simulate(Scene(drop_height=0.2, **scene), t_end=0.25)
+    t, vz = np.asarray(r.trajectory["time_s"]), np.asarray(r.trajectory["body_vz_mps"])
+    at_touchdown = -np.interp(r.outcomes["touchdown_time_s"], t, vz)
+    assert r.outcomes["touchdown_speed_mps"] == pytest.approx(at_touchdown, rel=2e-4)
+
+
 def test_symmetric_drop_full_model_equals_quarter_model(symmetric_pair):
     """All four legs of the 6-DOF model reproduce the quarter leg to round-off."""
     q, f = (r.outcomes for r in symmetric_pair)

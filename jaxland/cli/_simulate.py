@@ -44,7 +44,9 @@ def _print_summary(o: dict) -> None:
         ("foot slip distance", _fmt(o["slip_distance_m"], 1e3, "mm")),
         ("energy dissipated", _fmt(o["energy_dissipated_J"], 1, "J")),
         ("energy ledger closure", f"{o['energy_closure_max_J']:.3g} J "
-                                  f"({o['energy_closure_rel']:.2e} of dissipated)"),
+                                  + ("(nothing dissipated: no touchdown)"
+                                     if o["energy_closure_rel"] is None else
+                                     f"({o['energy_closure_rel']:.2e} of dissipated)")),
     ]
     width = max(len(r[0]) for r in rows)
     for name, val in rows:
