@@ -349,6 +349,12 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         if obj is not None and not isinstance(obj, cls):
             raise ConfigError(name, type(obj).__name__, f"must be a jaxland.{cls.__name__}")
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
+    for key, val in (("m_body_kg", vehicle.m_body), ("m_foot_kg", vehicle.m_foot),
+                     ("g_mps2", vehicle.g), ("I_xx_kg_m2", vehicle.I_xx),
+                     ("I_yy_kg_m2", vehicle.I_yy), ("I_zz_kg_m2", vehicle.I_zz)):
+        if jnp.ndim(val) != 0:  # a batch of vehicles
+            raise ConfigError(f"body.{key}", jnp.shape(val), "must be one number: simulate "
+                              "takes one vehicle (for a batch, jax.vmap over jaxland.landing)")
     scene.validate(vehicle.n_legs)
     if jax.tree.leaves(batch_axes(scene)):  # some field is batched
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "

@@ -61,7 +61,10 @@ def test_a_landing_outside_the_envelope_says_so_and_bad_scenes_are_named():
                          (lambda: jl.simulate(Scene(plateau_scale=0.9)),
                           "scene.plateau_scale = 0.9: must have one entry per leg"),
                          (lambda: jl.simulate({"drop_height": 0.1}),
-                          "scene = 'dict': must be a jaxland.Scene")):
+                          "scene = 'dict': must be a jaxland.Scene"),
+                         (lambda: jl.simulate(Scene(), eqx.tree_at(
+                             lambda x: x.m_body, v, jnp.array([1000.0, 1200.0]))),
+                          r"body.m_body_kg = \(2,\): must be one number")):
         with pytest.raises(jl.ConfigError, match=needle):
             make()
 
