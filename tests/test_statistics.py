@@ -117,3 +117,15 @@ def test_wilson_mean_coverage_is_nominal():
     wald = np.mean([_coverage(_wald, 50, p) for p in ps])
     assert abs(wilson - 0.95) < 0.01, wilson
     assert wald < 0.92, wald
+
+
+def test_a_probability_over_no_landing_is_reported_as_none():
+    """0/0 is no probability: the summaries say None and the reports say so in words, where
+    they used to print 0."""
+    from jaxland._montecarlo import probability_text
+
+    assert probability_text(dict(count=0, n=0, probability=None,
+                                 ci95_wilson=jl.wilson_interval(0, 0))) == \
+        "undefined (no successful landing)"
+    p = dict(count=3, n=10, probability=0.3, ci95_wilson=jl.wilson_interval(3, 10))
+    assert probability_text(p) == "0.3 [0.108, 0.603]"

@@ -43,7 +43,7 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
     for c in spec.constraints:
         bad = np.asarray(c.badness(per, float(vehicle.honeycomb.x_L4)))
         k = int(np.sum(bad > 0))
-        viol[c.name] = dict(count=k, n=n, probability=k / max(n, 1),
+        viol[c.name] = dict(count=k, n=n, probability=k / n if n else None,
                             ci95_wilson=wilson_interval(k, n))
         checks[c.name] = _check(c, bad, index, res.summary["seed"])
     out["constraint_violations"] = viol

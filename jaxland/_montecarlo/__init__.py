@@ -33,6 +33,7 @@ from ._spec import (
 )
 from ._stats import (
     percentiles as percentiles,
+    probability_text as probability_text,
     sensitivity as sensitivity,
     wilson_interval as wilson_interval,
 )

@@ -22,6 +22,15 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     return (lo, hi)
 
 
+def probability_text(p: dict, nd: int = 3) -> str:
+    """A probability with its 95 % interval for a report line (``p``: the summary's
+    count/n/probability/ci95_wilson); a probability over no landing is none."""
+    if p["probability"] is None:
+        return "undefined (no successful landing)"
+    lo, hi = p["ci95_wilson"]
+    return f"{p['probability']:.{nd}g} [{lo:.{nd}g}, {hi:.{nd}g}]"
+
+
 def percentiles(x) -> dict | None:
     """Tails and centre of a sample: p01, p05, p50, p95, p99, min, max, mean (None if empty)."""
     x = np.asarray(x, dtype=float)

@@ -9,6 +9,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from .._montecarlo._stats import probability_text
 from ._landing import _save
 
 __all__ = ["plot_design"]
@@ -129,7 +130,5 @@ def _outcomes(result, path: Path) -> Path:
     v = result.verification
     tb, ta = v["before"]["tip_over"], v["after"]["tip_over"]
     fig.suptitle(f"verification Monte Carlo, fresh samples (n = {v['n']}, seed {v['seed']}): "
-                 f"P(tip-over) before {tb['probability']:.3g} [{tb['ci95_wilson'][0]:.3g}, "
-                 f"{tb['ci95_wilson'][1]:.3g}], after {ta['probability']:.3g} "
-                 f"[{ta['ci95_wilson'][0]:.3g}, {ta['ci95_wilson'][1]:.3g}]")
+                 f"P(tip-over) before {probability_text(tb)}, after {probability_text(ta)}")
     return _save(fig, path)

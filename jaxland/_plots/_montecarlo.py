@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._montecarlo._stats import probability_text
 from ._landing import _save
 
 _OUTCOMES = (  # (label, function of (outputs) -> per-sample values, scale, unit)
@@ -41,11 +42,9 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
     ok = result.failure == 0  # Result.SUCCESSFUL
     rows = _outcomes(result)
     s = result.summary
-    tip, bot = (s[k]["probability"] for k in ("tip_over", "bottoming"))
     title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; "
-             + ("no landing succeeded" if tip is None else
-                f"P(tip-over) = {tip:.3g} [{s['tip_over']['ci95_wilson'][0]:.3g}, "
-                f"{s['tip_over']['ci95_wilson'][1]:.3g}], P(bottoming) = {bot:.3g}"))
+             f"P(tip-over) = {probability_text(s['tip_over'])}, "
+             f"P(bottoming) = {probability_text(s['bottoming'])}")
     paths = []
 
     fig = Figure(figsize=(4.2 * len(rows), 3.6), layout="constrained")

@@ -16,6 +16,7 @@ import time
 
 from .. import use_batch_fusion
 from .._files import staged
+from .._montecarlo._stats import probability_text
 from .._progress import ProgressLine
 from ._common import out_dir, use_cpu_cores
 
@@ -98,14 +99,15 @@ def _cmd_design(args) -> int:
                   f"{'met' if ch['met'] else 'NOT MET'}")
         for tag in ("before", "after"):  # the baseline gear, then the design
             r = v[tag]
-            tip, bot = r["tip_over"], r["bottoming"]
             label = f"{tag} ({'baseline' if tag == 'before' else 'design'})"
+            if r["max_stroke_m"] is None:  # no successful landing: no percentile either
+                print(f"    {label:<17} no successful landing")
+                continue
             print(f"    {label:<17} peak accel p50 {r['peak_body_accel_mps2']['p50']:.4g} p99 "
                   f"{r['peak_body_accel_mps2']['p99']:.4g} m/s^2; max stroke p99 "
-                  f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; P(tip) {tip['probability']:.3g} "
-                  f"[{tip['ci95_wilson'][0]:.3g}, {tip['ci95_wilson'][1]:.3g}]; P(bottom) "
-                  f"{bot['probability']:.3g} [{bot['ci95_wilson'][0]:.3g}, "
-                  f"{bot['ci95_wilson'][1]:.3g}]")
+                  f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; P(tip) "
+                  f"{probability_text(r['tip_over'])}; P(bottom) "
+                  f"{probability_text(r['bottoming'])}")
     if result.status != "feasible":
         for name, c in result.violated.items():
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
