@@ -28,7 +28,7 @@ from .._scene import Scene
 from .._simulate import landings
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
-from ._spec import LEDGER_CHECK_S, MonteCarloSpec, envelope
+from ._spec import LEDGER_CHECK_S, MonteCarloSpec
 from ._stats import percentiles, sensitivity, wilson_interval
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
@@ -83,12 +83,11 @@ def _per_sample(vehicle, solver, model, scenes):
 
 
 def _chunk(spec, vehicle, solver, model, inputs, count):
-    """One chunk's outcomes per sample from its drawn inputs, with the envelope check."""
+    """One chunk's outcomes per sample from its drawn inputs; a sample outside the envelope
+    (unbounded distributions can draw there) carries Result.OUTSIDE_ENVELOPE from its landing
+    (``jaxland.landing``), a failure, not a landing."""
     scenes = Scene.batch(**scene_fields(spec, inputs, count, vehicle.n_legs))
-    out = _per_sample(vehicle, solver, model, scenes)
-    out["inside_envelope"] = (_inside_envelope(inputs, spec) if inputs
-                              else jnp.ones(count, bool))
-    return out
+    return _per_sample(vehicle, solver, model, scenes)
 
 
 # run_montecarlo(share_program=True): the last compiled chunk, by spec, settings and chunk
@@ -293,7 +292,6 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
         _retry(spec, vehicle, model, outputs, line)
     bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
     failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
-    failure[~outputs.pop("inside_envelope")] = int(Result.OUTSIDE_ENVELOPE)
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
@@ -358,18 +356,6 @@ def _gather(outputs: dict, inputs: dict, n: int, chunk: int, n_proc: int):
     owner = (np.arange(n) // chunk) % n_proc
     both = multihost_utils.process_allgather((outputs, inputs), tiled=False)
     return jax.tree.map(lambda x: x[owner, np.arange(n)], both)
-
-
-def _inside_envelope(inputs: dict, spec: MonteCarloSpec):
-    """Per sample: every dispersed input within the scene envelope (unbounded distributions can
-    draw outside it; such samples are recorded as failures, Result.OUTSIDE_ENVELOPE, not as
-    landings). Inside the compiled chunk."""
-    ok = True
-    for key, arr in inputs.items():
-        lo, hi = envelope(key)
-        inside = jnp.isfinite(arr) & (arr >= lo) & (arr <= hi)
-        ok = ok & (inside if inside.ndim == 1 else jnp.all(inside, axis=1))
-    return ok
 
 
 def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dict:
