@@ -283,8 +283,7 @@ class DropTest:
         onset = min(self.channels, key=lambda c: (_ONSET_ORDER.index(base_channel(c)),
                                                    leg_of(c, self.sensor_leg)))
         y = self.channels[onset]
-        n_base = max(MIN_PRE_SAMPLES // 2, 3)
-        base = float(np.median(y[:n_base]))
+        base = _start_level(y)
         sig = _highpass_noise(y)
         rise = float(np.max(np.abs(y - base)))
         thresh = max(8.0 * sig, 0.05 * rise)
@@ -371,7 +370,7 @@ class DropTest:
         after = t >= t0
         if self.touchdown_given_s is not None and "normal_force_N" in self.channels:
             f = self.channels["normal_force_N"]  # raw: the offsets assume the touchdown
-            f = f - float(np.median(f[:max(MIN_PRE_SAMPLES // 2, 3)]))
+            f = f - _start_level(f)
             early = f[t < t0 - 0.5 / self.sample_rate_Hz]
             peak = float(np.max(f))
             if early.size and float(np.max(early)) > 0.25 * peak:
@@ -381,7 +380,7 @@ class DropTest:
                            f"its rise) at {t[i]:.6g} s; give the time the foot meets the "
                            "ground, or leave it out to detect it")
         g = float(v.g)
-        share = float(v.m_body / v.n_legs + v.m_foot) * g  # N, one leg's weight at rest
+        share = float(v.m_quarter + v.m_foot) * g  # N, one leg's weight at rest
         length = float(np.min(np.asarray(v.leg.L_h0)))
         for col, vals in self.corrected.items():
             base = base_channel(col)
@@ -517,6 +516,12 @@ def _as_trace(name, vals) -> np.ndarray:
         raise _err(name, float(arr[i]), f"must be finite: sample {i} (data row {i + 2}) is "
                    f"{arr[i]}; remove or repair NaN/inf samples")
     return arr
+
+
+def _start_level(y: np.ndarray) -> float:
+    """A channel's level at the record's start: the median of its first few samples (what
+    touchdown detection rises from)."""
+    return float(np.median(y[:max(MIN_PRE_SAMPLES // 2, 3)]))
 
 
 def _check_column_name(col: str, where: str = "") -> None:

@@ -50,7 +50,6 @@ artefact-free variants instead. Everything is seeded and reproducible.
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import re
 import sys
@@ -91,6 +90,7 @@ BUNDLED_ARTEFACTS = {"jitter_s": 2e-6, "lowpass_Hz": 2000.0}
 LAB = {"legs": (0, 1, 2, 3), "time_from_release": True, "specific_force": True, "cfc": 600,
        "peak_shape": "exp", "pre_trigger_s": 0.08, "jitter_s": 2e-6}
 SAMPLE_RATE_HZ = 5000.0
+PRE_TRIGGER_S = 0.05  # s of record before touchdown (``record``'s default)
 _SIM_DT = 1e-5
 
 
@@ -177,7 +177,7 @@ def butterworth2(y: np.ndarray, corner_Hz: float, rate_Hz: float) -> np.ndarray:
 
 
 def record(vehicle: jl.Vehicle, drop_height_m: float, *, duration_s: float = 1.2,
-           pre_trigger_s: float = 0.05, sample_rate_Hz: float = SAMPLE_RATE_HZ,
+           pre_trigger_s: float = PRE_TRIGGER_S, sample_rate_Hz: float = SAMPLE_RATE_HZ,
            noise: dict | None = NOISE, stroke_offset_m: float = STROKE_OFFSET_M,
            crush_peak: float = CRUSH_PEAK, channels=tuple(CHANNELS), seed: int = 0,
            lowpass_Hz: float | None = None, peak_shape: str = "bump", jitter_s: float = 0.0,
@@ -452,7 +452,7 @@ def _check_args(args) -> None:
     for h in args.heights:
         if not (math.isfinite(h) and h > 0.0):
             raise jl.ConfigError("--heights", h, "each must be a drop height > 0 m")
-    pre = inspect.signature(record).parameters["pre_trigger_s"].default
+    pre = PRE_TRIGGER_S
     if not (math.isfinite(args.duration) and args.duration > pre + MIN_AFTER_S):
         raise jl.ConfigError("--duration", args.duration, f"must be > {pre + MIN_AFTER_S:g} s: "
                              f"a record starts {pre:g} s before touchdown and a drop test needs "

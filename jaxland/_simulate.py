@@ -24,7 +24,7 @@ from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
 from ._files import atomic_write_csv, atomic_write_text, flat_columns
 from ._models import MODELS, AbstractModel
-from ._params import Vehicle
+from ._params import Vehicle, field_info
 from ._scene import Scene, batch_axes, is_symmetric
 from ._solvers import (
     CLOSURE_LIMIT,
@@ -349,12 +349,11 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         if obj is not None and not isinstance(obj, cls):
             raise ConfigError(name, type(obj).__name__, f"must be a jaxland.{cls.__name__}")
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
-    for key, val in (("m_body_kg", vehicle.m_body), ("m_foot_kg", vehicle.m_foot),
-                     ("g_mps2", vehicle.g), ("I_xx_kg_m2", vehicle.I_xx),
-                     ("I_yy_kg_m2", vehicle.I_yy), ("I_zz_kg_m2", vehicle.I_zz)):
-        if jnp.ndim(val) != 0:  # a batch of vehicles
-            raise ConfigError(f"body.{key}", jnp.shape(val), "must be one number: simulate "
-                              "takes one vehicle (for a batch, jax.vmap over jaxland.landing)")
+    for f in field_info(Vehicle):  # the body's parameters: one vehicle has one of each
+        if jnp.ndim(getattr(vehicle, f.name)) != 0:
+            raise ConfigError(f"body.{f.metadata['toml']}", jnp.shape(getattr(vehicle, f.name)),
+                              "must be one number: simulate takes one vehicle (for a batch, "
+                              "jax.vmap over jaxland.landing)")
     scene.validate(vehicle.n_legs)
     if jax.tree.leaves(batch_axes(scene)):  # some field is batched
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "

@@ -201,8 +201,7 @@ class Solver(eqx.Module):
             raise ConfigError("solver.save_dt", self.save_dt, f"must be >= dt = {self.dt} s")
         if self.save_dt > self.t_end:
             raise ConfigError("solver.save_dt", self.save_dt, f"must be <= t_end = {self.t_end} s")
-        ratio = self.save_dt / self.dt
-        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+        if not _whole_steps(self.save_dt, self.dt):
             raise ConfigError("solver.save_dt", self.save_dt,
                               f"must be a whole multiple of dt = {self.dt} s")
         if self.t_end > T_END_MAX:
@@ -232,10 +231,15 @@ class Solver(eqx.Module):
 def check_whole_steps(dt: float, t_end: float, dt_field: str, t_end_field: str) -> None:
     """Refuse a step ``dt`` that does not divide ``t_end`` into whole steps, naming the spec's
     own fields (a run without a trajectory ends on its one save interval, t_end)."""
-    ratio = t_end / dt
-    if abs(ratio - round(ratio)) > 1e-6 * ratio:
+    if not _whole_steps(t_end, dt):
         raise ConfigError(dt_field, dt, f"must divide {t_end_field} = {t_end:g} s into whole "
-                          f"steps (it gives {ratio:.6g})")
+                          f"steps (it gives {t_end / dt:.6g})")
+
+
+def _whole_steps(span: float, dt: float) -> bool:
+    """``span`` is a whole number of steps ``dt`` (to 1e-6 of the count: rounding)."""
+    ratio = span / dt
+    return abs(ratio - round(ratio)) <= 1e-6 * ratio
 
 
 def _finite_positive(x) -> bool:
