@@ -780,6 +780,80 @@ def _identifiability(names, values, unc, bound=()) -> tuple[np.ndarray, list]:
     return ok, msgs
 
 
+@dataclass(frozen=True)
+class FitSettings:
+    """A fit's arguments, checked (``check_fit``): what ``fit`` runs with."""
+    drops: list
+    names: tuple
+    windows: tuple  # the growing fit windows [s]
+    stages_w: list  # the windows of every stage, the refit's included [s]
+    integrator: str
+    smoothing_m: float
+    smoothing_N: float
+    start_vehicle: jl.Vehicle
+    start_values: np.ndarray
+
+
+def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, start=None,
+              windows=WINDOWS_S, refine_window_s: float | None = REFINE_WINDOW_S,
+              robust: float | None = ROBUST_K, method: str = "lm", max_iter: int = 60,
+              dt: float = 1e-5, integrator: str = INTEGRATOR, smoothing_m: float | None = None,
+              smoothing_N: float | None = None, peak_form: str | None = None,
+              model_form: bool | str = "auto",
+              peak_model_term: bool | str = "auto") -> FitSettings:
+    """``fit``'s arguments checked before any compilation (each bad one refused by name with
+    ``jaxland.ConfigError``), so that a caller can refuse them before it announces a fit."""
+    if isinstance(drops, DropTest):
+        drops = [drops]
+    drops = list(drops)
+    if not drops:
+        raise jl.ConfigError("drops", "[]", "give at least one drop test")
+    names = check_names(params)
+    if method not in ("lm", "lbfgs"):
+        raise jl.ConfigError("method", method, "must be 'lm' or 'lbfgs'")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
+        raise jl.ConfigError("max_iter", max_iter, "must be an integer >= 1")
+    if robust is not None and not (isinstance(robust, (int, float)) and 0 < robust < 1e6):
+        raise jl.ConfigError("robust", robust, "must be a number > 0 (robust std units) or None")
+    if isinstance(integrator, str) and integrator in INTEGRATORS:
+        default_m, default_n = SMOOTHING[integrator]
+        smoothing_m = default_m if smoothing_m is None else smoothing_m
+        smoothing_N = default_n if smoothing_N is None else smoothing_N
+    integrator, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
+                                                            smoothing_N)
+    windows = tuple(float(w) for w in windows)
+    if not windows or any(not (w > 0 and math.isfinite(w)) for w in windows) or list(
+            windows) != sorted(windows):
+        raise jl.ConfigError("windows", list(windows), "must be increasing positive numbers [s]")
+    base = drops[0].vehicle if vehicle is None else vehicle
+    jl.validate_vehicle(base)
+    start_vehicle = switch_on(_start_vehicle(base, names, start), names)
+    limit = float(jl.stable_step(start_vehicle, method=integrator))
+    if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
+        raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
+                             f"{integrator} for the start vehicle)")
+    start_values = get_values(start_vehicle, names)
+    shortest = min(d.duration_after_touchdown_s for d in drops)
+    stages_w = list(windows)
+    if refine_window_s:
+        if not (refine_window_s > 0 and math.isfinite(refine_window_s)):
+            raise jl.ConfigError("refine_window_s", refine_window_s, "must be a number > 0 s")
+        refine = min(float(refine_window_s), shortest - 0.006)
+        if refine > windows[-1]:
+            stages_w.append(refine)
+    check_peak_form(names, peak_form)
+    if model_form not in ("auto", True, False):
+        raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
+    if peak_model_term not in ("auto", False):
+        raise jl.ConfigError("peak_model_term", peak_model_term, "must be 'auto' or False")
+    if model_form is True and "peak1" not in names:
+        raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
+                             "parameters (the term spans the crush peak's forms)")
+    return FitSettings(drops=drops, names=names, windows=windows, stages_w=stages_w,
+                       integrator=integrator, smoothing_m=smoothing_m, smoothing_N=smoothing_N,
+                       start_vehicle=start_vehicle, start_values=start_values)
+
+
 def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, start=None,
         windows=WINDOWS_S, refine_window_s: float | None = REFINE_WINDOW_S,
         robust: float | None = ROBUST_K, multistart: bool = True, method: str = "lm",
@@ -841,52 +915,15 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # _inner: a fit run inside another for its values (the missing-peak term): no warnings,
     # no channel spread (it moves no value), on the outer fit's program (``peak_switch``)
     warn = _no_warning if _inner else warnings.warn
-    if isinstance(drops, DropTest):
-        drops = [drops]
-    drops = list(drops)
-    if not drops:
-        raise jl.ConfigError("drops", "[]", "give at least one drop test")
-    names = check_names(params)
-    if method not in ("lm", "lbfgs"):
-        raise jl.ConfigError("method", method, "must be 'lm' or 'lbfgs'")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
-        raise jl.ConfigError("max_iter", max_iter, "must be an integer >= 1")
-    if robust is not None and not (isinstance(robust, (int, float)) and 0 < robust < 1e6):
-        raise jl.ConfigError("robust", robust, "must be a number > 0 (robust std units) or None")
-    if isinstance(integrator, str) and integrator in INTEGRATORS:
-        default_m, default_n = SMOOTHING[integrator]
-        smoothing_m = default_m if smoothing_m is None else smoothing_m
-        smoothing_N = default_n if smoothing_N is None else smoothing_N
-    integrator, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
-                                                            smoothing_N)
-    windows = tuple(float(w) for w in windows)
-    if not windows or any(not (w > 0 and math.isfinite(w)) for w in windows) or list(
-            windows) != sorted(windows):
-        raise jl.ConfigError("windows", list(windows), "must be increasing positive numbers [s]")
-    base = drops[0].vehicle if vehicle is None else vehicle
-    jl.validate_vehicle(base)
-    start_vehicle = switch_on(_start_vehicle(base, names, start), names)
-    limit = float(jl.stable_step(start_vehicle, method=integrator))
-    if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
-        raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
-                             f"{integrator} for the start vehicle)")
-    start_values = get_values(start_vehicle, names)
-    shortest = min(d.duration_after_touchdown_s for d in drops)
-    stages_w = list(windows)
-    if refine_window_s:
-        if not (refine_window_s > 0 and math.isfinite(refine_window_s)):
-            raise jl.ConfigError("refine_window_s", refine_window_s, "must be a number > 0 s")
-        refine = min(float(refine_window_s), shortest - 0.006)
-        if refine > windows[-1]:
-            stages_w.append(refine)
-    check_peak_form(names, peak_form)
-    if model_form not in ("auto", True, False):
-        raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
-    if peak_model_term not in ("auto", False):
-        raise jl.ConfigError("peak_model_term", peak_model_term, "must be 'auto' or False")
-    if model_form is True and "peak1" not in names:
-        raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
-                             "parameters (the term spans the crush peak's forms)")
+    c = check_fit(drops, params, vehicle=vehicle, start=start, windows=windows,
+                  refine_window_s=refine_window_s, robust=robust, method=method,
+                  max_iter=max_iter, dt=dt, integrator=integrator,
+                  smoothing_m=smoothing_m, smoothing_N=smoothing_N,
+                  peak_form=peak_form, model_form=model_form,
+                  peak_model_term=peak_model_term)
+    drops, names, windows, stages_w = c.drops, c.names, c.windows, c.stages_w
+    integrator, smoothing_m, smoothing_N = c.integrator, c.smoothing_m, c.smoothing_N
+    start_vehicle, start_values = c.start_vehicle, c.start_values
     form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
     # one problem (one compilation) for every stage: the windows are masks. With the

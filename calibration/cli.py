@@ -91,29 +91,24 @@ def _cmd_fit(args) -> int:
     refine = args.refine_window_s if args.refine_window_s > 0 else None
     robust = args.robust if args.robust > 0 else None
     start = _start(args.start)
-    integrator = args.integrator
-    if not (isinstance(integrator, str) and integrator in _fit.INTEGRATORS):
-        _fit.check_integrator(integrator, 0.0, 0.0)  # refuses it by name
-    default_m, default_n = _fit.SMOOTHING[integrator]
-    smoothing_m = default_m if args.smoothing_m is None else args.smoothing_m
-    smoothing_n = default_n if args.smoothing_n is None else args.smoothing_n
-    _fit.check_integrator(integrator, smoothing_m, smoothing_n)
     peak_form = None if args.peak_form == "law" else args.peak_form
     from ._compare import peak_model_names
 
-    # --compare-models fits the peak model (peak_form's) beside the model without the peak
-    _fit.check_peak_form(peak_model_names(names) if args.compare_models else names, peak_form)
-    print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
-          f"parameters {', '.join(names)}, method {args.method}, integrator {integrator} "
-          f"(dt {args.dt:g} s, smoothing {smoothing_m:g} m / {smoothing_n:g} N)",
-          file=sys.stderr)
     fit_kw = dict(vehicle=vehicle, start=start, windows=windows,
                   refine_window_s=refine, robust=robust, method=args.method,
-                  max_iter=args.max_iter, dt=args.dt, integrator=integrator,
-                  smoothing_m=smoothing_m, smoothing_N=smoothing_n,
-                  progress=_Progress(args.quiet),
+                  max_iter=args.max_iter, dt=args.dt, integrator=args.integrator,
+                  smoothing_m=args.smoothing_m, smoothing_N=args.smoothing_n,
                   model_form=False if args.no_model_form else "auto",
                   peak_model_term=False if args.no_peak_model_term else "auto")
+    # every argument refused before the banner; --compare-models fits the peak model
+    # (peak_form's) beside the model without the peak
+    checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models else names,
+                             peak_form=peak_form, **fit_kw)
+    print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
+          f"parameters {', '.join(names)}, method {args.method}, integrator "
+          f"{checked.integrator} (dt {args.dt:g} s, smoothing {checked.smoothing_m:g} m / "
+          f"{checked.smoothing_N:g} N)", file=sys.stderr)
+    fit_kw["progress"] = _Progress(args.quiet)
     if peak_form is not None:
         fit_kw["peak_form"] = peak_form
     cmp = None

@@ -335,7 +335,9 @@ def test_a_touchdown_time_after_the_impact_began_is_refused():
 def test_the_cli_refuses_a_drop_given_twice_a_folder_and_bad_fit_flags(tmp_path, capsys):
     """Each with exit 2 and one line, before any fit: a drop given as its TOML and its CSV
     (it would count twice), two drops of one name in predict (one output file each), a folder
-    as DATA, and flags outside their range (which used to mean 'off')."""
+    as DATA, flags outside their range (which used to mean 'off'), and settings the fit itself
+    refuses (a step beyond the stability limit, windows out of order, a peak form without the
+    peak), without the fit's banner before the error."""
     t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
     for sub in ("a", "b"):
         (tmp_path / sub).mkdir()
@@ -353,6 +355,10 @@ def test_the_cli_refuses_a_drop_given_twice_a_folder_and_bad_fit_flags(tmp_path,
         (["fit", a, "--refine-window-s", "nan"], "--refine-window-s = nan"),
         (["fit", a, "--max-iter", "0"], "--max-iter = 0: must be at least 1"),
         (["fit", a, "--start", "k=abc"], "--start k = 'abc'"),
+        # refused inside the fit's own checks (check_fit), still before its banner
+        (["fit", a, "--dt", "1e-3"], "dt = 0.001: must be in (0, "),
+        (["fit", a, "--windows", "0.03,0.01"], "windows = [0.03, 0.01]: must be increasing"),
+        (["fit", a, "--peak-form", "exp"], "peak_form"),
     ]
     for argv, needle in cases:
         out = tmp_path / "out"
