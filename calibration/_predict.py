@@ -57,9 +57,11 @@ class Prediction:
     model_time_s: np.ndarray = field(repr=False)
     model: dict = field(repr=False)
     touchdown_time_s: float = 0.0
+    inputs: dict = field(default_factory=dict)  # what a caller ran it from (the CLI's files)
 
     def to_dict(self) -> dict:
         return dict(drop=self.drop.summary(), touchdown_time_s=self.touchdown_time_s,
+                    **({"inputs": self.inputs} if self.inputs else {}),
                     metrics=self.metrics, paper_errors=PAPER_ERRORS,
                     note="relative error = (model - data) / |data|; data peaks include noise "
                          "and any artefact the model lacks (e.g. a honeycomb crush peak)")

@@ -223,6 +223,10 @@ def _cmd_predict(args) -> int:
     drops = [load_drop_test(p, vehicle=vehicle) for p in args.data]
     check_drop_names(drops, args.data)
     preds = [predict(vehicle, d) for d in drops]
+    for p, path in zip(preds, args.data):  # each prediction names what it was run from
+        p.inputs = dict(vehicle_config=str(Path(args.config).resolve()),
+                        vehicle_as_run="vehicle.toml", data=str(Path(path).resolve()),
+                        jaxland_version=jl.__version__)
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
         (staging / "vehicle.toml").write_text(f"# the vehicle predicted with (--config "
                                               f"{args.config})\n" + jl.vehicle_to_toml(vehicle))

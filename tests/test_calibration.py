@@ -408,7 +408,8 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     assert _run(["predict", "--config", str(cli_fit / "fitted_vehicle.toml"),
                  str(DATA / "drop_h0.30m.toml"), "--out", str(out)]) == 0
     assert "peak_buffer_force_N" in capsys.readouterr().out
-    m = json.loads((out / "prediction_drop_h0.30m.json").read_text())["metrics"]
+    rep = json.loads((out / "prediction_drop_h0.30m.json").read_text())
+    m = rep["metrics"]
     assert abs(m["max_stroke_m"]["rel_error"]) <= 0.01
     assert abs(m["final_stroke_m"]["rel_error"]) <= 0.01
     assert abs(m["peak_normal_force_N"]["rel_error"]) <= 0.05
@@ -418,6 +419,9 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     # the folder records the vehicle it predicted with
     assert jl.vehicle_to_toml(jl.load_vehicle(out / "vehicle.toml")) == \
         jl.vehicle_to_toml(jl.load_vehicle(cli_fit / "fitted_vehicle.toml"))
+    # and each prediction names the files it came from
+    assert rep["inputs"]["vehicle_config"] == str((cli_fit / "fitted_vehicle.toml").resolve())
+    assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
 
 
 @pytest.mark.parametrize("argv,needle", [
