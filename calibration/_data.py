@@ -136,6 +136,9 @@ NOISE_FLOOR_REL = 1e-4  # noise floor, fraction of the channel's range (noise-fr
 # mechanism's delay of a few ms is 1-3 % of the height at 0.2 m)
 FREE_FALL_REL = 0.05
 FREE_FALL_ABS_M = 2e-3
+# a body acceleration swings through the impact by 0.66-0.95 of a force channel's swing over
+# the leg's mass (bundled records); in g by a tenth of that: refused below this fraction
+ACCEL_SWING_MIN = 0.25
 _ONSET_ORDER = ("normal_force_N", "buffer_force_N", "body_accel_mps2", "stroke_m")
 
 
@@ -364,7 +367,9 @@ class DropTest:
         sign gives: a stroke beyond the strut's length (mm under an _m header) or running
         negative through the impact (compression is positive); a force that after touchdown
         stays under a tenth of the leg's share of the weight (kN under an _N header, a flipped
-        sign); and a given touchdown time after the impact has begun. (A body acceleration's
+        sign); a body acceleration whose swing through the impact is under ``ACCEL_SWING_MIN``
+        of what the force channels imply for the leg's mass (g under an _mps2 header: about a
+        tenth); and a given touchdown time after the impact has begun. (A body acceleration's
         free-fall level is not checked: the offset makes a specific force kinematic.)"""
         t, t0, v = self.time_s, self.touchdown_time_s, self.vehicle
         after = t >= t0
@@ -403,6 +408,28 @@ class DropTest:
                                f"tenth of the {share:.4g} N the leg carries at rest: a force "
                                f"in kN (a {col.replace('_N', '_kN')} column is converted), or "
                                "its sign flipped (compression positive)?")
+        self._check_accel_scale(after)
+
+    def _check_accel_scale(self, after) -> None:
+        """The body acceleration's peak-to-peak swing after touchdown against each force
+        channel's divided by the leg's mass (the body's share): about 0.95 for the ground's
+        normal force and 0.66 for the strut's buffer force on the bundled records, 1 / 9.81
+        of that in g. Refused by name below ``ACCEL_SWING_MIN`` of the smaller implied swing."""
+        m = float(self.vehicle.m_quarter)
+        acc = [c for c in self.corrected if base_channel(c) == "body_accel_mps2"]
+        forces = [c for c in self.corrected
+                  if base_channel(c) in ("normal_force_N", "buffer_force_N")]
+        if not (acc and forces):
+            return
+        implied = min(float(np.ptp(self.corrected[c][after])) / m for c in forces)
+        for col in acc:
+            swing = float(np.ptp(self.corrected[col][after]))
+            if swing < ACCEL_SWING_MIN * implied:
+                raise _err(f"{self.source}: {col}", f"swing {swing:.4g}", "is "
+                           f"{swing / implied:.2g} of the swing the forces imply "
+                           f"({implied:.4g} m/s^2 for the leg's {m:.4g} kg; a record in m/s^2 "
+                           "gives 0.6 to 1): an acceleration in g? (a body_accel_g column is "
+                           "converted)")
 
     def _check_free_fall(self) -> None:
         """The drop height the free fall from release to touchdown implies against the

@@ -309,10 +309,14 @@ def _wrong(ch, col, how):
      "stroke_m = '0.0015 throughout': is constant over the whole record"),
     (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: np.full_like(x, -9.81)),
      "body_accel_mps2 = '-9.81 throughout': is constant"),  # fit and predict divided by 0
+
+    (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: x / 9.80665),
+     r"body_accel_mps2 = 'swing \d\.\d+': is 0\.0\d+ of the swing the forces imply.*in g"),
 ])
 def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
     """What no drop of this vehicle records: a stroke beyond the strut's length, one that runs
-    negative through the impact, a force that never reaches a tenth of the leg's weight."""
+    negative through the impact, a force that never reaches a tenth of the leg's weight, a
+    body acceleration that swings a tenth as far as the forces say (g under an m/s^2 header)."""
     t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
     cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2)  # as recorded
     with pytest.raises(jl.ConfigError, match=needle):
