@@ -281,7 +281,16 @@ def _form_row(r, n: int) -> dict:
                 plausible_forms=mf["plausible"], failed_forms=mf["failed"],
                 best_form_values=[best["values"][p] for p in r.names[:n]],
                 best_form_shape={p: best["values"][p] for p in ("peak1", "L_peak1", "L_rise1")
-                                 if p in best["values"]})
+                                 if p in best["values"]},
+                forms=_forms_scores(mf), n_obs=r.n_obs)
+
+
+def _forms_scores(mf) -> dict:
+    """Each peak form's chi^2, fitted parameters and plausibility (None: its refit failed), so
+    that another reading of which form is best can be computed from the stored runs."""
+    return {k: None if f is None else dict(chi2=f["chi2"], n_params=f["n_params"],
+                                           plausible=f["plausible"])
+            for k, f in mf["forms"].items()}
 
 
 def coverage_summary(case: dict, names) -> dict:
@@ -581,7 +590,7 @@ def _recovery_form(r, base, p_true) -> dict:
         return dict(model_form=False)
     v = r.values[:len(base)]
     return dict(model_form=True, best_form=row["best_form"],
-                best_form_shape=row["best_form_shape"],
+                best_form_shape=row["best_form_shape"], forms=row["forms"], n_obs=row["n_obs"],
                 plausible_forms=row["plausible_forms"], failed_forms=row["failed_forms"],
                 best_form_rel_error=dict(zip(base, (np.array(row["best_form_values"])
                                                     / p_true - 1).tolist())),

@@ -89,9 +89,28 @@ def test_the_term_stays_small_where_the_laws_peak_is_the_truth(form_fits):
     res = form_fits["law's peak"]
     mf = res.diagnostics["model_form"]
     assert mf["form"] == "linear" and not mf["failed"]
+    assert mf["best_supported"] == "linear"  # the form that generated the record is named
     term = np.array([mf["spread"][n] for n in cal.DEFAULT_PARAMS])
     # every form that fits this record as well moves the values by less than their scatter
     assert np.all(term <= 1.0 * _trusted(res)[:len(cal.DEFAULT_PARAMS)])
+
+
+def test_the_named_form_is_the_plausible_one_of_least_bic():
+    """A built-up form containing the plain one (one more parameter) and 6.1 lower in chi^2
+    (the rig's exponential peak, seed 3003, where the plain exponential form is the truth):
+    AIC would name the built-up form, BIC (ln 3100 = 8.0 per parameter) the plain one; a form
+    of still less BIC that the adjusted AIC rejects is never named."""
+    n = 3100
+    forms = {"exp": dict(chi2=3057.84, n_params=9), "rise_exp": dict(chi2=3051.73, n_params=10),
+             "linear": dict(chi2=2900.0, n_params=1), "smooth_exp": None}
+    for name, f in forms.items():
+        if f is not None:
+            f.update(bic=f["chi2"] + f["n_params"] * np.log(n), aic=f["chi2"] + 2 * f["n_params"],
+                     plausible=name != "linear")
+    assert forms["rise_exp"]["aic"] < forms["exp"]["aic"]
+    assert cal_fit.best_supported_form(forms) == "exp"
+    forms["linear"]["plausible"] = True
+    assert cal_fit.best_supported_form(forms) == "linear"
 
 
 def test_the_term_widens_k_b1_to_the_better_form_on_a_mis_shaped_peak(form_fits):
