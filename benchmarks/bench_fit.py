@@ -286,11 +286,11 @@ def _form_row(r, n: int) -> dict:
 
 
 def _forms_scores(mf) -> dict:
-    """Each peak form's chi^2, fitted parameters and plausibility (None: its refit failed), so
-    that another reading of which form is best can be computed from the stored runs."""
-    return {k: None if f is None else dict(chi2=f["chi2"], n_params=f["n_params"],
-                                           plausible=f["plausible"])
-            for k, f in mf["forms"].items()}
+    """Each peak form's values, chi^2, fitted parameters, scores and plausibility (None: its
+    refit failed), so that another reading of which form is best can be computed from the
+    stored runs."""
+    keys = ("values", "chi2", "n_params", "daic_adjusted", "bic_adjusted", "plausible")
+    return {k: None if f is None else {x: f[x] for x in keys} for k, f in mf["forms"].items()}
 
 
 def coverage_summary(case: dict, names) -> dict:

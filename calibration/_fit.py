@@ -573,7 +573,7 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     the refit failed). ``spread``: per parameter the largest absolute shift over the
     plausible forms (this fit's own form included, shift 0), 0 on the peak's own parameters,
     whose meaning differs between forms (``SHAPE_PARAMS``); ``best_supported``: the plausible
-    form of least BIC (``best_supported_form``)."""
+    form of least misfit-adjusted BIC (``best_supported_form``)."""
     names = problem.names
     values = problem.values(theta)
     n_t = len(problem.drops) if problem.fit_touchdown else 0
@@ -606,13 +606,13 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     n_obs = problem.n_obs
     for f in done.values():
         f["aic"] = f["chi2"] + 2 * f["n_params"]
-        f["bic"] = f["chi2"] + f["n_params"] * math.log(n_obs)
     least_aic = min(done, key=lambda k: done[k]["aic"])
     s2 = done[least_aic]["chi2"] / max(n_obs - done[least_aic]["n_params"], 1)
     rho = min(max(rho1, 0.0), 0.99)
     inflation = max(s2, 1.0) * (1.0 + rho) / (1.0 - rho)
     spread = np.zeros(len(names))
     for f in done.values():
+        f["bic_adjusted"] = f["chi2"] / inflation + f["n_params"] * math.log(n_obs)
         f["daic_adjusted"] = (f["aic"] - done[least_aic]["aic"]) / inflation
         f["plausible"] = bool(f["daic_adjusted"] <= DAIC_PLAUSIBLE)
         if f["plausible"]:
@@ -626,15 +626,21 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
 
 
 def best_supported_form(forms: dict) -> str:
-    """The form the report names: of the plausible ``forms`` (``model_form_spread``'s, each
-    with ``bic`` = chi^2 + p ln n and ``plausible``), the one of least BIC. Naming a form asks
-    which shape generated the record, where AIC's penalty of 2 per parameter over-fits: a
-    built-up form (one more parameter, L_rise1) beats the plain one it contains whenever noise
-    lowers chi^2 by 2, on about one record in six; BIC's ln n (about 8 at 3000 samples) asks
-    for a real improvement. Which forms are plausible, and so the peak-shape term, stays with
-    the adjusted AIC (the wider set)."""
-    plausible = [k for k, f in forms.items() if f is not None and f["plausible"]]
-    return min(plausible, key=lambda k: forms[k]["bic"])
+    """The form the report names: of the plausible ``forms`` (``model_form_spread``'s), the one
+    of least misfit-adjusted BIC, chi^2 / c + p ln n (``bic_adjusted``; c the long-run variance
+    factor of the adjusted AIC differences, 1 on data the forms represent). Naming a form asks
+    which shape made the record, where AIC's penalty of 2 per parameter over-fits: a built-up
+    form (one more parameter, L_rise1) beats the plain one it contains whenever noise lowers
+    chi^2 by 2, on about one record in six; ln n (about 8 at 3000 samples) asks for a real
+    improvement, and dividing chi^2 by c keeps that true where correlated residuals inflate
+    its differences. Which forms are plausible, and so the peak-shape term, stays with the
+    adjusted AIC (the wider set). No plausible form (a chi^2 that is not finite): the form of
+    least AIC."""
+    done = {k: f for k, f in forms.items() if f is not None}
+    plausible = [k for k, f in done.items() if f["plausible"]]
+    if not plausible:
+        return min(done, key=lambda k: done[k]["aic"])
+    return min(plausible, key=lambda k: done[k]["bic_adjusted"])
 
 
 def has_no_peak(names, vehicle: jl.Vehicle) -> bool:
@@ -814,8 +820,10 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
               smoothing_N: float | None = None, peak_form: str | None = None,
               model_form: bool | str = "auto",
               peak_model_term: bool | str = "auto") -> FitSettings:
-    """``fit``'s arguments checked before any compilation (each bad one refused by name with
-    ``jaxland.ConfigError``), so that a caller can refuse them before it announces a fit."""
+    """``fit``'s arguments checked (each bad one refused by name with ``jaxland.ConfigError``)
+    before any compilation, so that a caller can refuse them before it announces a fit.
+    ``save_dt``, ``channels`` and ``fit_touchdown`` are checked where they are used, by
+    ``CalibrationProblem``."""
     if isinstance(drops, DropTest):
         drops = [drops]
     drops = list(drops)
@@ -1088,13 +1096,13 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                    + ((" and " if rise else ", with ")
                       + f"peak_form='{best}' (--peak-form {best})" if best in EXP_TABLE_SPAN
                       else " and without peak_form"))
-            daic = {k: mform["forms"][k]["daic_adjusted"] for k in (form, best)}
             warn(
-                f"the data reject the crush peak's {form} form: the {best} form fits them "
-                f"better by a misfit-adjusted AIC of {daic[form] - daic[best]:.3g} (a form "
-                f"{DAIC_PLAUSIBLE:g} behind the least is rejected); std_error_total spans the "
-                f"forms the data support ({', '.join(mform['plausible'])}); to report the "
-                f"{best} form's values, {how}", MisfitWarning, stacklevel=2)
+                f"the data reject the crush peak's {form} form: its misfit-adjusted AIC is "
+                f"{mform['forms'][form]['daic_adjusted']:.3g} behind the least (limit "
+                f"{DAIC_PLAUSIBLE:g}), and the {best} form is the best supported; "
+                f"std_error_total spans the forms the data support "
+                f"({', '.join(mform['plausible'])}); to report the {best} form's values, {how}",
+                MisfitWarning, stacklevel=2)
     with_peak = None
     if peak_future is not None:
         try:

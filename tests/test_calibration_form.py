@@ -95,22 +95,36 @@ def test_the_term_stays_small_where_the_laws_peak_is_the_truth(form_fits):
     assert np.all(term <= 1.0 * _trusted(res)[:len(cal.DEFAULT_PARAMS)])
 
 
-def test_the_named_form_is_the_plausible_one_of_least_bic():
+def _scored(forms: dict, n: int, c: float) -> dict:
+    """``model_form_spread``'s scores of forms given as (chi^2, fitted parameters)."""
+    out = {k: None if f is None else dict(chi2=f[0], n_params=f[1]) for k, f in forms.items()}
+    done = [f for f in out.values() if f is not None]
+    for f in done:
+        f["aic"] = f["chi2"] + 2 * f["n_params"]
+    least = min(f["aic"] for f in done)
+    for f in done:
+        f["daic_adjusted"] = (f["aic"] - least) / c
+        f["plausible"] = f["daic_adjusted"] <= cal_fit.DAIC_PLAUSIBLE
+        f["bic_adjusted"] = f["chi2"] / c + f["n_params"] * np.log(n)
+    return out
+
+
+def test_the_named_form_is_the_plausible_one_of_least_adjusted_bic():
     """A built-up form containing the plain one (one more parameter) and 6.1 lower in chi^2
     (the rig's exponential peak, seed 3003, where the plain exponential form is the truth):
-    AIC would name the built-up form, BIC (ln 3100 = 8.0 per parameter) the plain one; a form
-    of still less BIC that the adjusted AIC rejects is never named."""
+    AIC would name the built-up form, BIC (ln 3100 = 8.0 per parameter) names the plain one. A
+    form of less BIC that the adjusted AIC rejects is never named; where correlated residuals
+    inflate chi^2 differences 4-fold, a built-up form 20 lower is not named either."""
     n = 3100
-    forms = {"exp": dict(chi2=3057.84, n_params=9), "rise_exp": dict(chi2=3051.73, n_params=10),
-             "linear": dict(chi2=2900.0, n_params=1), "smooth_exp": None}
-    for name, f in forms.items():
-        if f is not None:
-            f.update(bic=f["chi2"] + f["n_params"] * np.log(n), aic=f["chi2"] + 2 * f["n_params"],
-                     plausible=name != "linear")
+    forms = _scored({"exp": (3057.84, 9), "rise_exp": (3051.73, 10), "linear": (3100.0, 3),
+                     "smooth_exp": None}, n, 1.0)
     assert forms["rise_exp"]["aic"] < forms["exp"]["aic"]
+    assert forms["linear"]["bic_adjusted"] < forms["exp"]["bic_adjusted"]
+    assert not forms["linear"]["plausible"]
     assert cal_fit.best_supported_form(forms) == "exp"
-    forms["linear"]["plausible"] = True
-    assert cal_fit.best_supported_form(forms) == "linear"
+    inflated = {"exp": (3057.84, 9), "rise_exp": (3037.84, 10)}
+    assert cal_fit.best_supported_form(_scored(inflated, n, 1.0)) == "rise_exp"
+    assert cal_fit.best_supported_form(_scored(inflated, n, 4.0)) == "exp"
 
 
 def test_the_term_widens_k_b1_to_the_better_form_on_a_mis_shaped_peak(form_fits):
