@@ -311,7 +311,8 @@ def _wrong(ch, col, how):
      "body_accel_mps2 = '-9.81 throughout': is constant"),  # fit and predict divided by 0
 
     (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: x / 9.80665),
-     r"body_accel_mps2 = 'swing \d\.\d+': is 0\.0\d+ of the swing the forces imply.*in g"),
+     r"body_accel_mps2 = 'swing \d\.\d+ m/s\^2': must be at least 0\.25 of .* is 0\.1\d "
+     r"of it: an acceleration in g"),
 ])
 def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
     """What no drop of this vehicle records: a stroke beyond the strut's length, one that runs
@@ -321,6 +322,17 @@ def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
     cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2)  # as recorded
     with pytest.raises(jl.ConfigError, match=needle):
         cal.DropTest.from_arrays(t, how(ch), sample_rate_Hz=RATE, drop_height_m=0.2)
+
+
+def test_a_glitch_in_a_force_channel_does_not_refuse_the_acceleration():
+    """The acceleration's check compares swings of a running median: one sample of the only
+    force channel at 20 times its peak leaves a record in m/s^2 accepted."""
+    t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4, channels=("normal_force_N",
+                                                                       "body_accel_mps2"))
+    f = ch["normal_force_N"].copy()
+    f[int(np.argmax(f)) + 40] = 20.0 * f.max()
+    cal.DropTest.from_arrays(t, dict(ch, normal_force_N=f), sample_rate_Hz=RATE,
+                             drop_height_m=0.2)
 
 
 def test_a_touchdown_time_after_the_impact_began_is_refused():
@@ -339,9 +351,9 @@ def test_a_touchdown_time_after_the_impact_began_is_refused():
 def test_the_cli_refuses_a_drop_given_twice_a_folder_and_bad_fit_flags(tmp_path, capsys):
     """Each with exit 2 and one line, before any fit: a drop given as its TOML and its CSV
     (it would count twice), two drops of one name in predict (one output file each), a folder
-    as DATA, flags outside their range (which used to mean 'off'), and settings the fit itself
-    refuses (a step beyond the stability limit, windows out of order, a peak form without the
-    peak), without the fit's banner before the error."""
+    as DATA, flags outside their range (0 means off; below it is refused), and settings the
+    fit itself refuses (a step beyond the stability limit, windows out of order, a peak form
+    without the peak), without the fit's banner before the error."""
     t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
     for sub in ("a", "b"):
         (tmp_path / sub).mkdir()
