@@ -291,7 +291,14 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
         ["fit", str(toml), "--params", ",".join(PARAMS), "--windows", "0.01,0.03",
          "--refine-window-s", "0.1", "--no-plots", "--quiet", "--out", str(out)])
     assert args.func(args) == 0
-    text = capsys.readouterr().out
+    cap = capsys.readouterr()
+    text = cap.out
+    # the linear form is rejected: the warning gives its own distance to the least adjusted AIC
+    rep = json.loads((out / "fit_report.json").read_text())
+    d = rep["misfit"]["model_form"]["forms"]["linear"]["daic_adjusted"]
+    assert d > cal_fit.DAIC_PLAUSIBLE
+    assert (f"the data reject the crush peak's linear form: its misfit-adjusted AIC is {d:.3g} "
+            "behind the least (limit 10), and the smooth_exp form is the best supported") in cap.err
     assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
     assert "peak shape: fitted as linear" in text and "best supported: smooth_exp" in text
     rep = json.loads((out / "fit_report.json").read_text())
