@@ -286,10 +286,10 @@ def _form_row(r, n: int) -> dict:
 
 
 def _forms_scores(mf) -> dict:
-    """Each peak form's values, chi^2, fitted parameters, scores and plausibility (None: its
-    refit failed), so that another reading of which form is best can be computed from the
-    stored runs."""
-    keys = ("values", "chi2", "n_params", "daic_adjusted", "bic_adjusted", "plausible")
+    """Each peak form's chi^2, fitted parameters, scores and plausibility (None: its refit
+    failed), so that another reading of which form is best can be judged from the stored
+    runs."""
+    keys = ("chi2", "n_params", "daic_adjusted", "bic_adjusted", "plausible")
     return {k: None if f is None else {x: f[x] for x in keys} for k, f in mf["forms"].items()}
 
 
