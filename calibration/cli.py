@@ -108,7 +108,9 @@ def _cmd_fit(args) -> int:
           f"parameters {', '.join(names)}, method {args.method}, integrator "
           f"{checked.integrator} (dt {args.dt:g} s, smoothing {checked.smoothing_m:g} m / "
           f"{checked.smoothing_N:g} N)", file=sys.stderr)
-    fit_kw["progress"] = _Progress(args.quiet)
+    # the fit runs with the settings as checked (the integrator's default smoothing filled in)
+    fit_kw.update(integrator=checked.integrator, smoothing_m=checked.smoothing_m,
+                  smoothing_N=checked.smoothing_N, progress=_Progress(args.quiet))
     if peak_form is not None:
         fit_kw["peak_form"] = peak_form
     cmp = None
