@@ -936,15 +936,17 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # _inner: a fit run inside another for its values (the missing-peak term): no warnings,
     # no channel spread (it moves no value), on the outer fit's program (``peak_switch``)
     warn = _no_warning if _inner else warnings.warn
-    c = check_fit(drops, params, vehicle=vehicle, start=start, windows=windows,
-                  refine_window_s=refine_window_s, robust=robust, method=method,
-                  max_iter=max_iter, dt=dt, integrator=integrator,
-                  smoothing_m=smoothing_m, smoothing_N=smoothing_N,
-                  peak_form=peak_form, model_form=model_form,
-                  peak_model_term=peak_model_term)
-    drops, names, windows, stages_w = c.drops, c.names, c.windows, c.stages_w
-    integrator, smoothing_m, smoothing_N = c.integrator, c.smoothing_m, c.smoothing_N
-    start_vehicle, start_values = c.start_vehicle, c.start_values
+    checked = check_fit(drops, params, vehicle=vehicle, start=start, windows=windows,
+                        refine_window_s=refine_window_s, robust=robust, method=method,
+                        max_iter=max_iter, dt=dt, integrator=integrator,
+                        smoothing_m=smoothing_m, smoothing_N=smoothing_N,
+                        peak_form=peak_form, model_form=model_form,
+                        peak_model_term=peak_model_term)
+    drops, names, windows, stages_w = (checked.drops, checked.names, checked.windows,
+                                       checked.stages_w)
+    integrator, smoothing_m, smoothing_N = (checked.integrator, checked.smoothing_m,
+                                            checked.smoothing_N)
+    start_vehicle, start_values = checked.start_vehicle, checked.start_values
     form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
     # one problem (one compilation) for every stage: the windows are masks. With the
