@@ -44,8 +44,9 @@ benchmarks/results/bench_fit.json):
    linearly or smoothly: ``PEAK_FORMS``). A peak shape
    the law lacks biases every channel alike, so the residuals can look clean and the channels
    agree; the forms the data still support (misfit-adjusted AIC within ``DAIC_PLAUSIBLE`` of
-   the best) bracket that bias, and the largest shift among them is added in quadrature to
-   ``std_errors_total``. A form the data reject adds nothing. The fit and its refits in
+   the least) bracket that bias, and the largest shift among them is added in quadrature to
+   ``std_errors_total``. A form the data reject adds nothing. The report names the supported
+   form of least misfit-adjusted BIC (``best_supported_form``). The fit and its refits in
    every form share one compiled program (``CalibrationProblem(shared_forms=True)``), and the
    refits run in a second thread beside the channel spread's.
 8. **Missing peak** (``add_peak_model_term``), where the misfit is warned and the fitted model
