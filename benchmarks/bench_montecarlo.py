@@ -480,12 +480,12 @@ FINER_STEPS = (("leapfrog", 2e-5), ("leapfrog", 1e-5), ("verlet", 2e-5), ("verle
 
 def step_check(n: int, out: Path) -> dict:
     """The 3-D model's chosen step (montecarlo_step.json), the spec's default step and
-    ``FINER_STEPS`` checked
-    on ``n`` samples, more than the study ran, against both converged runs (verlet and euler at
-    the reference step): per outcome, the worst per-sample error where the two agree within a
-    tenth of the tolerance (the sample with the largest), the samples that miss the tolerance
-    there, the samples on which the two converged runs themselves disagree, and the mean and
-    median errors next to the converged runs' own. Writes montecarlo_step_check.json."""
+    ``FINER_STEPS`` checked on ``n`` samples, more than the study ran, against both converged
+    runs (verlet and euler at the reference step): per outcome, the worst per-sample error
+    where the two agree within a tenth of the tolerance (the sample with the largest), the
+    samples that miss the tolerance there, the samples on which the two converged runs
+    themselves disagree, and the mean and median errors next to the converged runs' own.
+    Writes montecarlo_step_check.json."""
     import numpy as np
 
     step_file = step_file_of(out)

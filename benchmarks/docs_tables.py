@@ -554,8 +554,7 @@ def montecarlo_step_check() -> str:
             if k == "peak_honeycomb_force_N" and not o["worst_where_converged_agree"]:
                 continue  # on its plateau in every sample: exact at any step
             rows.append([
-                f"{r['method']}, {r['dt_s']:g}" + (f" ({r['role']})" if "role" in r else ""),
-                k,
+                f"{r['method']}, {r['dt_s']:g} ({r['role']})", k,
                 f"{_g(o['worst_where_converged_agree'], 2)} (sample {o['worst_sample']})",
                 ", ".join(map(str, o["over_tolerance"])) or "none",
                 f"{len(o['converged_disagree'])} "

@@ -217,13 +217,12 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_predict(args) -> int:
-    from ._data import check_drop_names, load_drop_test
+    from ._data import load_drop_tests
     from ._predict import predict
 
     out = _out_dir(args.out)
     vehicle = jl.load_vehicle(args.config)
-    drops = [load_drop_test(p, vehicle=vehicle) for p in args.data]
-    check_drop_names(drops, args.data)
+    drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
     preds = [predict(vehicle, d) for d in drops]
     for p, path in zip(preds, args.data):  # each prediction names what it was run from
         p.inputs = dict(vehicle_config=str(Path(args.config).resolve()),
