@@ -465,11 +465,13 @@ def check_peak_form(names, peak_form: str | None) -> None:
                              "parameters")
     if ("L_rise1" in names) != (peak_form in RISE_FORMS):
         raise jl.ConfigError("peak_form", peak_form,
+                             "needs L_rise1 among the fitted parameters (the ripple's fold "
+                             "length)" if peak_form == "ripple" else
                              "needs L_rise1 among the fitted parameters (the exponential "
                              "decay built up over L_rise1)" if peak_form in RISE_FORMS else
                              "cannot be combined with L_rise1 (the built-up forms: "
                              "peak_form='rise_exp' or 'smooth_exp' build up the exponential "
-                             "decay)")
+                             "decay; in peak_form='ripple' it is the fold length)")
 
 
 def peak_form_of(names, peak_form: str | None) -> str | None:
@@ -503,8 +505,10 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     functions serve every form (``shared_forms``): made once per drops, channels and solver."""
     names = _form_names(problem.names, alt)
     veh = peak_form_vehicle(vehicle, "linear") if alt not in RISE_FORMS else vehicle
-    if alt in RISE_FORMS and veh.honeycomb.peak_rise1 is None:
-        veh = _rise_start(veh, names)
+    # a rise length is no fold length: between the ripple and the other forms L_rise1 restarts
+    if alt in RISE_FORMS and (veh.honeycomb.peak_rise1 is None
+                              or (alt == "ripple") != (problem.peak_form == "ripple")):
+        veh = _rise_start(veh, names, alt)
     veh = _inside_form(veh, names, alt)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
@@ -696,13 +700,14 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
     result.diagnostics["peak_model_term"] = rec
 
 
-def _rise_start(vehicle: jl.Vehicle, names) -> jl.Vehicle:
+def _rise_start(vehicle: jl.Vehicle, names, form: str | None = None) -> jl.Vehicle:
     """``vehicle`` with the rise switched on at its ``START_IF_OFF`` length, or where that
-    lies outside its bounds, in the middle of them."""
+    lies outside its bounds in ``form``, in the middle of them; in the ripple form, where
+    L_rise1 is the fold length, always in the middle of its bounds."""
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
     vals = get_values(veh, names)
-    lo, hi = interval("L_rise1", names, vals, veh)
-    if not lo < START_IF_OFF["L_rise1"] < hi:
+    lo, hi = interval("L_rise1", names, vals, veh, form)
+    if form == "ripple" or not lo < START_IF_OFF["L_rise1"] < hi:
         veh = set_values(vehicle, ("L_rise1",), [0.5 * (lo + hi)])
     return veh
 
@@ -849,7 +854,11 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("windows", list(windows), "must be increasing positive numbers [s]")
     base = drops[0].vehicle if vehicle is None else vehicle
     jl.validate_vehicle(base)
-    start_vehicle = switch_on(_start_vehicle(base, names, start), names)
+    check_peak_form(names, peak_form)
+    given = _start_vehicle(base, names, start)
+    start_vehicle = switch_on(given, names)
+    if peak_form == "ripple" and given.honeycomb.peak_rise1 is None:
+        start_vehicle = _rise_start(start_vehicle, names, "ripple")  # a fold length
     limit = float(jl.stable_step(start_vehicle, method=integrator))
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
@@ -863,7 +872,6 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         refine = min(float(refine_window_s), shortest - 0.006)
         if refine > windows[-1]:
             stages_w.append(refine)
-    check_peak_form(names, peak_form)
     if model_form not in ("auto", True, False):
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
     if peak_model_term not in ("auto", False):

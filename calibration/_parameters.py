@@ -19,7 +19,10 @@ keeps it physical while the optimiser works on an unconstrained number.
   L_peak1 in the exponential forms) leaves before x_L2; in the smooth form, whose build-up
   lies inside its table, between a length that keeps its steepest build-up below k_b1
   (conservative by up to a factor e) and SMOOTH_RISE_MAX L_peak1 (L_peak1 there at least
-  2 e (r1 - 1) F1 / k_b1, so that interval stays open). A sharper
+  2 e (r1 - 1) F1 / k_b1, so that interval stays open); in the ripple form, where it is the
+  fold length, between the largest of 4 (r1 - 1) F1 / k (its falls), 2 (r1 - 1) F1 / k_b1
+  (its rises) and RIPPLE_MIN_FOLD L_peak1, and the room its RIPPLE_SPAN folds leave before
+  x_L2 (peak1's bound keeps that open). A sharper
   measured peak than the rule allows ends the fit at the bound (the peak's work, not its
   shape), never at an invalid vehicle: every bound a rule sets is moved inside by
   ``BOUND_MARGIN`` (1e-9) of that rule's own scale (the slope k / 2, the plateau's end x_L2 or
@@ -81,7 +84,8 @@ PARAMS = {
     "L_peak1": (lambda v: v.honeycomb.peak_length1, "m", "honeycomb.peak_length1_mm", "length",
                 "crush over which the primary peak decays to F1"),
     "L_rise1": (lambda v: v.honeycomb.peak_rise1, "m", "honeycomb.peak_rise1_mm", "rise",
-                "crush over which the primary peak builds up from F1 (with peak1)"),
+                "crush over which the primary peak builds up from F1 (with peak1); in the "
+                "ripple form, the fold length"),
     "peak2": (lambda v: v.honeycomb.peak_ratio2, "1", "honeycomb.peak_ratio2", "over1",
               "secondary honeycomb initial crush peak / F2"),
     "L_peak2": (lambda v: v.honeycomb.peak_length2, "m", "honeycomb.peak_length2_mm", "length",
@@ -111,12 +115,25 @@ _NONE = dict(is_leaf=lambda x: x is None)  # an extension that is off is a None 
 # the EXP_POINTS-node table over EXP_SPAN L_peak1 holds the build-up too. Its steepest fall
 # is below (peak1 - 1) F1 / L_peak1 (1 as L_rise1 -> 0, 0.5 at L_rise1 = L_peak1), so the
 # linear form's lower bound on L_peak1 holds for it as well.
-PEAK_FORMS = ("linear", "rise", "exp", "rise_exp", "smooth_exp")
-RISE_FORMS = ("rise", "rise_exp", "smooth_exp")  # the forms that fit L_rise1
+# ``ripple``, a peak that re-peaks fold by fold (honeycomb walls buckle in folds of a length
+# set by the cell, 2H ~ 2.9 mm for the paper's primary cells: Wierzbicki 1983): the excess
+# falls linearly from (peak1 - 1) F1 to 0 over half a fold and rises linearly to the next
+# fold's peak over the other half, the peaks decaying as exp(-c / L_peak1); L_rise1 is the
+# fold length there (``ripple_table``). The table holds RIPPLE_FOLDS folds (2 RIPPLE_FOLDS +
+# 1 nodes, half a fold apart, then 0 over the last half fold: RIPPLE_SPAN fold lengths); a
+# fold at least RIPPLE_MIN_FOLD L_peak1 long leaves at most exp(-RIPPLE_FOLDS
+# RIPPLE_MIN_FOLD) = exp(-4) (1.8 %) of the first peak at the table's end. Its steepest fall,
+# 2 (peak1 - 1) F1 / L_rise1, is what the ground's k / 2 bounds (``_bounds``).
+PEAK_FORMS = ("linear", "rise", "exp", "rise_exp", "smooth_exp", "ripple")
+RISE_FORMS = ("rise", "rise_exp", "smooth_exp", "ripple")  # the forms that fit L_rise1
 SHAPE_PARAMS = ("peak1", "L_peak1", "L_rise1")  # their meaning depends on the form
 EXP_SPAN, EXP_POINTS = 8.0, 97
 # in L_peak1; the law's forms: 1
-EXP_TABLE_SPAN = {"exp": EXP_SPAN, "rise_exp": EXP_SPAN, "smooth_exp": EXP_SPAN}
+RIPPLE_FOLDS, RIPPLE_MIN_FOLD = 16, 0.25
+RIPPLE_NODES, RIPPLE_SPAN = 2 * RIPPLE_FOLDS + 1, RIPPLE_FOLDS + 0.5  # span in fold lengths
+# the tabulated forms' span in L_peak1 (the ripple's at its shortest fold)
+EXP_TABLE_SPAN = {"exp": EXP_SPAN, "rise_exp": EXP_SPAN, "smooth_exp": EXP_SPAN,
+                  "ripple": RIPPLE_SPAN * RIPPLE_MIN_FOLD}
 # the smooth form's longest build-up, in L_peak1: its table's cut at EXP_SPAN L_peak1 then
 # leaves under 0.7 % of its top (as L_rise1 / L_peak1 grows the form tends to c exp(-c /
 # L_peak1), which the bump-shaped peaks of records ask for)
@@ -184,6 +201,15 @@ def smooth_table(excess, n: int, r):
     return excess * (-jnp.expm1(-x / r)) * jnp.exp(-x) / smooth_top(r)
 
 
+def ripple_table(excess, q):
+    """The ripple form's table: at its RIPPLE_NODES nodes c_j = j L_rise1 / 2 (the last axis),
+    ``excess`` (peak1 - 1, ratio of F1) times exp(-c_j / L_peak1) at the fold peaks (even j)
+    and 0 between them (odd j); q = L_rise1 / L_peak1."""
+    j = jnp.arange(RIPPLE_NODES, dtype=jnp.float64)
+    peak = (jnp.arange(RIPPLE_NODES) % 2 == 0).astype(jnp.float64)
+    return excess * peak * jnp.exp(-0.5 * j * jnp.expand_dims(q, -1))
+
+
 def _after(e):
     """Each node's next value along the last axis, 0 past the last."""
     return jnp.concatenate([e[..., 1:], jnp.zeros_like(e[..., :1])], axis=-1)
@@ -195,7 +221,8 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
     vehicle must have one); ``exp`` replaces the linear peak by its exponential table;
     ``rise_exp`` by that table, EXP_POINTS - 1 nodes long, after the rise (which it keeps);
     ``smooth_exp`` by its table (``smooth_table``), which holds its build-up (the rise is
-    read and switched off)."""
+    read and switched off); ``ripple`` by its table (``ripple_table``; peak_rise1 is read as
+    the fold length and switched off)."""
     hc = vehicle.honeycomb
     if form == "rise":
         return vehicle
@@ -206,8 +233,17 @@ def peak_form_vehicle(vehicle: jl.Vehicle, form: str) -> jl.Vehicle:
     if form in RISE_FORMS and hc.peak_rise1 is None:
         raise jl.ConfigError("honeycomb.peak_rise1_mm", 0.0, f"the {form} form builds its "
                              "exponential peak up over this rise: give one (> 0)"
-                             if form == "rise_exp" else "the smooth_exp form's build-up "
-                             "length scale (1 - exp(-c / L_rise1)): give one (> 0)")
+                             if form == "rise_exp" else "the ripple form's fold length: "
+                             "give one (> 0)" if form == "ripple" else "the smooth_exp form's "
+                             "build-up length scale (1 - exp(-c / L_rise1)): give one (> 0)")
+    if form == "ripple":
+        fold = jnp.asarray(hc.peak_rise1, dtype=jnp.float64)
+        table = ripple_table(jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0,
+                             fold / jnp.asarray(hc.peak_length1, dtype=jnp.float64))
+        return eqx.tree_at(
+            lambda v: (v.honeycomb.peak_ratio1, v.honeycomb.peak_rise1, v.honeycomb.excess1,
+                       v.honeycomb.excess_length1), vehicle,
+            (None, None, table, RIPPLE_SPAN * fold), **_NONE)
     n = EXP_POINTS - 1 if form == "rise_exp" else EXP_POINTS
     excess = jnp.asarray(hc.peak_ratio1, dtype=jnp.float64) - 1.0
     if form == "smooth_exp":
@@ -229,7 +265,8 @@ class _FormsHoneycomb(jl.Honeycomb):
     tabulated excess with EXP_POINTS segments, each of its own width: ``linear`` one falling
     segment, ``rise`` a rising and a falling one, ``exp`` ``peak_form_vehicle``'s exponential
     table, ``rise_exp`` a rising segment and that table one node shorter, ``smooth_exp`` its
-    table (``smooth_table``) on the exponential table's nodes; the segments a form
+    table (``smooth_table``) on the exponential table's nodes, ``ripple`` its RIPPLE_NODES
+    segments (``ripple_table``); the segments a form
     does not use have width and slope 0 and add exactly 0. So one
     compiled program serves every form (``forms_vehicle``); the curve is that of the form's
     own vehicle (``peak_form_vehicle``) up to rounding."""
@@ -265,6 +302,14 @@ class _FormsHoneycomb(jl.Honeycomb):
         w_r = jnp.concatenate([col(rise), dc_r], axis=-1)
         # smooth_exp: its table on the exp table's nodes (r = 1 where the form has no rise)
         e_s = smooth_table(col(self.peak_ratio1) - 1.0, n, rise / length) * col(self.F1)
+        # ripple: its table, nodes half a fold (rise) apart, then segments of zero width
+        e_p = ripple_table(col(self.peak_ratio1) - 1.0, rise / length) * col(self.F1)
+        dc_p = jnp.broadcast_to(col(0.5 * rise), e_p.shape)
+
+        def pad(x):  # a table's columns, then segments of zero width up to n
+            return jnp.concatenate([x, jnp.zeros(x.shape[:-1] + (n - x.shape[-1],))], axis=-1)
+
+        w_p = pad(dc_p)
 
         def starts(widths):  # each segment starts where the ones before it end
             ends = jnp.cumsum(widths, axis=-1)
@@ -284,6 +329,8 @@ class _FormsHoneycomb(jl.Honeycomb):
                          jnp.concatenate([col(zero), e_r], axis=-1)),
             "smooth_exp": (e_s[..., 0], span, dc * jnp.arange(n, dtype=jnp.float64),
                            jnp.broadcast_to(dc, e_s.shape), (_after(e_s) - e_s) / dc, e_s),
+            "ripple": (e_p[..., 0], RIPPLE_SPAN * rise, starts(w_p), w_p,
+                       pad((_after(e_p) - e_p) / dc_p), pad(e_p)),
         }
 
         def pick(i):  # every form's numbers are finite: no NaN in the unselected branches
@@ -380,8 +427,20 @@ def _bounds(n, names, values, vehicle, form=None):
             den = jnp.maximum(v("k_b1") * lp - math.e * a, 0.5 * v("k_b1") * lp)
             return math.e * a * lp / den * (1.0 + m)
 
-        return (_in_form(form, "smooth_exp", smooth_lo, lo),
-                _in_form(form, "smooth_exp", lambda: SMOOTH_RISE_MAX * lp * (1.0 - m), hi))
+        # ripple, L_rise1 the fold length: its steepest fall 2 a / L_r <= k / 2 and rise
+        # 2 a / L_r < k_b1, its folds at least RIPPLE_MIN_FOLD L_peak1 long (the table's end);
+        # its RIPPLE_SPAN folds end in x_L2 after the elastic rise to the peak. Inside
+        # L_peak1's and peak1's bounds this interval is open
+        def ripple_lo():
+            return jnp.maximum(jnp.maximum(4.0 * a / v("k"), 2.0 * a / v("k_b1")),
+                               RIPPLE_MIN_FOLD * lp) * (1.0 + m)
+
+        def ripple_hi():
+            return (hc.x_L2 - (v("F1") + a) / v("k_b1") - m * hc.x_L2) / RIPPLE_SPAN
+
+        lo = _in_form(form, "smooth_exp", smooth_lo, lo)
+        hi = _in_form(form, "smooth_exp", lambda: SMOOTH_RISE_MAX * lp * (1.0 - m), hi)
+        return _in_form(form, "ripple", ripple_lo, lo), _in_form(form, "ripple", ripple_hi, hi)
     if n == "unload":  # rho k_b3 <= max(k_b1, k_b3)
         return 1.0, jnp.maximum(v("k_b1"), v("k_b3")) / v("k_b3") * (1.0 - m)
     first = n in ("peak1", "L_peak1")
@@ -407,6 +466,10 @@ def _bounds(n, names, values, vehicle, form=None):
                 a_hi = _in_form(form, "smooth_exp",
                                 lambda: jnp.minimum(a_hi, L / smooth * (1.0 - m)),
                                 a_hi)
+        if first:  # the ripple's fold length (L_rise1's bound above) keeps an open interval
+            a_hi = _in_form(form, "ripple", lambda: jnp.minimum(a_hi, 0.999 * room / jnp.maximum(
+                4.0 * RIPPLE_SPAN / v("k") + 1.0 / v(k_el), (2.0 * RIPPLE_SPAN + 1.0) / v(k_el))),
+                a_hi)
         if first:  # r1 F1 < F2: the primary's peak stays below the secondary plateau
             a_hi = jnp.minimum(a_hi, v("F2") - v("F1") - m * v("F2"))
         return 1.0, 1.0 + a_hi / v(force)

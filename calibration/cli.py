@@ -297,8 +297,11 @@ def add_subcommands(subparsers) -> None:
                         "exponential decay of length L_peak1; rise_exp, that decay built up "
                         "linearly over L_rise1; smooth_exp, that decay built up smoothly, "
                         "(1 - exp(-c / L_rise1)) exp(-c / L_peak1), peak1 its top and L_rise1 "
-                        "the build-up's length scale (with L_rise1 fitted for both) (default "
-                        "law)")
+                        "the build-up's length scale; ripple, a peak that re-peaks fold by "
+                        "fold, falling linearly to F1 over half a fold and rising to the next "
+                        "peak over the other half, the peaks decaying as exp(-c / L_peak1), "
+                        "L_rise1 the fold length (with L_rise1 fitted for the last three) "
+                        "(default law)")
     f.add_argument("--no-model-form", action="store_true",
                    help="leave out the peak-shape (model-form) term, on by default when the "
                         "fit has the crush peak: the values refitted in the peak's other forms "
