@@ -19,8 +19,9 @@ what a real rig records, with what a real rig adds:
   crush peak rises elastically and falls linearly, ``Honeycomb.peak_ratio1``): ``"bump"``
   (the default above), ``"exp"`` (a jump at the crush onset decaying as exp(-p / p0)) and
   ``"folds"`` (a fold-by-fold ripple, |cos(pi p / (2 p0))| exp(-p / (4 p0)): every wall fold
-  re-peaks, decaying; rounded folds, where calibration's ``ripple`` form has linear ones) and ``"slow"`` (a bump that starts flat, u^2 exp(2 (1 - u)): the
-  overshoot builds up slowly at first; no peak form of ``calibration`` is near it);
+  re-peaks, decaying; rounded folds, where calibration's ``ripple`` form has linear ones)
+  and ``"slow"`` (a bump that starts flat, u^2 exp(2 (1 - u)): the overshoot builds up
+  slowly at first; no peak form of ``calibration`` is near it);
 * ``peak_mode`` says where the crush peak acts. ``"sensor"`` (the default, and the bundled
   records'): the multiplier above on the two force channels only, a sensor-side artefact; the
   stroke and the body acceleration are those of the drop without a peak, so no honeycomb law
