@@ -553,15 +553,16 @@ def _restarts_rise(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str) -
 
 
 # A fold length fitted from a poor start can lock onto the wrong folds (each fold's peak moves
-# by its number times the error), so the ripple's refit starts from fold lengths
-# RIPPLE_START_RATIO apart across its interval (at most RIPPLE_STARTS_MAX), and keeps the
-# least chi^2. On the rig's fold ripple one start in the interval's middle found the folds
-# on 6 of 10 seeds (chi^2 about 3000 against 3300 to 3960 on the others).
-RIPPLE_START_RATIO, RIPPLE_STARTS_MAX = 1.15, 8
+# by its number times the error): on the rig's fold ripple one start in the interval's middle
+# found the folds on 6 of 10 seeds (chi^2 about 3000 against 3300 to 3960 on the others). So
+# the ripple's refit first screens fold lengths RIPPLE_START_RATIO apart across its interval
+# (at most RIPPLE_STARTS_MAX), the other values at the fit's, by chi^2 alone (one run each,
+# no Jacobian), and starts from the best.
+RIPPLE_START_RATIO, RIPPLE_STARTS_MAX = 1.05, 24
 
 
 def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle) -> tuple[float, ...]:
-    """Where in its interval (fractions) the ripple's refits start the fold length: spaced
+    """The fold lengths (fractions of its interval) the ripple's refit screens: spaced
     geometrically, RIPPLE_START_RATIO apart, at the middles of equal log-steps."""
     names = _form_names(problem.names, "ripple")
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
@@ -569,6 +570,23 @@ def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle) -> tuple[flo
     n = int(min(max(math.ceil(math.log(hi / lo) / math.log(RIPPLE_START_RATIO)), 1),
                 RIPPLE_STARTS_MAX))
     return tuple(float((lo * (hi / lo) ** ((i + 0.5) / n) - lo) / (hi - lo)) for i in range(n))
+
+
+def _screen_folds(problem: CalibrationProblem, vehicle: jl.Vehicle, theta, window_s) -> float:
+    """The ripple refit's start (``ripple_starts``' fraction) of least chi^2 in the window,
+    the other values those of ``vehicle`` (the fit's); 0.5 where no start runs."""
+    n_t = len(problem.drops) if problem.fit_touchdown else 0
+    best = (math.inf, 0.5)
+    for at in ripple_starts(problem, vehicle):
+        prob, veh = _form_problem(problem, vehicle, "ripple", at)
+        sub = prob.windowed(window_s)
+        try:
+            chi2 = _chi2(sub, sub.theta_from(veh, theta[problem.n_z:] if n_t else None))
+        except jl.SimulationError:
+            continue
+        if chi2 < best[0]:
+            best = (chi2, at)
+    return best[1]
 
 
 def precompile_forms(problem: CalibrationProblem, form: str):
@@ -616,33 +634,26 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     for alt in PEAK_FORMS:
         if alt == form:
             continue
-        starts = (ripple_starts(problem, base) if alt == "ripple"
-                  and _restarts_rise(problem, base, alt) else (0.5,))
-        best = None
-        for at in starts:
-            try:
-                prob, veh = _form_problem(problem, base, alt, at)
-                sub = prob.windowed(w)
-                th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
-                th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=max_iter,
-                                               ftol=FTOL)
-                v = sub.values(th)
-                if not np.all(np.isfinite(v)):
-                    raise np.linalg.LinAlgError("non-finite values")
-            except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
-                continue
-            chi2 = _chi2(sub, th)
-            if best is None or chi2 < best[2]:
-                best = (prob, v, chi2)
-        if best is None:
+        try:
+            at = 0.5
+            if alt == "ripple" and _restarts_rise(problem, base, alt):
+                at = _screen_folds(problem, base, theta, w)
+            prob, veh = _form_problem(problem, base, alt, at)
+            sub = prob.windowed(w)
+            th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
+            th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=max_iter,
+                                           ftol=FTOL)
+            v = sub.values(th)
+            if not np.all(np.isfinite(v)):
+                raise np.linalg.LinAlgError("non-finite values")
+        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
             forms[alt] = None
             continue
-        prob, v, chi2 = best
         shift = [0.0 if (n in SHAPE_PARAMS or n not in prob.names)
                  else float(v[prob.names.index(n)] - values[i]) for i, n in enumerate(names)]
-        forms[alt] = dict(values=dict(zip(prob.names, v.tolist())), chi2=chi2,
+        forms[alt] = dict(values=dict(zip(prob.names, v.tolist())), chi2=_chi2(sub, th),
                           n_params=len(prob.names) + n_t, refit=True,
-                          shift=dict(zip(names, shift)), starts=len(starts))
+                          shift=dict(zip(names, shift)))
     done = {k: f for k, f in forms.items() if f is not None}
     n_obs = problem.n_obs
     for f in done.values():
