@@ -716,6 +716,31 @@ def calibration_prediction() -> str:
                                     for q in quantities)], rows)
 
 
+def calibration_best_form_prediction() -> str:
+    """The physical crush peak fitted in its best-supported form (``best_form_prediction`` in
+    bench_fit.json): per rig shape and for the joint fit, the form, the errors against the
+    truth, and the predictions of the other heights against the data."""
+    b = _load("bench_fit.json")["best_form_prediction"]
+    order = ("max_stroke_m", "final_stroke_m", "peak_normal_force_N", "peak_buffer_force_N",
+             "peak_body_accel_mps2")
+    cases = dict(b["shapes"])
+    if "joint_0.15_0.30_bump" in b:
+        cases["joint 0.15 + 0.30 m, bump"] = b["joint_0.15_0.30_bump"]
+    rows = []
+    for label, rec in cases.items():
+        rows.append([
+            label if label.startswith("joint") else f"0.2 m, {label}", rec["best_form"],
+            ", ".join(f"{p} {e * 100:+.2f}" for p, e in rec["rel_error"].items()),
+            "yes" if rec["params_met"] else "no", "yes" if rec["F2_met"] else "no",
+            "; ".join(f"{h} m: " + " / ".join(f"{p['rel_error'][q] * 100:+.2f}" for q in order)
+                      for h, p in rec["prediction"].items()),
+            "yes" if all(p["met"] for p in rec["prediction"].values()) else "no"])
+    return _table(["fitted drop(s), rig peak shape", "best-supported form (fitted in)",
+                   "error against the truth [%]", "five within 3 %", "F2 within 3 %",
+                   "predicted drop: " + " / ".join(_name(q) for q in order) + " [%]",
+                   "strokes within 1 %, peaks within 5 %"], rows)
+
+
 def calibration_coverage() -> str:
     """Coverage of the 95 % intervals per rig case (``coverage`` in bench_fit.json): the
     classical, HAC and trusted intervals, the total one (the trusted error with the channel
@@ -904,6 +929,7 @@ TABLES = {
     "calibration-peak-recovery": calibration_peak_recovery,
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
+    "calibration-best-form-prediction": calibration_best_form_prediction,
     "calibration-coverage": calibration_coverage,
     "calibration-offset-coverage": calibration_offset_coverage,
     "calibration-sample-rate": calibration_sample_rate,
