@@ -447,6 +447,17 @@ def test_a_fold_ripple_is_named_the_ripple_form_and_its_values_recover_the_truth
     assert abs(mf["forms"]["linear"]["values"]["k_b1"] / truth - 1.0) > 0.03
 
 
+def test_the_ripple_refit_starts_at_the_records_fold_length(form_fits):
+    """A fold length started one fold-error away locks onto the wrong folds, so the ripple's
+    refit screens its interval by chi^2 first: on the rig's fold ripple (folds 2.4 mm long)
+    the screen's pick lies within 10 % of them, where the interval's middle does not."""
+    res = form_fits["folds"]
+    at = cal_fit._screen_folds(res.problem, res.vehicle, res.theta,
+                               res.problem.active_window_s)
+    _, veh = cal_fit._form_problem(res.problem, res.vehicle, "ripple", at)
+    assert abs(float(veh.honeycomb.peak_rise1) / (2.0 * vr.PHYSICAL_PEAK_LENGTH_M) - 1) < 0.1
+
+
 def test_a_fit_and_its_form_refits_share_one_compiled_program(form_fits):
     """With the peak-shape term on, the fit's problem and its refits in the other forms use
     the same compiled functions: the refits compile nothing."""
