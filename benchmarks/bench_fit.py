@@ -464,9 +464,13 @@ def best_form_prediction(quick: bool = False) -> dict:
 
     def result(first, w1, best, r, w):
         err = get_values(r.vehicle, names) / p_true - 1
+        idx = [r.names.index(n) for n in names]
+        z = (r.values[idx] - p_true) / r.std_errors_total[idx]
         return dict(first_wall_s=w1, best_form=best, wall_s=w, values=dict(zip(
             r.names, r.values.tolist())), rel_error=dict(zip(names, err.tolist())),
+            z_total=dict(zip(names, z.tolist())),
             params_met=bool(np.all(np.abs(err[:len(RECOVERY_CHECKED)]) <= 0.03)),
+            inside_2se=bool(np.all(np.abs(z[:len(RECOVERY_CHECKED)]) <= 2.0)),
             F2_met=bool(abs(err[-1]) <= PREDICTION_TARGETS["F2"]))
 
     def prediction(r, drop):
