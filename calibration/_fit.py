@@ -71,6 +71,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
@@ -499,16 +501,15 @@ def _chi2(problem: CalibrationProblem, theta) -> float:
 DAIC_PLAUSIBLE = 10.0
 
 
-def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str,
-                  at: float = 0.5):
+def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     """(problem, vehicle) of ``problem``'s fit with the primary peak in form ``alt``, its
-    values those of ``vehicle`` (the rise, where it is new, at its start; a new fold length
-    at ``at`` of its interval: ``_rise_start``). Its compiled functions serve every form
-    (``shared_forms``): made once per drops, channels and solver."""
+    values those of ``vehicle`` (the rise, where it restarts, at its start: ``_rise_start``).
+    Its compiled functions serve every form (``shared_forms``): made once per drops, channels
+    and solver."""
     names = _form_names(problem.names, alt)
     veh = peak_form_vehicle(vehicle, "linear") if alt not in RISE_FORMS else vehicle
     if _restarts_rise(problem, vehicle, alt):
-        veh = _rise_start(veh, names, alt, at)
+        veh = _rise_start(veh, names, alt)
     veh = _inside_form(veh, names, alt)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
@@ -554,38 +555,77 @@ def _restarts_rise(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str) -
 
 # A fold length fitted from a poor start can lock onto the wrong folds (each fold's peak moves
 # by its number times the error): on the rig's fold ripple one start in the interval's middle
-# found the folds on 6 of 10 seeds (chi^2 about 3000 against 3300 to 3960 on the others). So
-# the ripple's refit first screens fold lengths RIPPLE_START_RATIO apart across its interval
-# (at most RIPPLE_STARTS_MAX), the other values at the fit's, by chi^2 alone (one run each,
-# no Jacobian), and starts from the best.
-RIPPLE_START_RATIO, RIPPLE_STARTS_MAX = 1.05, 24
+# found the folds on 6 of 10 seeds (chi^2 about 3000 against 3300 to 3960 on the others).
+# The fit's own peak is a poor start for the other two numbers as well: a linear fall spreads
+# the folds' work over a long L_peak1 (11 mm against the ripple's 5 mm on a rig record),
+# which the ripple's rule L_f >= L_peak1 / 4 then forbids the record's folds (2.4 mm). So
+# the ripple's refit first screens starts by chi^2 alone (a run each, no Jacobian), the
+# other values at the fit's: fold lengths RIPPLE_START_RATIO apart, each with every decay
+# RIPPLE_DECAYS (L_f / L_peak1, per fold exp(-q): 0.78, 0.61, 0.37) and the peak height that
+# keeps the fit's peak work, (peak1 - 1) F1 L_peak1 / 2 for the ripple.
+RIPPLE_START_RATIO, RIPPLE_STARTS_MAX, RIPPLE_DECAYS = 1.05, 64, (0.25, 0.5, 1.0)
 
 
-def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle) -> tuple[float, ...]:
-    """The fold lengths (fractions of its interval) the ripple's refit screens: spaced
-    geometrically, RIPPLE_START_RATIO apart, at the middles of equal log-steps."""
+def _excess_work(vehicle: jl.Vehicle) -> float:
+    """The crush work of the primary peak of ``vehicle`` (its form applied) above F1 [J]:
+    the virgin curve's excess, integrated over the primary plateau."""
+    hc = vehicle.honeycomb.curve()
+    x = jnp.linspace(float(hc.x_L1), float(hc.x_L2), 8001)
+    f = np.asarray(_virgin_force(x, hc)) - float(hc.F1)
+    return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(np.asarray(x))))
+
+
+_virgin_force = jax.jit(jax.vmap(jl.laws.honeycomb_virgin_force, in_axes=(0, None)))
+
+
+def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle, work: float) -> list:
+    """The (peak1, L_peak1, L_rise1) starts the ripple's refit screens, inside the ripple's
+    bounds (``interval``), the other values those of ``vehicle``: for each decay q of
+    RIPPLE_DECAYS, fold lengths L_f RIPPLE_START_RATIO apart from the shortest the rule on
+    the falls allows (4 a / k with a = 2 work q / L_f) to the room's end, L_peak1 = L_f / q,
+    peak1 = 1 + 2 work / (L_peak1 F1)."""
     names = _form_names(problem.names, "ripple")
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
-    lo, hi = interval("L_rise1", names, get_values(veh, names), veh, "ripple")
-    n = int(min(max(math.ceil(math.log(hi / lo) / math.log(RIPPLE_START_RATIO)), 1),
-                RIPPLE_STARTS_MAX))
-    return tuple(float((lo * (hi / lo) ** ((i + 0.5) / n) - lo) / (hi - lo)) for i in range(n))
+    vals = get_values(veh, names)
+    f1, k = (float(vals[names.index(n)]) if n in names else float(PARAMS[n][0](veh))
+             for n in ("F1", "k"))
+    i = {n: names.index(n) for n in ("peak1", "L_peak1", "L_rise1")}
+    out = []
+    no_peak = vals.copy()
+    no_peak[i["peak1"]] = 1.0
+    hi = float(interval("L_rise1", names, no_peak, veh, "ripple")[1])  # the room's end
+    for q in RIPPLE_DECAYS:
+        lo = math.sqrt(8.0 * work * q / k)
+        n = min(max(math.ceil(math.log(hi / lo) / math.log(RIPPLE_START_RATIO)), 1),
+                RIPPLE_STARTS_MAX) if hi > lo else 0
+        for j in range(n):
+            fold = lo * RIPPLE_START_RATIO ** (j + 0.5)
+            v = vals.copy()
+            v[i["peak1"]], v[i["L_peak1"]], v[i["L_rise1"]] = (
+                1.0 + 2.0 * work * q / (fold * f1), fold / q, fold)
+            if all(interval(n_, names, v, veh, "ripple")[0] < v[i[n_]] <
+                   interval(n_, names, v, veh, "ripple")[1] for n_ in i):
+                out.append(tuple(float(v[i[n_]]) for n_ in i))
+    return out
 
 
-def _screen_folds(problem: CalibrationProblem, vehicle: jl.Vehicle, theta, window_s) -> float:
-    """The ripple refit's start (``ripple_starts``' fraction) of least chi^2 in the window,
-    the other values those of ``vehicle`` (the fit's); 0.5 where no start runs."""
+def _screen_folds(problem: CalibrationProblem, vehicle: jl.Vehicle, theta,
+                  window_s) -> jl.Vehicle | None:
+    """``vehicle`` with the ripple start (``ripple_starts``) of least chi^2 in the window;
+    None where no start lies inside the bounds or runs."""
     n_t = len(problem.drops) if problem.fit_touchdown else 0
-    best = (math.inf, 0.5)
-    for at in ripple_starts(problem, vehicle):
-        prob, veh = _form_problem(problem, vehicle, "ripple", at)
-        sub = prob.windowed(window_s)
+    work = _excess_work(problem.vehicle_at(theta))
+    best = (math.inf, None)
+    prob, _ = _form_problem(problem, vehicle, "ripple")
+    sub = prob.windowed(window_s)
+    for start in ripple_starts(problem, vehicle, work):
+        veh = set_values(vehicle, ("peak1", "L_peak1", "L_rise1"), start)
         try:
             chi2 = _chi2(sub, sub.theta_from(veh, theta[problem.n_z:] if n_t else None))
         except jl.SimulationError:
             continue
         if chi2 < best[0]:
-            best = (chi2, at)
+            best = (chi2, veh)
     return best[1]
 
 
@@ -635,10 +675,9 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
         if alt == form:
             continue
         try:
-            at = 0.5
+            prob, veh = _form_problem(problem, base, alt)
             if alt == "ripple" and _restarts_rise(problem, base, alt):
-                at = _screen_folds(problem, base, theta, w)
-            prob, veh = _form_problem(problem, base, alt, at)
+                veh = _screen_folds(problem, base, theta, w) or veh
             sub = prob.windowed(w)
             th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
             th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=max_iter,
@@ -747,17 +786,15 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
     result.diagnostics["peak_model_term"] = rec
 
 
-def _rise_start(vehicle: jl.Vehicle, names, form: str | None = None,
-                at: float = 0.5) -> jl.Vehicle:
+def _rise_start(vehicle: jl.Vehicle, names, form: str | None = None) -> jl.Vehicle:
     """``vehicle`` with the rise switched on at its ``START_IF_OFF`` length, or where that
     lies outside its bounds in ``form``, in the middle of them; in the ripple form, where
-    L_rise1 is the fold length, always at ``at`` of the way through its bounds."""
+    L_rise1 is the fold length, always in the middle of its bounds."""
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
     vals = get_values(veh, names)
     lo, hi = interval("L_rise1", names, vals, veh, form)
     if form == "ripple" or not lo < START_IF_OFF["L_rise1"] < hi:
-        at = at if form == "ripple" else 0.5
-        veh = set_values(vehicle, ("L_rise1",), [lo + at * (hi - lo)])
+        veh = set_values(vehicle, ("L_rise1",), [0.5 * (lo + hi)])
     return veh
 
 
