@@ -26,6 +26,7 @@ from calibration._parameters import (
     EXP_SPAN,
     FORM_INDEX,
     PEAK_FORMS,
+    RIPPLE_NODES,
     RIPPLE_SPAN,
     RISE_FORMS,
     SHAPE_PARAMS,
@@ -314,13 +315,14 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
     assert k_b1["std_error_total"] > 2.0 * max(k_b1["std_error"], k_b1["std_error_hac"])
 
 
-@pytest.mark.parametrize("form", ["rise_exp", "smooth_exp"])
+@pytest.mark.parametrize("form", ["rise_exp", "smooth_exp", "ripple"])
 def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_rise(
         tmp_path, capsys, form):
-    """``jaxland fit --peak-form rise_exp`` (or ``smooth_exp``): with L_rise1 among the
-    parameters the fitted vehicle is the law's rise with the exponential table (the smooth
-    form: its table, which holds the build-up; it loads and validates), and the report names
-    the form; without L_rise1, exit 2 and one line naming the field."""
+    """``jaxland fit --peak-form rise_exp`` (or ``smooth_exp``, ``ripple``): with L_rise1
+    among the parameters the fitted vehicle is the law's rise with the exponential table (the
+    smooth form: its table, which holds the build-up; the ripple: its table of folds, L_rise1
+    long each; they load and validate), and the report names the form; without L_rise1, exit
+    2 and one line naming the field."""
     from jaxland.cli import main
 
     toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=5, artefacts=dict(peak_mode="physical"))
@@ -332,8 +334,12 @@ def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_r
                  "--out", str(out)]) == 0
     hc = jl.load_vehicle(out / "fitted_vehicle.toml").honeycomb
     assert hc.peak_ratio1 is None and (hc.peak_rise1 is not None) == (form == "rise_exp")
-    assert hc.excess1.shape == (EXP_POINTS - (form == "rise_exp"),)
+    nodes = dict(rise_exp=EXP_POINTS - 1, smooth_exp=EXP_POINTS, ripple=RIPPLE_NODES)[form]
+    assert hc.excess1.shape == (nodes,)
     rep = json.loads((out / "fit_report.json").read_text())
+    if form == "ripple":
+        fold = rep["parameters"]["L_rise1"]["value"]
+        assert float(hc.excess_length1) == pytest.approx(RIPPLE_SPAN * fold, rel=1e-9)
     assert rep["misfit"]["model_form"]["form"] == form
     capsys.readouterr()
     assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-form", form,
