@@ -459,7 +459,7 @@ def test_the_ripple_refit_starts_at_the_records_fold_length(form_fits):
     the screen's pick lies within 10 % of them, where the interval's middle does not."""
     res = form_fits["folds"]
     veh = cal_fit._screen_folds(res.problem, res.vehicle, res.theta,
-                                res.problem.active_window_s)
+                                res.problem.active_window_s)[0]
     assert abs(float(veh.honeycomb.peak_rise1) / (2.0 * vr.PHYSICAL_PEAK_LENGTH_M) - 1) < 0.1
 
 
