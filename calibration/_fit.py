@@ -553,20 +553,17 @@ def _restarts_rise(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str) -
                                   or (alt == "ripple") != (problem.peak_form == "ripple"))
 
 
-# A fold length fitted from a poor start can lock onto the wrong folds (each fold's peak moves
-# by its number times the error): on the rig's fold ripple one start in the interval's middle
-# found the folds on 6 of 10 seeds (chi^2 about 3000 against 3300 to 3960 on the others).
-# The fit's own peak is a poor start for the other two numbers as well: a linear fall spreads
-# the folds' work over a long L_peak1 (11 mm against the ripple's 5 mm on a rig record),
-# which the ripple's rule L_f >= L_peak1 / 4 then forbids the record's folds (2.4 mm). So
-# the ripple's refit first screens starts by chi^2 alone (a run each, no Jacobian), the
-# other values at the fit's: fold lengths RIPPLE_START_RATIO apart, each with every decay
-# RIPPLE_DECAYS (L_f / L_peak1, per fold exp(-q): 0.78, 0.61, 0.37) and the peak height that
-# keeps the fit's peak work, (peak1 - 1) F1 L_peak1 / 2 for the ripple. The chi^2 at a start
-# only points near a basin, and a neighbouring fold length's basin lies about 8 % away (the
-# third fold moves by a sixth of a fold), so the refit runs from the RIPPLE_REFITS best starts
-# whose fold lengths lie RIPPLE_DISTINCT apart and keeps the least chi^2: from the best start
-# alone 4 of 10 rig seeds ended at folds 2.2 mm long (chi^2 up to 3244 against 3118 at 2.4).
+# The ripple's refit needs a start near the record's folds: a fold length one fold's error
+# away locks onto the wrong folds (each fold's peak moves by its number times the error), and
+# the fit's own peak is a poor start for the other two numbers (a linear fall spreads the
+# folds' work over a long L_peak1, where the ripple's rule L_f >= L_peak1 / 4 forbids short
+# folds). So it screens starts by chi^2 alone (a run each, no Jacobian), the other values at
+# the fit's: fold lengths RIPPLE_START_RATIO apart, each with every decay of RIPPLE_DECAYS
+# (L_f / L_peak1: per fold exp(-q), 0.78, 0.61, 0.37) and the peak height that keeps the fit's
+# crush work above F1, (peak1 - 1) F1 L_peak1 / 2 in the ripple. A start's chi^2 only points
+# near a basin, and the next fold length's basin lies about 8 % away (the third fold moves by
+# a sixth of a fold), so the refit runs from the RIPPLE_REFITS best starts whose fold lengths
+# lie RIPPLE_DISTINCT apart and keeps the least chi^2 (docs/calibration.md, item 9).
 RIPPLE_START_RATIO, RIPPLE_STARTS_MAX, RIPPLE_DECAYS = 1.05, 64, (0.25, 0.5, 1.0)
 RIPPLE_REFITS, RIPPLE_DISTINCT = 3, 1.06
 
