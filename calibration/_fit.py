@@ -584,8 +584,11 @@ def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle, work: float)
     """The (peak1, L_peak1, L_rise1) starts the ripple's refit screens, inside the ripple's
     bounds (``interval``), the other values those of ``vehicle``: for each decay q of
     RIPPLE_DECAYS, fold lengths L_f RIPPLE_START_RATIO apart from the shortest the rule on
-    the falls allows (4 a / k with a = 2 work q / L_f) to the room's end, L_peak1 = L_f / q,
-    peak1 = 1 + 2 work / (L_peak1 F1)."""
+    the falls allows (4 a / k with a = 2 work q / L_f; at most RIPPLE_STARTS_MAX of them) to
+    the room's end, L_peak1 = L_f / q, peak1 = 1 + 2 work / (L_peak1 F1). None where the fit's
+    peak does no work (``work`` <= 0: nothing to keep)."""
+    if not work > 0.0:
+        return []
     names = _form_names(problem.names, "ripple")
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
     vals = get_values(veh, names)
@@ -597,9 +600,8 @@ def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle, work: float)
     no_peak[i["peak1"]] = 1.0
     hi = float(interval("L_rise1", names, no_peak, veh, "ripple")[1])  # the room's end
     for q in RIPPLE_DECAYS:
-        lo = math.sqrt(8.0 * work * q / k)
-        n = min(max(math.ceil(math.log(hi / lo) / math.log(RIPPLE_START_RATIO)), 1),
-                RIPPLE_STARTS_MAX) if hi > lo else 0
+        lo = max(math.sqrt(8.0 * work * q / k), hi / RIPPLE_START_RATIO ** RIPPLE_STARTS_MAX)
+        n = max(math.ceil(math.log(hi / lo) / math.log(RIPPLE_START_RATIO)), 1) if hi > lo else 0
         for j in range(n):
             fold = lo * RIPPLE_START_RATIO ** (j + 0.5)
             v = vals.copy()
@@ -626,7 +628,7 @@ def _screen_folds(problem: CalibrationProblem, vehicle: jl.Vehicle, theta,
             veh = set_values(vehicle, ("peak1", "L_peak1", "L_rise1"), start)
             scored.append((_chi2(sub, sub.theta_from(veh, theta[problem.n_z:] if n_t
                                                      else None)), start[2], veh))
-        except jl.SimulationError:
+        except (jl.SimulationError, jl.ConfigError):
             continue
     picked = []
     for chi2, fold, veh in sorted(scored, key=lambda c: c[0]):

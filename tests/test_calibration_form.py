@@ -463,6 +463,16 @@ def test_the_ripple_refit_starts_at_the_records_fold_length(form_fits):
     assert abs(float(veh.honeycomb.peak_rise1) / (2.0 * vr.PHYSICAL_PEAK_LENGTH_M) - 1) < 0.1
 
 
+def test_the_ripple_screen_has_nothing_to_keep_where_the_fits_peak_does_no_work(form_fits):
+    """A fit whose crush peak does no work (peak1 = 1, as on records without a peak) leaves
+    the ripple's screen no peak height to keep: no starts (the refit starts from the middle of
+    its interval), and a peak with almost none spans a bounded number of fold lengths."""
+    res = form_fits["law's peak"]
+    assert cal_fit.ripple_starts(res.problem, res.vehicle, 0.0) == []
+    tiny = cal_fit.ripple_starts(res.problem, res.vehicle, 1e-12)
+    assert 0 < len(tiny) <= cal_fit.RIPPLE_STARTS_MAX * len(cal_fit.RIPPLE_DECAYS)
+
+
 def test_a_fit_and_its_form_refits_share_one_compiled_program(form_fits):
     """With the peak-shape term on, the fit's problem and its refits in the other forms use
     the same compiled functions: the refits compile nothing."""
