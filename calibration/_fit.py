@@ -562,10 +562,11 @@ def _restarts_rise(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str) -
 # (L_f / L_peak1: per fold exp(-q), 0.78, 0.61, 0.37) and the peak height that keeps the fit's
 # crush work above F1, (peak1 - 1) F1 L_peak1 / 2 in the ripple. A start's chi^2 only points
 # near a basin, and the next fold length's basin lies about 8 % away (the third fold moves by
-# a sixth of a fold), so the refit runs from the RIPPLE_REFITS best starts whose fold lengths
-# lie RIPPLE_DISTINCT apart and keeps the least chi^2 (docs/calibration.md, item 9).
+# a sixth of a fold), so the refit probes RIPPLE_PROBE_ITER steps from each of the
+# RIPPLE_REFITS best starts whose fold lengths lie RIPPLE_DISTINCT apart and goes on from the
+# one of least chi^2 (docs/calibration.md, item 9).
 RIPPLE_START_RATIO, RIPPLE_STARTS_MAX, RIPPLE_DECAYS = 1.05, 64, (0.25, 0.5, 1.0)
-RIPPLE_REFITS, RIPPLE_DISTINCT = 3, 1.06
+RIPPLE_REFITS, RIPPLE_DISTINCT, RIPPLE_PROBE_ITER = 3, 1.06, 6
 
 
 def _excess_work(vehicle: jl.Vehicle) -> float:
@@ -659,6 +660,54 @@ def precompile_forms(problem: CalibrationProblem, form: str):
     return t
 
 
+def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, huber_c,
+                max_iter: int) -> dict | None:
+    """``problem``'s final window refitted from ``base`` (its fitted vehicle) with the primary
+    peak in form ``alt`` (``model_form_spread``): its values, chi^2 and shift against the
+    fit; None where it failed. The ripple, where its fold length restarts, from its screened
+    starts (``_screen_folds``): each probes RIPPLE_PROBE_ITER steps, the best one goes on."""
+    names, values = problem.names, problem.values(theta)
+    n_t = len(problem.drops) if problem.fit_touchdown else 0
+    w = problem.active_window_s
+    try:
+        prob, veh = _form_problem(problem, base, alt)
+        starts = [veh]
+        if alt == "ripple" and _restarts_rise(problem, base, alt):
+            starts = _screen_folds(problem, base, theta, w) or starts
+        sub = prob.windowed(w)
+    except (jl.SimulationError, jl.ConfigError):
+        return None
+    probe = RIPPLE_PROBE_ITER if len(starts) > 1 else max_iter
+    best = None
+    for veh in starts:
+        try:
+            th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
+            th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=probe,
+                                           ftol=FTOL)
+        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
+            continue
+        chi2 = _chi2(sub, th)
+        if np.isfinite(chi2) and (best is None or chi2 < best[1]):
+            best = (th, chi2)
+    if best is None:
+        return None
+    try:
+        th = best[0]
+        if probe < max_iter:
+            th, _, _ = levenberg_marquardt(sub.robust(huber_c), th, max_iter=max_iter - probe,
+                                           ftol=FTOL)
+        v, chi2 = sub.values(th), _chi2(sub, th)
+    except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(v)):
+        return None
+    shift = [0.0 if (n in SHAPE_PARAMS or n not in prob.names)
+             else float(v[prob.names.index(n)] - values[i]) for i, n in enumerate(names)]
+    return dict(values=dict(zip(prob.names, v.tolist())), chi2=chi2,
+                n_params=len(prob.names) + n_t, refit=True, shift=dict(zip(names, shift)),
+                starts=len(starts))
+
+
 def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=None,
                       max_iter: int = 60, rho1: float = 0.0) -> dict:
     """How far the fitted values move when the primary crush peak takes another of its forms
@@ -680,41 +729,15 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     forms = {form: dict(values=dict(zip(names, values.tolist())), chi2=_chi2(problem, theta),
                         n_params=len(names) + n_t, refit=False,
                         shift=dict.fromkeys(names, 0.0))}
-    w = problem.active_window_s
-    for alt in PEAK_FORMS:
-        if alt == form:
-            continue
-        best = None
-        try:
-            prob, veh = _form_problem(problem, base, alt)
-            starts = [veh]
-            if alt == "ripple" and _restarts_rise(problem, base, alt):
-                starts = _screen_folds(problem, base, theta, w) or starts
-        except (jl.SimulationError, jl.ConfigError):
-            starts = []
-        sub = prob.windowed(w) if starts else None
-        for veh in starts:
-            try:
-                th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
-                th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=max_iter,
-                                               ftol=FTOL)
-                v = sub.values(th)
-                if not np.all(np.isfinite(v)):
-                    raise np.linalg.LinAlgError("non-finite values")
-            except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
-                continue
-            chi2 = _chi2(sub, th)
-            if best is None or chi2 < best[1]:
-                best = (v, chi2)
-        if best is None:
-            forms[alt] = None
-            continue
-        v, chi2 = best
-        shift = [0.0 if (n in SHAPE_PARAMS or n not in prob.names)
-                 else float(v[prob.names.index(n)] - values[i]) for i, n in enumerate(names)]
-        forms[alt] = dict(values=dict(zip(prob.names, v.tolist())), chi2=chi2,
-                          n_params=len(prob.names) + n_t, refit=True,
-                          shift=dict(zip(names, shift)), starts=len(starts))
+    # the ripple's screen and refits, the longest, run in a thread of their own beside the
+    # other forms' (XLA frees the interpreter lock: the second core works)
+    others = [alt for alt in PEAK_FORMS if alt not in (form, "ripple")]
+    ripple = (_in_thread(_refit_form, problem, base, theta, "ripple", huber_c, max_iter)
+              if form != "ripple" else None)
+    for alt in others:
+        forms[alt] = _refit_form(problem, base, theta, alt, huber_c, max_iter)
+    if ripple is not None:
+        forms["ripple"] = ripple.result()
     done = {k: f for k, f in forms.items() if f is not None}
     n_obs = problem.n_obs
     for f in done.values():
