@@ -57,7 +57,7 @@ import numpy as np  # noqa: E402
 import calibration as cal  # noqa: E402
 import jaxland as jl  # noqa: E402
 from calibration import virtual_rig as vr  # noqa: E402
-from calibration._parameters import get_values, set_values  # noqa: E402
+from calibration._parameters import EXP_TABLE_SPAN, get_values, set_values  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -435,8 +435,6 @@ def _fit_in_best_form(drops) -> tuple:
     refit in that form as its warning advises (``--peak-form``, and L_rise1 where the form
     has it), started from that form's refit. (first fit, its wall time, best form, the fit in
     it, its wall time)."""
-    from calibration._parameters import EXP_TABLE_SPAN
-
     first, w1 = _fit(drops, params=cal.DEFAULT_PARAMS + ("peak1", "L_peak1"))
     best = first.diagnostics["model_form"]["best_supported"]
     if best == "linear":

@@ -608,21 +608,20 @@ def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle, work: float)
             v = vals.copy()
             v[i["peak1"]], v[i["L_peak1"]], v[i["L_rise1"]] = (
                 1.0 + 2.0 * work * q / (fold * f1), fold / q, fold)
-            if all(interval(n_, names, v, veh, "ripple")[0] < v[i[n_]] <
-                   interval(n_, names, v, veh, "ripple")[1] for n_ in i):
+            bounds = {n_: interval(n_, names, v, veh, "ripple") for n_ in i}
+            if all(lo_ < v[i[n_]] < hi_ for n_, (lo_, hi_) in bounds.items()):
                 out.append(tuple(float(v[i[n_]]) for n_ in i))
     return out
 
 
-def _screen_folds(problem: CalibrationProblem, vehicle: jl.Vehicle, theta,
-                  window_s) -> list:
-    """``vehicle`` at the ripple's starts (``ripple_starts``) of least chi^2 in the window,
-    best first: at most RIPPLE_REFITS, their fold lengths at least RIPPLE_DISTINCT apart
-    (empty where no start lies inside the bounds or runs)."""
+def _screen_folds(problem: CalibrationProblem, sub: CalibrationProblem, vehicle: jl.Vehicle,
+                  theta) -> list:
+    """``vehicle`` at the ripple's starts (``ripple_starts``) of least chi^2 in ``sub`` (the
+    ripple's problem in the refit's window), best first: at most RIPPLE_REFITS, their fold
+    lengths at least RIPPLE_DISTINCT apart (empty where no start lies inside the bounds or
+    runs)."""
     n_t = len(problem.drops) if problem.fit_touchdown else 0
     work = _excess_work(problem.vehicle_at(theta))
-    prob, _ = _form_problem(problem, vehicle, "ripple")
-    sub = prob.windowed(window_s)
     scored = []
     for start in ripple_starts(problem, vehicle, work):
         try:
@@ -671,10 +670,10 @@ def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, 
     w = problem.active_window_s
     try:
         prob, veh = _form_problem(problem, base, alt)
+        sub = prob.windowed(w)
         starts = [veh]
         if alt == "ripple" and _restarts_rise(problem, base, alt):
-            starts = _screen_folds(problem, base, theta, w) or starts
-        sub = prob.windowed(w)
+            starts = _screen_folds(problem, sub, base, theta) or starts
     except (jl.SimulationError, jl.ConfigError):
         return None
     probe = RIPPLE_PROBE_ITER if len(starts) > 1 else max_iter

@@ -458,8 +458,9 @@ def test_the_ripple_refit_starts_at_the_records_fold_length(form_fits):
     refit screens its interval by chi^2 first: on the rig's fold ripple (folds 2.4 mm long)
     the screen's pick lies within 10 % of them, where the interval's middle does not."""
     res = form_fits["folds"]
-    veh = cal_fit._screen_folds(res.problem, res.vehicle, res.theta,
-                                res.problem.active_window_s)[0]
+    prob, _ = cal_fit._form_problem(res.problem, res.vehicle, "ripple")
+    sub = prob.windowed(res.problem.active_window_s)
+    veh = cal_fit._screen_folds(res.problem, sub, res.vehicle, res.theta)[0]
     assert abs(float(veh.honeycomb.peak_rise1) / (2.0 * vr.PHYSICAL_PEAK_LENGTH_M) - 1) < 0.1
 
 
