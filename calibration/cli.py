@@ -71,6 +71,19 @@ class _Progress:
 _INTERVAL_TEXT = {"std_error": "classical (std_error)", "std_error_hac": "HAC (std_error_hac)"}
 
 
+def form_caveat(model_form: dict | None) -> str | None:
+    """The line the CLI adds where the fitted peak form is the only one the data support
+    (``model_form``: the report's ``misfit.model_form``): the peak-shape term is then 0, and
+    the interval holds only as far as the record's peak has that form's shape. None
+    otherwise."""
+    if model_form is None or model_form["plausible"] != [model_form["form"]]:
+        return None
+    return (f"  the data support no other form of the peak: the peak-shape term is 0, and the "
+            f"interval assumes the peak has the {model_form['form']} form's shape; a shape "
+            "outside the forms can move the values further (docs/calibration.md, the fit, "
+            "item 9)")
+
+
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
@@ -199,6 +212,8 @@ def _cmd_fit(args) -> int:
         print(f"  peak shape: fitted as {mf['form']}; other forms, misfit-adjusted: {other}"
               + (f"; failed: {', '.join(mf['failed'])}" if mf["failed"] else "")
               + f"; best supported: {mf['best_supported']}")
+        if form_caveat(mf):
+            print(form_caveat(mf))
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 

@@ -43,7 +43,7 @@ from calibration._parameters import (
     to_unconstrained,
 )
 from calibration._problem import CalibrationProblem
-from calibration.cli import add_subcommands
+from calibration.cli import add_subcommands, form_caveat
 from jaxland import laws
 
 PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
@@ -341,11 +341,24 @@ def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_r
         fold = rep["parameters"]["L_rise1"]["value"]
         assert float(hc.excess_length1) == pytest.approx(RIPPLE_SPAN * fold, rel=1e-9)
     assert rep["misfit"]["model_form"]["form"] == form
-    capsys.readouterr()
+    # the caveat is printed exactly where the fitted form is the only one the data support
+    line, text = form_caveat(rep["misfit"]["model_form"]), capsys.readouterr().out
+    assert (line in text) if line else ("support no other form" not in text)
     assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-form", form,
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"peak_form = '{form}': needs L_rise1" in err[0], err
+
+
+def test_the_caveat_names_a_form_that_is_the_only_one_supported():
+    """The CLI's caveat: only where the data support the fitted form alone (its peak-shape
+    term is then 0), never where another form is plausible too or the fitted form is
+    rejected (the term then spans the plausible forms' shift)."""
+    line = form_caveat(dict(form="ripple", plausible=["ripple"]))
+    assert "peak-shape term is 0" in line and "the ripple form's shape" in line
+    assert form_caveat(dict(form="linear", plausible=["smooth_exp"])) is None
+    assert form_caveat(dict(form="exp", plausible=["exp", "rise_exp"])) is None
+    assert form_caveat(None) is None
 
 
 def test_compare_models_checks_the_peak_form_against_its_peak_model(tmp_path, capsys):
