@@ -1242,7 +1242,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                 f"{mform['forms'][form]['daic_adjusted']:.3g} behind the least (limit "
                 f"{DAIC_PLAUSIBLE:g}), and the {best} form is the best supported; "
                 f"std_error_total spans the forms the data support "
-                f"({', '.join(mform['plausible'])}); to report the {best} form's values, {how}",
+                f"({', '.join(mform['plausible'])}); the {best} form's values are in the report "
+                f"(misfit.model_form.forms.{best}.values); a refit in that form ({how}) reports "
+                "them with an interval that assumes its shape, narrower than std_error_total and "
+                "too narrow where the record's peak has a shape outside the forms",
                 MisfitWarning, stacklevel=2)
     with_peak = None
     if peak_future is not None:

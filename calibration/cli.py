@@ -214,6 +214,11 @@ def _cmd_fit(args) -> int:
               + f"; best supported: {mf['best_supported']}")
         if form_caveat(mf):
             print(form_caveat(mf))
+        best = mf["forms"].get(mf["best_supported"]) or {}
+        if mf["best_supported"] != mf["form"] and best.get("values"):
+            print(f"  the {mf['best_supported']} form's values: "
+                  + ", ".join(f"{k} {v:.6g}" for k, v in best["values"].items())
+                  + " (the interval above spans them)")
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 

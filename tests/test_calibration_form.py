@@ -308,6 +308,10 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
             "behind the least (limit 10), and the smooth_exp form is the best supported") in cap.err
     assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
     assert "peak shape: fitted as linear" in text and "best supported: smooth_exp" in text
+    # the best-supported form's values, printed and named in the warning, without a refit
+    best = rep["misfit"]["model_form"]["forms"]["smooth_exp"]["values"]
+    assert f"the smooth_exp form's values: k {best['k']:.6g}, " in text
+    assert "(misfit.model_form.forms.smooth_exp.values)" in cap.err
     rep = json.loads((out / "fit_report.json").read_text())
     assert rep["interval_reported"] == "std_error_total"
     assert rep["misfit"]["model_form"]["best_supported"] == "smooth_exp"
