@@ -507,6 +507,60 @@ def best_form_prediction(quick: bool = False) -> dict:
     return out
 
 
+def best_form_coverage(n_seeds: int, height: float = 0.2) -> dict:
+    """How often the refit in the best-supported form (``_fit_in_best_form``, a user's path)
+    covers the truth with its own interval: per rig peak shape (physical peak), over
+    ``n_seeds`` noise seeds (the peak-recovery study's seeds, so its first fits are that
+    study's), the refit's error against the truth of the five checked parameters and z =
+    error / its total standard error, and the same z of the first fit (the law's linear
+    peak). Per shape: the forms named, the seeds with all five within 3 %, and each interval's
+    coverage at 95 % per parameter."""
+    truth = vr.truth_vehicle()
+    names = RECOVERY_CHECKED
+    p_true = get_values(truth, names)
+    seeds = list(range(PEAK_RECOVERY_SEEDS, PEAK_RECOVERY_SEEDS + n_seeds))
+    rig = dict(peak_mode="physical", peak_length_m=vr.PHYSICAL_PEAK_LENGTH_M)
+    out = dict(params=list(names), drop_height_m=height, seeds=seeds, rig=rig, z=Z95,
+               shapes={})
+
+    def z_of(r):
+        idx = [r.names.index(n) for n in names]
+        return (r.values[idx] - p_true) / r.std_errors_total[idx]
+
+    for shape in vr.PEAK_SHAPES:
+        runs = []
+        for seed in seeds:
+            drop = vr.drop_test(height, peak_shape=shape, seed=seed, **rig)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", cal.MisfitWarning)
+                first, w1, best, r, w = _fit_in_best_form([drop])
+            err = get_values(r.vehicle, names) / p_true - 1
+            runs.append(dict(seed=seed, best_form=best, wall_s=w1 + w,
+                             rel_error=dict(zip(names, err.tolist())),
+                             z_total=dict(zip(names, z_of(r).tolist())),
+                             z_total_first=dict(zip(names, z_of(first).tolist())),
+                             peak_shape_term=bool(any(
+                                 v > 0 for k, v in r.diagnostics["model_form"]["spread"].items()
+                                 if k in names))))
+            print(f"[best-form coverage] {shape}, seed {seed}: {best}, "
+                  + ", ".join(f"{n} {e:+.2%} ({runs[-1]['z_total'][n]:+.1f})"
+                              for n, e in runs[-1]["rel_error"].items()), flush=True)
+        err = np.array([[r_["rel_error"][n] for n in names] for r_ in runs])
+        z = np.array([[r_["z_total"][n] for n in names] for r_ in runs])
+        z1 = np.array([[r_["z_total_first"][n] for n in names] for r_ in runs])
+        out["shapes"][shape] = dict(
+            runs=runs,
+            best_form_counts={f: sum(r_["best_form"] == f for r_ in runs)
+                              for f in dict.fromkeys(r_["best_form"] for r_ in runs)},
+            seeds_within_3pct=int(np.sum(np.all(np.abs(err) <= 0.03, axis=1))),
+            coverage_refit=dict(zip(names, np.mean(np.abs(z) <= Z95, axis=0).tolist())),
+            coverage_first=dict(zip(names, np.mean(np.abs(z1) <= Z95, axis=0).tolist())),
+            mean_rel_error=dict(zip(names, err.mean(axis=0).tolist())),
+            mean_abs_z_refit=dict(zip(names, np.abs(z).mean(axis=0).tolist())),
+            refits_with_peak_shape_term=int(sum(r_["peak_shape_term"] for r_ in runs)))
+    return out
+
+
 OFFSET_STUDY_SEEDS = 20000  # first noise seed of --offset-coverage
 OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as long
 
@@ -850,6 +904,7 @@ def main_coverage(args) -> int:
         return 0
     key = ("peak_model" if args.peak_model else "fit_time" if args.fit_time
            else "best_form_prediction" if args.best_form_prediction
+           else "best_form_coverage" if args.best_form_coverage
            else "peak_recovery" if args.peak_recovery
            else "offset_coverage" if args.offset_coverage
            else "sample_rate_study" if args.sample_rate_study else "coverage")
@@ -868,6 +923,8 @@ def main_coverage(args) -> int:
         result = peak_model_study(args.quick)
     elif args.best_form_prediction:
         result = best_form_prediction(args.quick)
+    elif args.best_form_coverage:
+        result = best_form_coverage(2 if args.quick else args.best_form_coverage)
     elif args.fit_time:
         result = fit_time(args.quick)
     else:
@@ -923,6 +980,10 @@ def main(argv=None) -> int:
                     help="only the physical crush peak fitted in its best-supported form: "
                          "recovery, prediction of the other heights, joint fit (into "
                          "bench_fit.json's 'best_form_prediction')")
+    ap.add_argument("--best-form-coverage", type=int, default=0, metavar="N",
+                    help="the refit in the best-supported form on every rig peak shape over N "
+                         "noise seeds: coverage of its own total interval (bench_fit.json's "
+                         "'best_form_coverage')")
     ap.add_argument("--fit-time", action="store_true",
                     help="only the cold fit times (FIT_TIME_CASES, each in a fresh process; into"
                          " bench_fit.json's 'fit_time')")
@@ -953,7 +1014,7 @@ def main(argv=None) -> int:
         print(json.dumps(one_fit(args.one_fit)))
         return 0
     if args.coverage or args.quick or args.coverage_summary or args.coverage_pseudo_truth or \
-            args.peak_model or args.best_form_prediction or \
+            args.peak_model or args.best_form_prediction or args.best_form_coverage or \
             args.fit_time or args.peak_recovery or args.offset_coverage or \
             args.sample_rate_study:
         return main_coverage(args)
