@@ -743,6 +743,28 @@ def calibration_best_form_prediction() -> str:
                    "strokes within 1 %, peaks within 5 %"], rows)
 
 
+def calibration_best_form_coverage() -> str:
+    """The refit in the best-supported form (``best_form_coverage`` in bench_fit.json): per
+    rig shape, the forms named, the seeds with all five within 3 %, and the coverage of the
+    refit's own 95 % interval against the first fit's total one, per parameter."""
+    b = _load("bench_fit.json")["best_form_coverage"]
+    names = b["params"]
+
+    def cov(c):
+        return " ".join(f"{c[n]:.2f}" for n in names)
+
+    rows = [[shape, ", ".join(f"{f} {n}" for f, n in rec["best_form_counts"].items()),
+             f"{rec['seeds_within_3pct']}/{len(rec['runs'])}", cov(rec["coverage_refit"]),
+             cov(rec["coverage_first"]),
+             f"{rec['refits_with_peak_shape_term']}/{len(rec['runs'])}"]
+            for shape, rec in b["shapes"].items()]
+    per = ", ".join(names)
+    return _table(["rig peak shape", "best-supported form (of the seeds)",
+                   "refit: five within 3 %", f"refit's own total interval covers ({per}) [-]",
+                   f"first fit's total interval covers ({per}) [-]",
+                   "refits with a peak-shape term"], rows)
+
+
 def calibration_coverage() -> str:
     """Coverage of the 95 % intervals per rig case (``coverage`` in bench_fit.json): the
     classical, HAC and trusted intervals, the total one (the trusted error with the channel
@@ -932,6 +954,7 @@ TABLES = {
     "calibration-peak-recovery-seeds": calibration_peak_recovery_seeds,
     "calibration-prediction": calibration_prediction,
     "calibration-best-form-prediction": calibration_best_form_prediction,
+    "calibration-best-form-coverage": calibration_best_form_coverage,
     "calibration-coverage": calibration_coverage,
     "calibration-offset-coverage": calibration_offset_coverage,
     "calibration-sample-rate": calibration_sample_rate,
