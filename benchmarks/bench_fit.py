@@ -561,6 +561,35 @@ def best_form_coverage(n_seeds: int, height: float = 0.2) -> dict:
     return out
 
 
+def plot_best_form_coverage(result: dict, path) -> None:
+    """z = error / total standard error of each seed, the refit in the best-supported form's
+    own against the first fit's, per rig shape and checked parameter (``best_form_coverage``'s
+    result), with the 95 % band."""
+    from matplotlib.figure import Figure
+
+    from calibration._report import atomic_savefig
+
+    shapes, names = list(result["shapes"]), result["params"]
+    fig = Figure(figsize=(4.2 * len(shapes), 4.2), layout="constrained")
+    axes = fig.subplots(1, len(shapes), sharey=True)
+    for ax, shape in zip(np.atleast_1d(axes), shapes):
+        runs = result["shapes"][shape]["runs"]
+        x = np.arange(len(names))
+        for dx, key, label in ((-0.15, "z_total_first", "first fit (law's linear peak)"),
+                               (0.15, "z_total", "refit in the best-supported form")):
+            z = np.array([[r_[key][n] for n in names] for r_ in runs])
+            ax.plot(np.repeat(x + dx, len(runs)), z.T.ravel(), "o", ms=4, alpha=0.7,
+                    label=label)
+        ax.axhspan(-result["z"], result["z"], color="0.9", zorder=0, label="95 % interval")
+        ax.set_xticks(x, names)
+        forms = ", ".join(f"{f} {n}" for f, n in result["shapes"][shape]["best_form_counts"]
+                          .items())
+        ax.set_title(f"rig peak: {shape} (named: {forms})", fontsize=10)
+    np.atleast_1d(axes)[0].set_ylabel("error / total standard error [-]")
+    np.atleast_1d(axes)[0].legend(fontsize=8, loc="lower left")
+    atomic_savefig(fig, path)
+
+
 OFFSET_STUDY_SEEDS = 20000  # first noise seed of --offset-coverage
 OFFSET_STUDY_PRE_TRIGGER_S = (0.05, 0.18)  # the rig's default, and 3.6 times as long
 
@@ -947,6 +976,10 @@ def main_coverage(args) -> int:
 
     atomic_write_text(path, json.dumps(data, indent=2) + "\n")
     print(f"wrote {path}")
+    if key == "best_form_coverage":
+        fig = path.with_name(path.stem + "_best_form_coverage.png")
+        plot_best_form_coverage(result, fig)
+        print(f"wrote {fig}")
     return 0
 
 
