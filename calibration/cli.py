@@ -212,13 +212,18 @@ def _cmd_fit(args) -> int:
         print(f"  peak shape: fitted as {mf['form']}; other forms, misfit-adjusted: {other}"
               + (f"; failed: {', '.join(mf['failed'])}" if mf["failed"] else "")
               + f"; best supported: {mf['best_supported']}")
-        if form_caveat(mf):
-            print(form_caveat(mf))
+        caveat = form_caveat(mf)
+        if caveat:
+            print(caveat)
         best = mf["forms"].get(mf["best_supported"]) or {}
         if mf["best_supported"] != mf["form"] and best.get("values"):
+            from ._parameters import SHAPE_PARAMS
+
+            vals = best["values"]
             print(f"  the {mf['best_supported']} form's values: "
-                  + ", ".join(f"{k} {v:.6g}" for k, v in best["values"].items())
-                  + " (the interval above spans them)")
+                  + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k not in SHAPE_PARAMS)
+                  + " (each within the total interval below); its peak: "
+                  + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k in SHAPE_PARAMS))
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 
