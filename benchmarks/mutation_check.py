@@ -156,6 +156,12 @@ MUTATIONS = [
       "return jnp.exp(r * jnp.log(r / (1.0 + r)))",
       ("tests/test_calibration_form.py::test_the_smooth_form_builds_up_from_zero_to_its_height",),
       ("calibration",)),
+    M("form_caveat_where_form_plausible", "the CLI's shape caveat wherever the fitted form is "
+      "plausible, also where other forms widen the interval",
+      'model_form["plausible"] != [model_form["form"]]',
+      'model_form["form"] not in model_form["plausible"]',
+      ("tests/test_calibration_form.py::"
+       "test_the_caveat_names_a_form_that_is_the_only_one_supported",), ("calibration",)),
 ]
 
 
