@@ -753,15 +753,24 @@ def calibration_best_form_coverage() -> str:
     def cov(c):
         return " ".join(f"{c[n]:.2f}" for n in names)
 
+    def width(runs):  # the first fit's total standard error, relative, mean over the seeds
+        means = [sum(abs(r_["rel_error"][n] / r_["z_first_total"][n]) for r_ in runs)
+                 / len(runs) for n in names]
+        return " ".join(f"{m * 100:.2f}" for m in means)
+
     rows = [[shape, ", ".join(f"{f} {n}" for f, n in rec["best_form_counts"].items()),
              f"{rec['seeds_within_3pct']}/{len(rec['runs'])}", cov(rec["coverage_refit"]),
-             cov(rec["coverage_first"]),
-             f"{rec['refits_with_peak_shape_term']}/{len(rec['runs'])}"]
+             cov(rec["coverage_first"]), cov(rec["coverage_refit_first_total"]),
+             f"{rec['seeds_within_3pct_and_2se_first_total']}/{len(rec['runs'])}",
+             width(rec["runs"]), f"{rec['refits_with_peak_shape_term']}/{len(rec['runs'])}"]
             for shape, rec in b["shapes"].items()]
     per = ", ".join(names)
     return _table(["rig peak shape", "best-supported form (of the seeds)",
                    "refit: five within 3 %", f"refit's own total interval covers ({per}) [-]",
                    f"first fit's total interval covers ({per}) [-]",
+                   f"refit's values, first fit's total interval, covers ({per}) [-]",
+                   "refit's values: five within 3 % and inside 2 of the first fit's total SE",
+                   f"first fit's total SE, mean ({per}) [%]",
                    "refits with a peak-shape term"], rows)
 
 
