@@ -162,6 +162,15 @@ MUTATIONS = [
       'model_form["form"] not in model_form["plausible"]',
       ("tests/test_calibration_form.py::"
        "test_the_caveat_names_a_form_that_is_the_only_one_supported",), ("calibration",)),
+    M("peak_location_step_sign", "the motion-only Gauss-Newton step taken uphill",
+      "step[keep] = -(inv @ (js.T @ r)) / col[keep]", "step[keep] = (inv @ (js.T @ r)) / col[keep]",
+      ("tests/test_calibration_form.py::"
+       "test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs",), ("calibration",)),
+    M("peak_location_force_rows", "the peak's location read from the force channels instead "
+      "of the motion", "motion = np.array([b in PEAK_MOTION_CHANNELS for b in base])",
+      "motion = np.array([b in PEAK_FORCE_CHANNELS for b in base])",
+      ("tests/test_calibration_form.py::"
+       "test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs",), ("calibration",)),
 ]
 
 

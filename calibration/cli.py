@@ -224,6 +224,13 @@ def _cmd_fit(args) -> int:
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k not in SHAPE_PARAMS)
                   + " (each within the total interval below); its peak: "
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k in SHAPE_PARAMS))
+    loc = diag.get("peak_location")
+    if loc is not None:
+        print(f"  peak location: peak1 {loc['peak1_motion']:.4g} +/- "
+              f"{loc['std_error_motion']:.2g} from the motion alone (one Gauss-Newton step), "
+              f"against {loc['peak1']:.4g} with every channel: "
+              + ("in the force channels only, no honeycomb's" if loc["force_only"]
+                 else "the motion shows it too"))
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 

@@ -308,6 +308,7 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
             "behind the least (limit 10), and the smooth_exp form is the best supported") in cap.err
     assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
     assert "peak shape: fitted as linear" in text and "best supported: smooth_exp" in text
+    assert "with every channel: the motion shows it too" in text  # a physical peak
     # the best-supported form's values, printed and named in the warning, without a refit
     best = rep["misfit"]["model_form"]["forms"]["smooth_exp"]["values"]
     assert f"the smooth_exp form's values: k {best['k']:.6g}, " in text
@@ -352,6 +353,31 @@ def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_r
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"peak_form = '{form}': needs L_rise1" in err[0], err
+
+
+def test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs(form_fits):
+    """``misfit.peak_location``: where the peak is the honeycomb's (the law's own, the bump and
+    the fold ripple in the truth), the motion-only step keeps the fitted excess; where it sits
+    on the force channels only (the rig's sensor mode), the step drops most of it and the fit
+    warns by name."""
+    for label, res in form_fits.items():
+        loc = res.diagnostics["peak_location"]
+        assert not loc["force_only"] and loc["excess_kept"] > 0.9, (label, loc)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(vr.drop_test(0.2, seed=5, peak_mode="sensor"), PARAMS, model_form=False,
+                      **KW)
+    assert any(issubclass(w.category, cal.MisfitWarning) and str(w.message).startswith(
+        "the crush peak shows in the force channels only") for w in caught)
+    loc = res.diagnostics["peak_location"]
+    assert loc["force_only"] and loc["excess_kept"] < 0.8 and loc["z"] > 2.0, loc
+    assert loc["motion_channels"] == ["stroke_m", "body_accel_mps2"]
+    assert cal_fit.peak_location(res.problem, res.theta, *res.problem.robust(None)
+                                 .residuals_and_jacobian(res.theta)[:2]) == loc
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        no_peak = cal.fit(vr.drop_test(0.2, seed=5, crush_peak=0.0), cal.DEFAULT_PARAMS, **KW)
+    assert no_peak.diagnostics["peak_location"] is None
 
 
 def test_the_caveat_names_a_form_that_is_the_only_one_supported():
