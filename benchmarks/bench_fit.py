@@ -729,6 +729,7 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
                     channel_shift_rel={c: None if d is None else
                                        {p: d[p] / float(t) for p, t in zip(base, p_true)}
                                        for c, d in r.diagnostics["channel_spread"].items()},
+                    peak_location=r.diagnostics.get("peak_location"),
                     **_recovery_form(r, base, p_true))
 
     for shape in vr.PEAK_SHAPES:
@@ -801,7 +802,21 @@ def peak_recovery_summary(rec: dict) -> dict:
                                (err.std(axis=0, ddof=1) / np.sqrt(len(runs))).tolist())),
         spread_rel=dict(zip(RECOVERY_CHECKED, err.std(axis=0, ddof=1).tolist())),
         mean_se_hac_rel=dict(zip(RECOVERY_CHECKED, np.abs(se).mean(axis=0).tolist())),
-        **_recovery_form_summary(runs))
+        **_recovery_form_summary(runs), **_peak_location_summary(runs))
+
+
+def _peak_location_summary(runs) -> dict:
+    """How many fits named the peak the force channels' only (``peak_location``), and the
+    range of the excess the motion-only step kept and of its z."""
+    locs = [r_.get("peak_location") for r_ in runs]
+    if not locs or any(loc is None for loc in locs):
+        return {}
+    kept = [loc["excess_kept"] for loc in locs if loc["excess_kept"] is not None]
+    z = [loc["z"] for loc in locs if loc["z"] is not None]
+    if not kept or not z:
+        return dict(seeds_peak_force_only=int(sum(loc["force_only"] for loc in locs)))
+    return dict(seeds_peak_force_only=int(sum(loc["force_only"] for loc in locs)),
+                peak_excess_kept_range=[min(kept), max(kept)], peak_z_range=[min(z), max(z)])
 
 
 def _recovery_form_summary(runs) -> dict:

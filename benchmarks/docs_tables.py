@@ -788,6 +788,22 @@ def calibration_best_form_coverage() -> str:
                    "refits with a peak-shape term"], rows)
 
 
+def calibration_peak_location() -> str:
+    """Where the fitted peak shows (``peak_location``), per rig peak mode and shape, over the
+    peak-recovery study's seeds (``peak_recovery`` and ``peak_recovery_sensor`` in
+    bench_fit.json)."""
+    b = _load("bench_fit.json")
+    rows = []
+    for key, label in (("peak_recovery", "in the honeycomb (physical)"),
+                       ("peak_recovery_sensor", "on the force channels only (sensor)")):
+        for shape, rec in b[key]["shapes"].items():
+            kept, z = rec["peak_excess_kept_range"], rec["peak_z_range"]
+            rows.append([label, shape, f"{rec['seeds_peak_force_only']}/{len(rec['runs'])}",
+                         f"{kept[0]:.2f} to {kept[1]:.2f}", f"{z[0]:+.1f} to {z[1]:+.1f}"])
+    return _table(["rig peak", "shape", "fits that name the peak the force channels' only",
+                   "excess kept by the motion-only step [-]", "z of that step [-]"], rows)
+
+
 def calibration_coverage() -> str:
     """Coverage of the 95 % intervals per rig case (``coverage`` in bench_fit.json): the
     classical, HAC and trusted intervals, the total one (the trusted error with the channel
@@ -1096,6 +1112,7 @@ TABLES = {
     "calibration-prediction": calibration_prediction,
     "calibration-best-form-prediction": calibration_best_form_prediction,
     "calibration-best-form-coverage": calibration_best_form_coverage,
+    "calibration-peak-location": calibration_peak_location,
     "calibration-coverage": calibration_coverage,
     "calibration-offset-coverage": calibration_offset_coverage,
     "calibration-sample-rate": calibration_sample_rate,
