@@ -435,9 +435,9 @@ def misfit_location(problem: CalibrationProblem, res: np.ndarray, width_s: float
 # channels alone; the peak counts as the force channels' only where that step keeps less than
 # PEAK_MOTION_RATIO of the fitted excess (peak1 - 1) and moves peak1 by more than PEAK_MOTION_Z
 # of its motion-only standard error. Over the peak-recovery study's 0.2 m drops (4 peak
-# shapes, 10 seeds each) the step kept 0.31 to 0.83 of the excess, 1.8 to 7.8 standard errors
+# shapes, 10 seeds each) the step kept 0.31 to 0.83 of the excess, 1.7 to 7.4 standard errors
 # off, where the peak sat on the force channels only (37 of 40 named), and 0.91 to 1.08,
-# within 2.1, where it was the honeycomb's (none named; docs/calibration.md, item 11).
+# within 2.0, where it was the honeycomb's (none named; docs/calibration.md, item 11).
 PEAK_MOTION_CHANNELS, PEAK_FORCE_CHANNELS = ("stroke_m", "body_accel_mps2"), (
     "normal_force_N", "buffer_force_N")
 PEAK_MOTION_RATIO, PEAK_MOTION_Z = 0.8, 2.0
@@ -448,7 +448,8 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     one Gauss-Newton step from ``theta`` on the stroke and body-acceleration channels alone
     (``res``, ``jac``: the plain least-squares residuals and Jacobian at ``theta``), its
     standard error from those channels, the share of the fitted excess (peak1 - 1) the step
-    keeps, z = (peak1 - its motion value) / that error, and ``force_only``: the excess
+    keeps, z = (peak1 - its motion value) / that error (scaled by those channels' residual
+    variance factor where it exceeds 1), and ``force_only``: the excess
     mostly gone (below PEAK_MOTION_RATIO) and z above PEAK_MOTION_Z. None where peak1 is not
     fitted or the record lacks a force or a motion channel."""
     if "peak1" not in problem.names:
@@ -465,11 +466,14 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     col = np.linalg.norm(j, axis=0)
     keep = col >= COLUMN_NORM_LIMIT * max(float(col.max()), 1e-300)
     js = j[:, keep] / col[keep]
-    inv = np.linalg.pinv(js.T @ js, rcond=1e-12, hermitian=True)
+    inv = np.linalg.pinv(js.T @ js, rcond=1e-13, hermitian=True)  # as ``_uncertainty``'s
     step = np.zeros(j.shape[1])
     step[keep] = -(inv @ (js.T @ r)) / col[keep]
+    # the motion channels' own residual variance factor, at least 1 (as the classical error
+    # scales by it): under misfit their residuals exceed the noise
+    s2 = max(float(r @ r) / max(r.size - int(keep.sum()), 1), 1.0)
     cov = np.zeros((j.shape[1], j.shape[1]))
-    cov[np.ix_(keep, keep)] = inv / np.outer(col[keep], col[keep])
+    cov[np.ix_(keep, keep)] = s2 * inv / np.outer(col[keep], col[keep])
     i, n_z = problem.names.index("peak1"), problem.n_z
     g = problem.transform_jacobian(theta)[i]
     p_all = float(problem.values(theta)[i])
@@ -477,7 +481,13 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     se = float(np.sqrt(max(g @ cov[:n_z, :n_z] @ g, 0.0)))
     ratio = (p_motion - 1.0) / (p_all - 1.0) if p_all > 1.0 else None  # no excess fitted
     z = (p_all - p_motion) / se if se > 0 else None
-    return dict(peak1=p_all, peak1_motion=p_motion, std_error_motion=se, excess_kept=ratio,
+
+    def finite(x):  # JSON-ready: a step that ran off gives None, not inf or NaN
+        return x if x is not None and math.isfinite(x) else None
+
+    ratio, z = finite(ratio), finite(z)
+    return dict(peak1=finite(p_all), peak1_motion=finite(p_motion),
+                std_error_motion=finite(se), motion_variance_factor=s2, excess_kept=ratio,
                 z=z, force_only=bool(ratio is not None and z is not None
                                      and ratio < PEAK_MOTION_RATIO and z > PEAK_MOTION_Z),
                 motion_channels=[c for c, m in zip(problem.channels, motion) if m])

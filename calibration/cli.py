@@ -84,6 +84,27 @@ def form_caveat(model_form: dict | None) -> str | None:
             "item 9)")
 
 
+def peak_location_line(loc: dict) -> str:
+    """The CLI's line on where the fitted crush peak shows (``misfit.peak_location``): in the
+    force channels only (the fit's test), in the motion too (the motion-only step keeps at
+    least PEAK_MOTION_RATIO of the excess), or undecided (less is kept, but within
+    PEAK_MOTION_Z of the motion-only error); nothing to tell without a fitted excess."""
+    from ._fit import PEAK_MOTION_RATIO
+
+    head = "  peak location: "
+    kept, z = loc.get("excess_kept"), loc.get("z")
+    if kept is None or z is None or loc.get("peak1_motion") is None:
+        return head + "no excess over the plateau fitted (or the motion-only step ran off)"
+    head += (f"peak1 {loc['peak1_motion']:.4g} +/- {loc['std_error_motion']:.2g} from the "
+             f"motion alone (one Gauss-Newton step), against {loc['peak1']:.4g} with every "
+             f"channel (it keeps {kept:.2f} of the excess, z {z:.1f}): ")
+    if loc["force_only"]:
+        return head + "in the force channels only, no honeycomb's"
+    if kept >= PEAK_MOTION_RATIO:
+        return head + "the motion shows it too"
+    return head + "the motion shows less of it, within its error: undecided"
+
+
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
@@ -224,13 +245,8 @@ def _cmd_fit(args) -> int:
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k not in SHAPE_PARAMS)
                   + " (each within the total interval below); its peak: "
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k in SHAPE_PARAMS))
-    loc = diag.get("peak_location")
-    if loc is not None:
-        print(f"  peak location: peak1 {loc['peak1_motion']:.4g} +/- "
-              f"{loc['std_error_motion']:.2g} from the motion alone (one Gauss-Newton step), "
-              f"against {loc['peak1']:.4g} with every channel: "
-              + ("in the force channels only, no honeycomb's" if loc["force_only"]
-                 else "the motion shows it too"))
+    if diag.get("peak_location") is not None:
+        print(peak_location_line(diag["peak_location"]))
     for i, n in enumerate(result.names):
         from ._parameters import PARAMS
 

@@ -43,7 +43,7 @@ from calibration._parameters import (
     to_unconstrained,
 )
 from calibration._problem import CalibrationProblem
-from calibration.cli import add_subcommands, form_caveat
+from calibration.cli import add_subcommands, form_caveat, peak_location_line
 from jaxland import laws
 
 PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
@@ -308,12 +308,12 @@ def test_the_cli_says_which_interval_it_reports(tmp_path, capsys):
             "behind the least (limit 10), and the smooth_exp form is the best supported") in cap.err
     assert "interval reported: total (std_error_total)" in text and "+ peak-shape term" in text
     assert "peak shape: fitted as linear" in text and "best supported: smooth_exp" in text
-    assert "with every channel: the motion shows it too" in text  # a physical peak
+    assert "the motion shows it too" in text  # a physical peak
     # the best-supported form's values, printed and named in the warning, without a refit
     best = rep["misfit"]["model_form"]["forms"]["smooth_exp"]["values"]
     assert f"the smooth_exp form's values: k {best['k']:.6g}, " in text
+    assert f"; its peak: peak1 {best['peak1']:.6g}, " in text  # apart: not in the interval
     assert "(misfit.model_form.forms.smooth_exp.values)" in cap.err
-    rep = json.loads((out / "fit_report.json").read_text())
     assert rep["interval_reported"] == "std_error_total"
     assert rep["misfit"]["model_form"]["best_supported"] == "smooth_exp"
     k_b1 = rep["parameters"]["k_b1"]
@@ -378,6 +378,16 @@ def test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs(form_fits
         warnings.simplefilter("ignore")
         no_peak = cal.fit(vr.drop_test(0.2, seed=5, crush_peak=0.0), cal.DEFAULT_PARAMS, **KW)
     assert no_peak.diagnostics["peak_location"] is None
+
+
+def test_the_cli_says_where_the_peak_shows_in_each_case():
+    base = dict(peak1=1.2, peak1_motion=1.19, std_error_motion=0.005, force_only=False)
+    assert peak_location_line(dict(base, excess_kept=0.95, z=2.0)).endswith(
+        "the motion shows it too")
+    assert peak_location_line(dict(base, peak1_motion=1.1, excess_kept=0.5, z=6.0,
+                                   force_only=True)).endswith("no honeycomb's")
+    assert peak_location_line(dict(base, excess_kept=0.5, z=1.5)).endswith("undecided")
+    assert "no excess" in peak_location_line(dict(base, excess_kept=None, z=None))
 
 
 def test_the_caveat_names_a_form_that_is_the_only_one_supported():
