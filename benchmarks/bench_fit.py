@@ -541,18 +541,21 @@ def best_form_coverage(n_seeds: int, height: float = 0.2) -> dict:
             runs.append(dict(seed=seed, best_form=best, wall_s=w1 + w,
                              rel_error=dict(zip(names, err.tolist())),
                              z_total=dict(zip(names, z_of(r).tolist())),
-                             z_total_first=dict(zip(names, z_of(first).tolist())),
-                             z_first_total=dict(zip(names, z_of(r, first).tolist())),
-                             peak_shape_term=bool(any(
-                                 v > 0 for k, v in r.diagnostics["model_form"]["spread"].items()
-                                 if k in names))))
+                             z_first_fit=dict(zip(names, z_of(first).tolist())),
+                             z_refit_over_first_se=dict(zip(names, z_of(r, first).tolist())),
+                             se_first_total_rel=dict(zip(names, (
+                                 first.std_errors_total[[first.names.index(n) for n in names]]
+                                 / p_true).tolist())),
+                             only_form_supported=bool(
+                                 r.diagnostics["model_form"]["plausible"]
+                                 == [r.diagnostics["model_form"]["form"]])))
             print(f"[best-form coverage] {shape}, seed {seed}: {best}, "
                   + ", ".join(f"{n} {e:+.2%} ({runs[-1]['z_total'][n]:+.1f})"
                               for n, e in runs[-1]["rel_error"].items()), flush=True)
         err = np.array([[r_["rel_error"][n] for n in names] for r_ in runs])
         z = np.array([[r_["z_total"][n] for n in names] for r_ in runs])
-        z1 = np.array([[r_["z_total_first"][n] for n in names] for r_ in runs])
-        z2 = np.array([[r_["z_first_total"][n] for n in names] for r_ in runs])
+        z1 = np.array([[r_["z_first_fit"][n] for n in names] for r_ in runs])
+        z2 = np.array([[r_["z_refit_over_first_se"][n] for n in names] for r_ in runs])
         out["shapes"][shape] = dict(
             runs=runs,
             best_form_counts={f: sum(r_["best_form"] == f for r_ in runs)
@@ -566,7 +569,7 @@ def best_form_coverage(n_seeds: int, height: float = 0.2) -> dict:
                 np.all(np.abs(err) <= 0.03, axis=1) & np.all(np.abs(z2) <= 2.0, axis=1))),
             mean_rel_error=dict(zip(names, err.mean(axis=0).tolist())),
             mean_abs_z_refit=dict(zip(names, np.abs(z).mean(axis=0).tolist())),
-            refits_with_peak_shape_term=int(sum(r_["peak_shape_term"] for r_ in runs)))
+            refits_only_form_supported=int(sum(r_["only_form_supported"] for r_ in runs)))
     return out
 
 
@@ -584,7 +587,7 @@ def plot_best_form_coverage(result: dict, path) -> None:
     for ax, shape in zip(np.atleast_1d(axes), shapes):
         runs = result["shapes"][shape]["runs"]
         x = np.arange(len(names))
-        for dx, key, label in ((-0.15, "z_total_first", "first fit (law's linear peak)"),
+        for dx, key, label in ((-0.15, "z_first_fit", "first fit (law's linear peak)"),
                                (0.15, "z_total", "refit in the best-supported form")):
             z = np.array([[r_[key][n] for n in names] for r_ in runs])
             ax.plot(np.repeat(x + dx, len(runs)), z.T.ravel(), "o", ms=4, alpha=0.7,
@@ -722,6 +725,7 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
                     rel_error=dict(zip(base, (v / p_true - 1).tolist())),
                     z_hac=dict(zip(base, ((v - p_true) / r.std_errors_hac[:n]).tolist())),
                     z_total=dict(zip(base, ((v - p_true) / r.std_errors_total[:n]).tolist())),
+                    se_total_rel=dict(zip(base, (r.std_errors_total[:n] / p_true).tolist())),
                     z_classical=dict(zip(base, ((v - p_true) / r.std_errors[:n]).tolist())),
                     sigma2=r.sigma2, rho1=r.diagnostics["residual_lag1_autocorr"],
                     misfit_warned=bool(r.diagnostics["misfit"]),
