@@ -525,10 +525,11 @@ def best_form_coverage(n_seeds: int, height: float = 0.2) -> dict:
     out = dict(params=list(names), drop_height_m=height, seeds=seeds, rig=rig, z=Z95,
                shapes={})
 
-    def z_of(r, se_of=None):
-        idx = [r.names.index(n) for n in names]
-        se = (se_of or r).std_errors_total[[(se_of or r).names.index(n) for n in names]]
-        return (r.values[idx] - p_true) / se
+    def total_se(r):  # the fit's total standard errors of the checked parameters
+        return r.std_errors_total[[r.names.index(n) for n in names]]
+
+    def z_of(r, se):
+        return (r.values[[r.names.index(n) for n in names]] - p_true) / se
 
     for shape in vr.PEAK_SHAPES:
         runs = []
@@ -540,12 +541,12 @@ def best_form_coverage(n_seeds: int, height: float = 0.2) -> dict:
             err = get_values(r.vehicle, names) / p_true - 1
             runs.append(dict(seed=seed, best_form=best, wall_s=w1 + w,
                              rel_error=dict(zip(names, err.tolist())),
-                             z_total=dict(zip(names, z_of(r).tolist())),
-                             z_first_fit=dict(zip(names, z_of(first).tolist())),
-                             z_refit_over_first_se=dict(zip(names, z_of(r, first).tolist())),
-                             se_first_total_rel=dict(zip(names, (
-                                 first.std_errors_total[[first.names.index(n) for n in names]]
-                                 / p_true).tolist())),
+                             z_total=dict(zip(names, z_of(r, total_se(r)).tolist())),
+                             z_first_fit=dict(zip(names, z_of(first, total_se(first)).tolist())),
+                             z_refit_over_first_se=dict(zip(names, z_of(
+                                 r, total_se(first)).tolist())),
+                             se_first_total_rel=dict(zip(names, (total_se(first)
+                                                                 / p_true).tolist())),
                              only_form_supported=bool(
                                  r.diagnostics["model_form"]["plausible"]
                                  == [r.diagnostics["model_form"]["form"]])))
@@ -815,12 +816,12 @@ def _peak_location_summary(runs) -> dict:
     locs = [r_.get("peak_location") for r_ in runs]
     if not locs or any(loc is None for loc in locs):
         return {}
-    kept = [loc["excess_kept"] for loc in locs if loc["excess_kept"] is not None]
-    z = [loc["z"] for loc in locs if loc["z"] is not None]
-    if not kept or not z:
-        return dict(seeds_peak_force_only=int(sum(loc["force_only"] for loc in locs)))
-    return dict(seeds_peak_force_only=int(sum(loc["force_only"] for loc in locs)),
-                peak_excess_kept_range=[min(kept), max(kept)], peak_z_range=[min(z), max(z)])
+    out = dict(seeds_peak_force_only=int(sum(loc["force_only"] for loc in locs)))
+    for key, field in (("peak_excess_kept_range", "excess_kept"), ("peak_z_range", "z")):
+        got = [loc[field] for loc in locs if loc[field] is not None]
+        if got:
+            out[key] = [min(got), max(got)]
+    return out
 
 
 def _recovery_form_summary(runs) -> dict:

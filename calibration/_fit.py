@@ -326,6 +326,17 @@ def _start_vehicle(base: jl.Vehicle, names, start) -> jl.Vehicle:
     raise jl.ConfigError("start", type(start).__name__, "must be a Vehicle or {name: value}")
 
 
+def _normal_inverse(jac):
+    """(J^T J)^-1 of the column-scaled Jacobian, the columns whose norm is below
+    COLUMN_NORM_LIMIT of the largest left out: (that inverse, the scaled kept columns, the
+    column norms, the mask of kept columns). The scaling keeps the pseudo-inverse's cut-off
+    relative to each parameter's own sensitivity."""
+    col = np.linalg.norm(jac, axis=0)
+    keep = ~(col < COLUMN_NORM_LIMIT * max(float(col.max()), 1e-300))
+    js = jac[:, keep] / col[keep]
+    return np.linalg.pinv(js.T @ js, rcond=1e-13, hermitian=True), js, col, keep
+
+
 def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     """Gauss-Newton covariance at ``theta``: cov = s^2 (J^T J)^-1 in the unconstrained
     coordinates, J the Jacobian of the noise-weighted residuals, plus the offsets' error:
@@ -348,12 +359,9 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
         psi = np.clip(r, -huber_c, huber_c)
         inlier = float(np.mean(np.abs(r) <= huber_c))
         sigma2 = float(psi @ psi) / dof / max(inlier, 1e-3) ** 2
-    col = np.linalg.norm(jac, axis=0)
     n_z = problem.n_z
-    zero = col < COLUMN_NORM_LIMIT * max(float(col.max()), 1e-300)
-    keep = ~zero
-    js = jac[:, keep] / col[keep]
-    cov_s = np.linalg.pinv(js.T @ js, rcond=1e-13, hermitian=True)
+    cov_s, js, col, keep = _normal_inverse(jac)
+    zero = ~keep
     # the offsets' error: each channel's offset is the mean of its free fall, and an error
     # in it shifts all of that channel's residuals alike; its effect on the values is the
     # least-squares response to that shift, added to both covariances
@@ -463,10 +471,7 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     rows = mask & motion[None, :, None]
     r = np.asarray(res).reshape(shape)[rows]
     j = np.asarray(jac).reshape(*shape, -1)[rows]
-    col = np.linalg.norm(j, axis=0)
-    keep = col >= COLUMN_NORM_LIMIT * max(float(col.max()), 1e-300)
-    js = j[:, keep] / col[keep]
-    inv = np.linalg.pinv(js.T @ js, rcond=1e-13, hermitian=True)  # as ``_uncertainty``'s
+    inv, js, col, keep = _normal_inverse(j)
     step = np.zeros(j.shape[1])
     step[keep] = -(inv @ (js.T @ r)) / col[keep]
     # the motion channels' own residual variance factor, at least 1 (as the classical error
@@ -1337,7 +1342,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                 "--compare-models says whether the data support the peak)"
                 if with_peak is not None else "")
              + f". Largest misfit: {worst}", MisfitWarning, stacklevel=2)
-    where_peak = peak_location(final, theta, unc["residuals"], unc["jacobian"])
+    # an inner fit (the missing-peak term's) reports only its values to the outer one
+    where_peak = None if _inner else peak_location(final, theta, unc["residuals"],
+                                                   unc["jacobian"])
     if where_peak is not None and where_peak["force_only"]:
         warn(f"the crush peak shows in the force channels only: fitted to "
              f"{' and '.join(PEAK_MOTION_CHANNELS)} alone (one Gauss-Newton step from the "

@@ -108,7 +108,7 @@ def peak_location_line(loc: dict) -> str:
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
-    from ._parameters import check_names
+    from ._parameters import PARAMS, SHAPE_PARAMS, check_names
 
     out = _out_dir(args.out)
     names = check_names(args.params)
@@ -238,8 +238,6 @@ def _cmd_fit(args) -> int:
             print(caveat)
         best = mf["forms"].get(mf["best_supported"]) or {}
         if mf["best_supported"] != mf["form"] and best.get("values"):
-            from ._parameters import SHAPE_PARAMS
-
             vals = best["values"]
             print(f"  the {mf['best_supported']} form's values: "
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k not in SHAPE_PARAMS)
@@ -248,8 +246,6 @@ def _cmd_fit(args) -> int:
     if diag.get("peak_location") is not None:
         print(peak_location_line(diag["peak_location"]))
     for i, n in enumerate(result.names):
-        from ._parameters import PARAMS
-
         flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
                 else "" if result.identified[i] else "   NOT IDENTIFIED")
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
