@@ -171,6 +171,19 @@ MUTATIONS = [
       "motion = np.array([b in PEAK_FORCE_CHANNELS for b in base])",
       ("tests/test_calibration_form.py::"
        "test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs",), ("calibration",)),
+    M("peak_site_dynamics", "a peak on the force channels run in the honeycomb too",
+      'traj, summary = jl.landings(_without_primary_peak(veh), scenes, solver, "quarter")',
+      'traj, summary = jl.landings(veh, scenes, solver, "quarter")',
+      ("tests/test_calibration_site.py::"
+       "test_a_peak_on_the_force_channels_moves_no_motion_channel",), ("calibration",)),
+    M("peak_site_no_gain", "a peak on the force channels left out of them",
+      "ys = jnp.where(on_forces[None, :, None], ys * gain[:, None, :], ys)", "ys = ys",
+      ("tests/test_calibration_site.py::"
+       "test_a_peak_on_the_force_channels_moves_no_motion_channel",), ("calibration",)),
+    M("lm_atol_ignored", "the optimiser's absolute loss tolerance ignored",
+      "if rel < ftol or decrease < atol or", "if rel < ftol or",
+      ("tests/test_calibration_site.py::"
+       "test_the_forces_refits_stop_once_the_loss_stops_moving",), ("calibration",)),
 ]
 
 

@@ -96,7 +96,16 @@ from ._parameters import (
     set_values,
     switch_on,
 )
-from ._problem import INTEGRATORS, MS, PLAIN, CalibrationProblem, check_integrator
+from ._problem import (
+    FORCES,
+    HONEYCOMB,
+    INTEGRATORS,
+    MS,
+    PEAK_SITES,
+    PLAIN,
+    CalibrationProblem,
+    check_integrator,
+)
 from ._uncertainty import hac_covariance, misfit
 
 __all__ = ["fit", "FitResult", "IdentifiabilityWarning", "MisfitWarning", "WINDOWS_S",
@@ -459,8 +468,9 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     keeps, z = (peak1 - its motion value) / that error (scaled by those channels' residual
     variance factor where it exceeds 1), and ``force_only``: the excess
     mostly gone (below PEAK_MOTION_RATIO) and z above PEAK_MOTION_Z. None where peak1 is not
-    fitted or the record lacks a force or a motion channel."""
-    if "peak1" not in problem.names:
+    fitted, sits on the force channels already (``peak_site``) or the record lacks a force or
+    a motion channel."""
+    if "peak1" not in problem.names or problem.peak_site == FORCES:
         return None
     base = [base_channel(c) for c in problem.channels]
     motion = np.array([b in PEAK_MOTION_CHANNELS for b in base])
@@ -587,7 +597,7 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
         dt=problem.solver.dt, save_dt=problem.solver.save_dt, integrator=problem.integrator,
         smoothing_m=problem.solver.smoothing_m, smoothing_N=problem.solver.smoothing_N,
         fit_touchdown=problem.fit_touchdown, channels=problem.channels, peak_form=alt,
-        shared_forms=True)
+        shared_forms=True, peak_site=problem.peak_site)
     return prob, veh
 
 
@@ -730,6 +740,11 @@ def precompile_forms(problem: CalibrationProblem, form: str):
     return t
 
 
+# the least loss decrease (0.5 chi^2) that continues a refit of a form with the peak on the
+# force channels: a thousandth of the AIC differences that decide between forms
+FORCES_REFIT_ATOL = 0.01
+
+
 def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, huber_c,
                 max_iter: int) -> dict | None:
     """``problem``'s final window refitted from ``base`` (its fitted vehicle) with the primary
@@ -748,12 +763,16 @@ def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, 
     except (jl.SimulationError, jl.ConfigError):
         return None
     probe = RIPPLE_PROBE_ITER if len(starts) > 1 else max_iter
+    # a peak on the force channels is a kinked gain of the stroke: its refits crawl on in
+    # steps that change chi^2 by thousandths (tens of iterations), far below what moves the
+    # forms' comparison
+    atol = FORCES_REFIT_ATOL if problem.peak_site == FORCES else 0.0
     best = None
     for veh in starts:
         try:
             th0 = sub.theta_from(veh, theta[problem.n_z:] if n_t else None)
             th, _, _ = levenberg_marquardt(sub.robust(huber_c), th0, max_iter=probe,
-                                           ftol=FTOL)
+                                           ftol=FTOL, atol=atol)
         except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
             continue
         chi2 = _chi2(sub, th)
@@ -765,7 +784,7 @@ def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, 
         th = best[0]
         if probe < max_iter:
             th, _, _ = levenberg_marquardt(sub.robust(huber_c), th, max_iter=max_iter - probe,
-                                           ftol=FTOL)
+                                           ftol=FTOL, atol=atol)
         v, chi2 = sub.values(th), _chi2(sub, th)
     except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError):
         return None
@@ -1025,8 +1044,8 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
               robust: float | None = ROBUST_K, method: str = "lm", max_iter: int = 60,
               dt: float = 1e-5, integrator: str = INTEGRATOR, smoothing_m: float | None = None,
               smoothing_N: float | None = None, peak_form: str | None = None,
-              model_form: bool | str = "auto",
-              peak_model_term: bool | str = "auto") -> FitSettings:
+              model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
+              peak_site: str = HONEYCOMB) -> FitSettings:
     """``fit``'s arguments checked (each bad one refused by name with ``jaxland.ConfigError``)
     before any compilation, so that a caller can refuse them before it announces a fit.
     ``save_dt``, ``channels`` and ``fit_touchdown`` are checked where they are used, by
@@ -1077,6 +1096,11 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
     if peak_model_term not in ("auto", False):
         raise jl.ConfigError("peak_model_term", peak_model_term, "must be 'auto' or False")
+    if peak_site not in PEAK_SITES:
+        raise jl.ConfigError("peak_site", peak_site, "must be one of " + ", ".join(PEAK_SITES))
+    if peak_site == FORCES and "peak1" not in names:
+        raise jl.ConfigError("peak_site", peak_site, "needs peak1 among the fitted parameters "
+                             "(the peak it puts on the force channels)")
     if model_form is True and "peak1" not in names:
         raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
                              "parameters (the term spans the crush peak's forms)")
@@ -1093,7 +1117,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         smoothing_m: float | None = None, smoothing_N: float | None = None,
         fit_touchdown: bool = True, channels=None, peak_form: str | None = None,
         model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
-        progress=None, _inner: bool = False) -> FitResult:
+        peak_site: str = HONEYCOMB, progress=None, _inner: bool = False) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -1137,6 +1161,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         crush peak (``has_no_peak``): the fit is repeated with the primary peak
         (``PEAK_PARAMS``) and each value's shift to it is added in quadrature to
         ``std_errors_total`` (``add_peak_model_term``); False leaves it out
+    peak_site : where the primary crush peak sits (needs peak1): ``"honeycomb"`` (default: the
+        law's; its crush work moves the stroke and the body) or ``"forces"``, on the force
+        channels alone (the drop runs without it and the force channels carry it as a gain,
+        ``CalibrationProblem``): for a record whose peak the motion does not show
+        (``misfit.peak_location``). The fitted vehicle then has no primary peak
     progress : called with a dict after every iteration (``stage``, ``iteration``, ``loss``...)
 
     Warns ``IdentifiabilityWarning`` (and lists it in ``FitResult.warnings``) for each parameter
@@ -1151,7 +1180,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                         max_iter=max_iter, dt=dt, integrator=integrator,
                         smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                         peak_form=peak_form, model_form=model_form,
-                        peak_model_term=peak_model_term)
+                        peak_model_term=peak_model_term, peak_site=peak_site)
     drops, names, windows, stages_w = (checked.drops, checked.names, checked.windows,
                                        checked.stages_w)
     integrator, smoothing_m, smoothing_N = (checked.integrator, checked.smoothing_m,
@@ -1177,7 +1206,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                                  smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                                  fit_touchdown=fit_touchdown, channels=channels,
                                  peak_form=form if shared else peak_form, shared_forms=shared,
-                                 peak_switch=switch)
+                                 peak_switch=switch, peak_site=peak_site)
     theta0 = problem.theta_from()
     forms_thread = precompile_forms(problem, form) if forms and not shared else None
     problem.compile(theta0)
@@ -1352,7 +1381,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
              f"{where_peak['std_error_motion']:.2g} against {where_peak['peak1']:.4g} with "
              "every channel. A force the motion does not show is no honeycomb's (a load-cell "
              "artefact or a load path the model lacks): the honeycomb's parameters take it up, "
-             "and std_error_total, not the values, is what holds (misfit.peak_location)",
+             "and std_error_total, not the values, is what holds (misfit.peak_location); a fit "
+             "with the peak on the force channels (peak_site='forces', --peak-site forces) "
+             "keeps it out of the honeycomb",
              MisfitWarning, stacklevel=2)
     fitted = final.vehicle_at(theta)
     result = FitResult(
@@ -1386,7 +1417,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                                       smoothing_N=smoothing_N),
                       pre_touchdown_s=PRE_S, fit_touchdown=fit_touchdown,
                       channels=list(final.channels), max_iter=max_iter,
-                      peak_form=form, model_form=model_form,
+                      peak_form=form, model_form=model_form, peak_site=peak_site,
                       peak_model_term=peak_model_term,
                       model="quarter (jaxland.landing), from touchdown",
                       channel_map={c: CHANNELS[base_channel(c)][1] for c in final.channels},

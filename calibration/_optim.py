@@ -28,10 +28,12 @@ __all__ = ["levenberg_marquardt", "lbfgs"]
 MAX_STEP = 0.7  # largest change of any unconstrained coordinate per step (factor 2 in a log)
 
 
-def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9,
+def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9, atol=0.0,
                         progress=None, stage="", t_origin=None, free=None):
     """``free``: a boolean mask of the coordinates that move (default all); the others keep
-    their values (their Jacobian columns are computed but not used)."""
+    their values (their Jacobian columns are computed but not used). Converged when an
+    accepted step lowers the loss by less than ``ftol`` of it or by less than ``atol``
+    (absolute, in the loss's units, 0.5 chi^2), or moves no coordinate by ``xtol``."""
     theta = np.asarray(theta0, dtype=float).copy()
     free = np.ones(theta.size, bool) if free is None else np.asarray(free, bool)
     r, jac, failed = problem.residuals_and_jacobian(theta)
@@ -83,7 +85,8 @@ def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9,
         if not accepted:
             status = "no_decrease"
             break
-        rel = (cost - new_cost) / max(cost, 1e-300)
+        decrease = cost - new_cost
+        rel = decrease / max(cost, 1e-300)
         theta = trial
         r, jac, failed = problem.residuals_and_jacobian(theta)
         n_jac += 1
@@ -95,7 +98,7 @@ def levenberg_marquardt(problem, theta0, *, max_iter=60, ftol=1e-10, xtol=1e-9,
         history.append(rec)
         if progress:
             progress(rec)
-        if rel < ftol or float(np.max(np.abs(step))) < xtol:
+        if rel < ftol or decrease < atol or float(np.max(np.abs(step))) < xtol:
             status = "converged"
             break
     return theta, history, dict(status=status, n_jacobians=n_jac, n_forward=n_fwd,

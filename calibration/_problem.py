@@ -44,6 +44,7 @@ fixed-step methods; the compiled functions are keyed on all three.
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import equinox as eqx
 import jax
@@ -74,6 +75,13 @@ __all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator", "shared_name
 MS = 1e-3  # the touchdown shifts are fitted in milliseconds
 SHARED = "shared"  # the compiled functions' peak form: every form, chosen at run time
 SWITCH = "switch"  # the compiled functions' primary peak: the linear one, on or off at run time
+HONEYCOMB, FORCES = "honeycomb", "forces"
+# where the primary crush peak sits: in the honeycomb (its crush work moves the stroke and the
+# body), or on the force channels alone (the drop without it, its force channels times
+# ``force_channel_gain``: a force the motion does not show, as a load cell's artefact)
+PEAK_SITES = (HONEYCOMB, FORCES)
+FORCE_CHANNELS = ("normal_force_N", "buffer_force_N")
+PRIMARY_PEAK_FIELDS = ("peak_ratio1", "peak_rise1", "excess1", "excess_length1")
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
 _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
 # fixed-step methods only: the fit checks dt against their stability limit and samples the
@@ -117,18 +125,44 @@ def switch_names(names) -> tuple:
     return tuple(n for n in names if n not in PEAK_PARAMS) + PEAK_PARAMS
 
 
-def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None):
+def _without_primary_peak(vehicle: jl.Vehicle) -> jl.Vehicle:
+    """``vehicle`` with no primary crush peak (every other field, the secondary's peak
+    included, kept); jit-safe."""
+    hc = vehicle.honeycomb
+    kw = {f.name: getattr(hc, f.name) for f in dataclasses.fields(jl.Honeycomb)}
+    plain = eqx.tree_at(lambda h: tuple(getattr(h, f) for f in PRIMARY_PEAK_FIELDS),
+                        jl.Honeycomb(**kw), (None,) * len(PRIMARY_PEAK_FIELDS),
+                        is_leaf=lambda x: x is None)
+    return eqx.tree_at(lambda v: v.honeycomb, vehicle, plain)
+
+
+def force_channel_gain(vehicle: jl.Vehicle, stroke_max_m):
+    """The force channels' gain 1 + e(x_max) / F1 of a primary crush peak that sits on the
+    force channels (``peak_site="forces"``): e the excess of ``vehicle``'s virgin honeycomb
+    curve over the same curve without the primary peak, at the largest stroke reached so far
+    [m]. 1 before the crush and once the peak has decayed; the peak's shape is the vehicle's
+    form of it."""
+    hc = vehicle.honeycomb
+    plain = _without_primary_peak(vehicle).honeycomb
+    excess = (jl.laws.honeycomb_virgin_force(stroke_max_m, hc.curve())
+              - jl.laws.honeycomb_virgin_force(stroke_max_m, plain.curve()))
+    return 1.0 + excess / hc.F1
+
+
+def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None,
+              peak_site=HONEYCOMB):
     """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels
     (and whether a CFC filter acts, and the primary peak's form: None, the vehicle's own;
     SHARED, the form's code ``FORM_INDEX`` as the first data argument; SWITCH, the linear
-    peak on or off by the first data argument); compiled once and shared (data, speeds,
-    windows and filter coefficients are arguments)."""
+    peak on or off by the first data argument; and where it sits, ``PEAK_SITES``); compiled
+    once and shared (data, speeds, windows and filter coefficients are arguments)."""
     key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
            solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered,
-           peak_form)
+           peak_form, peak_site)
     if key in _COMPILED:
         return _COMPILED[key]
     model_cols = tuple(CHANNELS[base_channel(c)][1] for c in channels)
+    on_forces = np.array([base_channel(c) in FORCE_CHANNELS for c in channels])
     n_z = len(names)
 
     def residual(theta, *args):
@@ -147,7 +181,11 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
         elif peak_form is not None:
             veh = peak_form_vehicle(veh, peak_form)
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
-        traj, summary = jl.landings(veh, scenes, solver, "quarter")
+        if peak_site == FORCES:  # the drop without the peak; the peak on the force channels
+            traj, summary = jl.landings(_without_primary_peak(veh), scenes, solver, "quarter")
+            gain = force_channel_gain(veh, traj["stroke_max_m"])  # (drops, saves)
+        else:
+            traj, summary = jl.landings(veh, scenes, solver, "quarter")
         shift = theta[n_z:] * MS if fit_t0 else jnp.zeros_like(speeds)
         tau = rel_t - shift[:, None]  # (drops, samples): model time of each sample
 
@@ -155,6 +193,8 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
             return jax.vmap(lambda y: jnp.interp(ta, tm, y))(ys)
 
         ys = jnp.stack([traj[c] for c in model_cols], axis=1)  # (drops, channels, saves)
+        if peak_site == FORCES:
+            ys = jnp.where(on_forces[None, :, None], ys * gain[:, None, :], ys)
         model = jax.vmap(one)(traj["time_s"], ys, tau)  # (drops, channels, samples)
         if filtered:  # SAE J211, as on the data (identity rows for unfiltered series)
             model = filtfilt_jax(model, coeffs)
@@ -208,6 +248,10 @@ class CalibrationProblem:
         switched on or off at run time (module docstring), shared with the problem of the
         same drops with the peak fitted (PEAK_PARAMS among ``params``: on) or not (off; the
         vehicle must then have no primary peak)
+    peak_site : where the primary crush peak sits (``PEAK_SITES``): ``"honeycomb"`` (default:
+        the law's) or ``"forces"``, the force channels alone (the drop runs without the peak,
+        and the force channels are multiplied by ``force_channel_gain``); needs peak1 among
+        ``params``, not with ``peak_switch``
     """
 
     def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
@@ -215,7 +259,7 @@ class CalibrationProblem:
                  save_dt: float = 2e-5, integrator: str = "euler", smoothing_m: float = 0.0,
                  smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None,
                  peak_form: str | None = None, shared_forms: bool = False,
-                 peak_switch: bool = False):
+                 peak_switch: bool = False, peak_site: str = HONEYCOMB):
         from ._parameters import DEFAULT_PARAMS
 
         if peak_form is not None and peak_form not in PEAK_FORMS:
@@ -240,6 +284,14 @@ class CalibrationProblem:
                 raise jl.ConfigError("peak_form", peak_form, "the built-up forms ("
                                      + ", ".join(RISE_FORMS) + "), and only they, fit L_rise1")
         self.peak_form = peak_form
+        if peak_site not in PEAK_SITES:
+            raise jl.ConfigError("peak_site", peak_site, "must be one of "
+                                 + ", ".join(PEAK_SITES))
+        if peak_site == FORCES and ("peak1" not in self.names or peak_switch):
+            raise jl.ConfigError("peak_site", peak_site, "the peak on the force channels "
+                                 "needs peak1 among the fitted parameters, and not "
+                                 "peak_switch")
+        self.peak_site = peak_site
         self.vehicle = drops[0].vehicle if vehicle is None else vehicle
         jl.validate_vehicle(self.vehicle)
         self.peak_switch = bool(peak_switch)
@@ -353,7 +405,7 @@ class CalibrationProblem:
         fns = _compiled(self._canonical, self._z_names, self.solver, channels,
                         self.fit_touchdown, self.filtered,
                         SHARED if self.shared_forms else SWITCH if self.peak_switch
-                        else peak_form)
+                        else peak_form, peak_site)
         self._res_jit = fns[0]
         if not (self.shared_forms or self.peak_switch):
             self._res, self._jac = fns
@@ -455,8 +507,10 @@ class CalibrationProblem:
 
     def vehicle_at(self, theta) -> jl.Vehicle:
         """The vehicle with the fitted parameters at ``theta``, its peak in the problem's
-        form (validated)."""
+        form (validated); without the primary peak where it sits on the force channels."""
         veh = set_values(self.vehicle, self.names, self.values(theta))
+        if self.peak_site == FORCES:
+            return jl.validate_vehicle(_without_primary_peak(veh))
         if self.peak_form is not None:
             veh = peak_form_vehicle(veh, self.peak_form)
         return jl.validate_vehicle(veh)

@@ -133,7 +133,11 @@ def _cmd_fit(args) -> int:
                   max_iter=args.max_iter, dt=args.dt, integrator=args.integrator,
                   smoothing_m=args.smoothing_m, smoothing_N=args.smoothing_n,
                   model_form=False if args.no_model_form else "auto",
-                  peak_model_term=False if args.no_peak_model_term else "auto")
+                  peak_model_term=False if args.no_peak_model_term else "auto",
+                  peak_site=args.peak_site)
+    if args.compare_models and args.peak_site != "honeycomb":
+        raise jl.ConfigError("--peak-site", args.peak_site, "--compare-models fits the peak "
+                             "in the honeycomb; fit with --peak-site forces on its own")
     # every argument refused before the banner; --compare-models fits the peak model
     # (peak_form's) beside the model without the peak
     checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models else names,
@@ -245,6 +249,9 @@ def _cmd_fit(args) -> int:
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k in SHAPE_PARAMS))
     if diag.get("peak_location") is not None:
         print(peak_location_line(diag["peak_location"]))
+    if result.settings.get("peak_site") == "forces":
+        print("  peak site: the force channels alone (fitted as a gain on them; the drop runs "
+              "without it, and fitted_vehicle.toml has no primary crush peak)")
     for i, n in enumerate(result.names):
         flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
                 else "" if result.identified[i] else "   NOT IDENTIFIED")
@@ -346,6 +353,13 @@ def add_subcommands(subparsers) -> None:
                         "peak over the other half, the peaks decaying as exp(-c / L_peak1), "
                         "L_rise1 the fold length (with L_rise1 fitted for the last three) "
                         "(default law)")
+    f.add_argument("--peak-site", choices=("honeycomb", "forces"), default="honeycomb",
+                   help="where the fitted crush peak sits (with peak1): honeycomb, the law's "
+                        "(its crush work moves the stroke and the body); forces, the force "
+                        "channels alone (the drop runs without it; the force channels carry it "
+                        "as a gain), for a record whose peak the motion does not show (the "
+                        "report's 'peak location' line); the fitted vehicle then has no peak "
+                        "(default honeycomb)")
     f.add_argument("--no-model-form", action="store_true",
                    help="leave out the peak-shape (model-form) term, on by default when the "
                         "fit has the crush peak: the values refitted in the peak's other forms "

@@ -1,0 +1,156 @@
+"""Where the fitted crush peak sits (``fit(peak_site=...)``): in the honeycomb (the law's: its
+crush work moves the stroke and the body) or on the force channels alone (the drop runs
+without it, the force channels carry it as a gain of the largest stroke reached).
+
+A record whose peak sits on the force channels only (the virtual rig's sensor mode) is fitted
+both ways on one module-scoped pair of fits (short windows, no peak-shape term).
+"""
+
+import math
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import calibration as cal
+import jaxland as jl
+from calibration import _fit as cal_fit, virtual_rig as vr
+from calibration._optim import levenberg_marquardt
+from calibration._parameters import get_values, set_values
+from calibration._problem import CalibrationProblem, force_channel_gain
+from calibration.cli import add_subcommands
+
+PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
+KW = dict(windows=(0.01, 0.03), refine_window_s=0.1, model_form=False)
+CHECKED = ("k", "gamma", "D_b", "k_b1", "F1")
+
+
+@pytest.fixture(scope="module")
+def sensor_fits():
+    drop = vr.drop_test(0.2, seed=5, peak_mode="sensor")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {site: cal.fit(drop, PARAMS, peak_site=site, **KW)
+                for site in ("honeycomb", "forces")}
+
+
+def test_the_gain_is_the_peak_ratio_at_its_top_and_one_off_the_peak():
+    """The law's linear peak (ratio r over length L): the gain is 1 up to the plateau's
+    stroke F1 / k_b1, rises with the elastic line to r at r F1 / k_b1, falls linearly to 1
+    over L of crush and stays 1 past it (closed form)."""
+    r, length = 1.3, 1.5e-3
+    veh = set_values(jl.paper_vehicle(), ("peak1", "L_peak1"), [r, length])
+    hc = veh.honeycomb
+    x_l1 = float(hc.F1 / hc.k_b1)
+    x_pk = r * x_l1
+    xs = np.array([0.0, 0.5 * x_l1, x_l1, 0.5 * (x_l1 + x_pk), x_pk, x_pk + 0.25 * length,
+                   x_pk + length, x_pk + 2.0 * length])
+    want = np.array([1.0, 1.0, 1.0, 0.5 * (1.0 + r), r, r - 0.25 * (r - 1.0), 1.0, 1.0])
+    got = np.asarray(force_channel_gain(veh, jnp.asarray(xs)))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    # differentiable in the peak's parameters, finite everywhere
+    g = jax.grad(lambda p: jnp.sum(force_channel_gain(
+        set_values(veh, ("peak1", "L_peak1"), p), jnp.asarray(xs))))(jnp.array([r, length]))
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_a_peak_on_the_force_channels_moves_no_motion_channel():
+    """The site "forces" model: stroke and body acceleration are the drop's without the peak,
+    bit for bit; the force channels are that drop's times the gain, which peaks at the peak
+    ratio where the crush passes the peak and is 1 before and long after it."""
+    r = 1.25
+    plain = vr.truth_vehicle()
+    peaked = set_values(plain, ("peak1", "L_peak1"), [r, 1.5e-3])
+    drop = vr.drop_test(0.2, seed=1, peak_mode="sensor")
+    forces = CalibrationProblem([drop], PARAMS, vehicle=peaked, peak_site="forces")
+    none = CalibrationProblem([drop], cal.DEFAULT_PARAMS, vehicle=plain)
+
+    def model(prob):
+        res, failed = prob.robust(None).residuals(prob.theta_from())
+        assert not failed
+        return prob.data + res.reshape(prob.data.shape) / prob.inv_sigma[:, :, None]
+
+    m_f, m_0 = model(forces), model(none)
+    assert forces.channels == none.channels
+    for j, c in enumerate(forces.channels):
+        on = forces.mask[0, j] > 0
+        if c in ("stroke_m", "body_accel_mps2"):
+            np.testing.assert_array_equal(m_f[0, j, on], m_0[0, j, on])
+            continue
+        big = np.abs(m_0[0, j, on]) > 1e3
+        ratio = m_f[0, j, on][big] / m_0[0, j, on][big]
+        assert 1.0 + 0.8 * (r - 1.0) < ratio.max() <= r + 1e-12, (c, ratio.max())
+        assert ratio.min() == pytest.approx(1.0, abs=1e-12)
+
+
+def test_a_sensor_side_peak_fitted_on_the_forces_recovers_the_honeycomb(sensor_fits):
+    """A record whose peak sits on the force channels only: fitted in the honeycomb, the
+    values take it up (D_b, k_b1 or F1 more than 3 % off); fitted on the forces, every checked
+    value lies within 3 % of the truth and the residuals fit the noise."""
+    p_true = get_values(vr.truth_vehicle(), CHECKED)
+
+    def err(res):
+        return np.array([res.value(n) for n in CHECKED]) / p_true - 1.0
+
+    honeycomb, forces = sensor_fits["honeycomb"], sensor_fits["forces"]
+    assert np.max(np.abs(err(honeycomb))) > 0.05, err(honeycomb)
+    assert np.max(np.abs(err(forces))) < 0.03, err(forces)
+    assert forces.sigma2 < 1.3 < honeycomb.sigma2
+    assert not forces.diagnostics["misfit"]
+
+
+def test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak(sensor_fits):
+    res = sensor_fits["forces"]
+    assert res.settings["peak_site"] == "forces"
+    assert res.diagnostics["peak_location"] is None  # the peak sits on the forces already
+    hc = res.vehicle.honeycomb
+    assert hc.peak_ratio1 is None and hc.excess1 is None and hc.peak_rise1 is None
+    assert res.report()["settings"]["peak_site"] == "forces"
+    # the honeycomb fit names the force channels and says how to fit them
+    loc = sensor_fits["honeycomb"].diagnostics["peak_location"]
+    assert loc["force_only"]
+
+
+def test_the_forces_refits_stop_once_the_loss_stops_moving():
+    """``levenberg_marquardt(atol=)``: an accepted step that lowers the loss by less than
+    atol ends the fit, where the relative test alone goes on."""
+
+    class Quadratic:  # r = 10 (theta - 1): two capped steps, then one within the damping
+        def residuals_and_jacobian(self, theta):
+            return 10.0 * (np.asarray(theta) - 1.0), np.eye(1) * 10.0, False
+
+        def residuals(self, theta):
+            return 10.0 * (np.asarray(theta) - 1.0), False
+
+        def values(self, theta):
+            return np.asarray(theta)
+
+    _, hist_abs, st = levenberg_marquardt(Quadratic(), np.zeros(1), atol=1.0)
+    _, hist_rel, _ = levenberg_marquardt(Quadratic(), np.zeros(1))
+    assert st["status"] == "converged" and len(hist_abs) == 3 < len(hist_rel)
+    assert math.isclose(hist_abs[-1]["values"][0], 1.0, abs_tol=1e-5)
+
+
+def test_a_bad_peak_site_is_refused_by_name(capsys, tmp_path):
+    drop = vr.drop_test(0.2, seed=1)
+    for site, params, rule in (("soil", PARAMS, "must be one of honeycomb, forces"),
+                               ("forces", cal.DEFAULT_PARAMS, "needs peak1")):
+        with pytest.raises(jl.ConfigError, match=rule) as err:
+            cal_fit.check_fit(drop, params, peak_site=site)
+        assert err.value.field == "peak_site"
+    from jaxland.cli import main
+
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=1)
+    vr.write_nominal(tmp_path)
+    assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-site", "forces",
+                 "--compare-models", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--peak-site = 'forces'" in err[0], err
+    import argparse
+
+    sub = argparse.ArgumentParser().add_subparsers()
+    add_subcommands(sub)
+    fit_parser = sub.choices["fit"]
+    assert fit_parser.parse_args(["x.toml"]).peak_site == "honeycomb"
