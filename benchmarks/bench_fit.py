@@ -695,7 +695,7 @@ PEAK_RECOVERY_SEEDS = 3000  # first noise seed of --peak-recovery (none of the o
 
 
 def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical",
-                  model: str = "law") -> dict:
+                  model: str = "law", peak_site: str = "honeycomb") -> dict:
     """The crush-peak model (default parameters + peak1, L_peak1) on rig records of every
     ``vr.PEAK_SHAPES`` at ``height``, over ``n_seeds`` noise seeds each: per parameter the
     error against the truth and z = error / SE (HAC, total: with the channel spread, and
@@ -706,7 +706,8 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
     ``law``, the law's linear peak fitted (peak1, L_peak1); ``law_rise``, with its rise
     length too (L_rise1: the peak builds up over a crush length); ``true_shape``, the default
     parameters fitted with the rig's own peak table in the model (physical mode only: the data
-    are then representable, which tells the law's shape from everything else)."""
+    are then representable, which tells the law's shape from everything else). ``peak_site``:
+    ``fit``'s, where the fitted peak sits (``forces``: on the force channels alone)."""
     truth = vr.truth_vehicle()
     base = cal.DEFAULT_PARAMS
     names = base + {"law": ("peak1", "L_peak1"), "law_rise": ("peak1", "L_peak1", "L_rise1"),
@@ -718,7 +719,8 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
     if peak_mode == "physical":
         rig.update(peak_length_m=vr.PHYSICAL_PEAK_LENGTH_M)
     out = dict(params=list(names), drop_height_m=height, seeds=seeds, rig=rig, model=model,
-               targets=dict(rel_error=0.03, z=2.0, checked=list(RECOVERY_CHECKED)), shapes={})
+               peak_site=peak_site, shapes={},
+               targets=dict(rel_error=0.03, z=2.0, checked=list(RECOVERY_CHECKED)))
 
     def row(r, wall):
         v = r.values[:n]
@@ -740,6 +742,8 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
     for shape in vr.PEAK_SHAPES:
         clean = _clean_drop(height, peak_shape=shape, **rig)
         kw = dict(params=names)
+        if peak_site != "honeycomb":
+            kw.update(peak_site=peak_site)
         if model == "true_shape":  # the rig's table in the model; started at the truth (at
             # the nominal k the folds table's fall is steeper than the rule's k / 2): this
             # measures where the optimum lies, not the convergence
@@ -972,11 +976,14 @@ def main_coverage(args) -> int:
         result = offset_coverage(5 if args.quick else args.offset_coverage)
     elif args.peak_recovery:
         result = peak_recovery(2 if args.quick else args.peak_recovery,
-                               peak_mode=args.rig_peak_mode, model=args.peak_model_kind)
+                               peak_mode=args.rig_peak_mode, model=args.peak_model_kind,
+                               peak_site=args.peak_site)
         if args.rig_peak_mode != "physical":
             key = f"peak_recovery_{args.rig_peak_mode}"
         if args.peak_model_kind != "law":
             key = f"{key}_{args.peak_model_kind}"
+        if args.peak_site != "honeycomb":
+            key = f"{key}_site_{args.peak_site}"
     elif args.peak_model:
         result = peak_model_study(args.quick)
     elif args.best_form_prediction:
@@ -1062,6 +1069,10 @@ def main(argv=None) -> int:
                          "with its rise length (law_rise: + L_rise1), or the default "
                          "parameters with the rig's own peak table in the model (true_shape); "
                          "into 'peak_recovery[_KIND]'")
+    ap.add_argument("--peak-site", choices=("honeycomb", "forces"), default="honeycomb",
+                    help="with --peak-recovery: where the fitted peak sits (fit's peak_site; "
+                         "forces: on the force channels alone, into "
+                         "'peak_recovery[_MODE][_KIND]_site_forces')")
     ap.add_argument("--offset-coverage", type=int, default=0, metavar="N",
                     help="coverage of the classical intervals on representable data over N "
                          "seeds, with a short and a long free fall before touchdown (the "

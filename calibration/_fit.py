@@ -59,6 +59,11 @@ benchmarks/results/bench_fit.json):
    A fit without any crush peak runs on functions whose linear peak is switched off at run
    time (``CalibrationProblem(peak_switch=True)``), and the fit with the peak on the same
    functions switched on: the term compiles nothing.
+9. **Where the peak sits** (``peak_site``): in the honeycomb (the law's) or, for a record
+   whose peak the motion does not show (``peak_location``), on the force channels alone:
+   the drop runs without the peak and the force channels carry it as a gain of the crush
+   so far (``CalibrationProblem``). The peak-shape refits then crawl on a kinked loss, and
+   stop once a step lowers it by less than ``FORCES_REFIT_ATOL``.
 """
 
 from __future__ import annotations
@@ -97,6 +102,7 @@ from ._parameters import (
     switch_on,
 )
 from ._problem import (
+    FORCE_CHANNELS,
     FORCES,
     HONEYCOMB,
     INTEGRATORS,
@@ -455,8 +461,7 @@ def misfit_location(problem: CalibrationProblem, res: np.ndarray, width_s: float
 # shapes, 10 seeds each) the step kept 0.31 to 0.83 of the excess, 1.7 to 7.4 standard errors
 # off, where the peak sat on the force channels only (37 of 40 named), and 0.91 to 1.08,
 # within 2.0, where it was the honeycomb's (none named; docs/calibration.md, item 11).
-PEAK_MOTION_CHANNELS, PEAK_FORCE_CHANNELS = ("stroke_m", "body_accel_mps2"), (
-    "normal_force_N", "buffer_force_N")
+PEAK_MOTION_CHANNELS, PEAK_FORCE_CHANNELS = ("stroke_m", "body_accel_mps2"), FORCE_CHANNELS
 PEAK_MOTION_RATIO, PEAK_MOTION_Z = 0.8, 2.0
 
 
@@ -798,7 +803,7 @@ def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, 
 
 
 def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=None,
-                      max_iter: int = 60, rho1: float = 0.0) -> dict:
+                      max_iter: int = 60, rho1: float = 0.0, threads: int = 1) -> dict:
     """How far the fitted values move when the primary crush peak takes another of its forms
     (``PEAK_FORMS``), among the forms the data support: the final window refitted from
     ``theta``'s values in each other form (same drops, channels, window and Huber
@@ -810,7 +815,9 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     the refit failed). ``spread``: per parameter the largest absolute shift over the
     plausible forms (this fit's own form included, shift 0), 0 on the peak's own parameters,
     whose meaning differs between forms (``SHAPE_PARAMS``); ``best_supported``: the plausible
-    form of least misfit-adjusted BIC (``best_supported_form``)."""
+    form of least misfit-adjusted BIC (``best_supported_form``). The ripple's refit runs in a
+    thread of its own, the other forms' in ``threads`` more (2 where the caller has no work of
+    its own to run beside them)."""
     names = problem.names
     values = problem.values(theta)
     n_t = len(problem.drops) if problem.fit_touchdown else 0
@@ -823,8 +830,14 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     others = [alt for alt in PEAK_FORMS if alt not in (form, "ripple")]
     ripple = (_in_thread(_refit_form, problem, base, theta, "ripple", huber_c, max_iter)
               if form != "ripple" else None)
-    for alt in others:
-        forms[alt] = _refit_form(problem, base, theta, alt, huber_c, max_iter)
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            done_ = {alt: pool.submit(_refit_form, problem, base, theta, alt, huber_c, max_iter)
+                     for alt in others}
+        forms.update((alt, f.result()) for alt, f in done_.items())
+    else:
+        for alt in others:
+            forms[alt] = _refit_form(problem, base, theta, alt, huber_c, max_iter)
     if ripple is not None:
         forms["ripple"] = ripple.result()
     done = {k: f for k, f in forms.items() if f is not None}
@@ -1297,8 +1310,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     if forms:  # the peak-shape refits run in a second thread beside the channel spread's
         if forms_thread is not None:  # (each refit's time is XLA's, which frees the GIL)
             forms_thread.join()
+        # where no channel spread runs beside them, the refits take both cores
         forms_future = _in_thread(model_form_spread, final, theta, form, huber_c, max_iter,
-                                  unc["rho1"])
+                                  unc["rho1"], 1 if unc["misfit"] and not _inner else 2)
     peak_future = None
     if wants_peak_model_term(peak_model_term, unc["misfit"], names, start_vehicle):
         # the fit with the crush peak runs in a second thread beside the channel spread's
@@ -1336,7 +1350,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             how = (("fit with L_rise1 among the parameters" if rise else "fit without L_rise1")
                    + ((" and " if rise else ", with ")
                       + f"peak_form='{best}' (--peak-form {best})" if best in EXP_TABLE_SPAN
-                      else " and without peak_form"))
+                      else " and without peak_form")
+                   + (", and peak_site='forces' (--peak-site forces)"
+                      if peak_site == FORCES else ""))
             warn(
                 f"the data reject the crush peak's {form} form: its misfit-adjusted AIC is "
                 f"{mform['forms'][form]['daic_adjusted']:.3g} behind the least (limit "

@@ -28,6 +28,13 @@ the problem in each of ``PEAK_FORMS``, so the peak-shape refits of a fit (``mode
 compile nothing. A problem whose form does not use L_rise1 holds that coordinate at 0 (the
 middle of its bounds; the form ignores its value) and drops its Jacobian column.
 
+With ``peak_site="forces"`` the primary crush peak sits on the force channels alone: the
+landing runs without it, and the model's force channels are multiplied by
+``force_channel_gain``, 1 + e(p) / F1, e the peak's excess over the plateau (in the problem's
+form) at the crush p so far. The stroke and the body
+acceleration are the drop's without the peak: a force the motion does not show, as a load
+cell's artefact.
+
 With ``peak_switch`` the primary crush peak (``PEAK_PARAMS``, the law's linear form) is
 switched on or off at run time instead: the compiled functions fit ``switch_names`` (the
 problem's list without PEAK_PARAMS, then PEAK_PARAMS) and take the switch as an argument,
@@ -81,7 +88,7 @@ HONEYCOMB, FORCES = "honeycomb", "forces"
 # ``force_channel_gain``: a force the motion does not show, as a load cell's artefact)
 PEAK_SITES = (HONEYCOMB, FORCES)
 FORCE_CHANNELS = ("normal_force_N", "buffer_force_N")
-PRIMARY_PEAK_FIELDS = ("peak_ratio1", "peak_rise1", "excess1", "excess_length1")
+PRIMARY_PEAK_FIELDS = ("peak_ratio1", "peak_rise1", "excess1")  # None: off
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
 _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems of equal shape
 # fixed-step methods only: the fit checks dt against their stability limit and samples the
@@ -127,26 +134,24 @@ def switch_names(names) -> tuple:
 
 def _without_primary_peak(vehicle: jl.Vehicle) -> jl.Vehicle:
     """``vehicle`` with no primary crush peak (every other field, the secondary's peak
-    included, kept); jit-safe."""
+    included, kept; the unused table length at its default); jit-safe."""
     hc = vehicle.honeycomb
     kw = {f.name: getattr(hc, f.name) for f in dataclasses.fields(jl.Honeycomb)}
+    kw["excess_length1"] = jl.Honeycomb.__dataclass_fields__["excess_length1"].default
     plain = eqx.tree_at(lambda h: tuple(getattr(h, f) for f in PRIMARY_PEAK_FIELDS),
                         jl.Honeycomb(**kw), (None,) * len(PRIMARY_PEAK_FIELDS),
                         is_leaf=lambda x: x is None)
     return eqx.tree_at(lambda v: v.honeycomb, vehicle, plain)
 
 
-def force_channel_gain(vehicle: jl.Vehicle, stroke_max_m):
-    """The force channels' gain 1 + e(x_max) / F1 of a primary crush peak that sits on the
-    force channels (``peak_site="forces"``): e the excess of ``vehicle``'s virgin honeycomb
-    curve over the same curve without the primary peak, at the largest stroke reached so far
-    [m]. 1 before the crush and once the peak has decayed; the peak's shape is the vehicle's
-    form of it."""
-    hc = vehicle.honeycomb
-    plain = _without_primary_peak(vehicle).honeycomb
-    excess = (jl.laws.honeycomb_virgin_force(stroke_max_m, hc.curve())
-              - jl.laws.honeycomb_virgin_force(stroke_max_m, plain.curve()))
-    return 1.0 + excess / hc.F1
+def force_channel_gain(vehicle: jl.Vehicle, plastic_set_m):
+    """The force channels' gain 1 + e(p) / F1 of a primary crush peak that sits on the force
+    channels (``peak_site="forces"``): e the peak's excess over the plateau in ``vehicle``'s
+    form of it (``jaxland.laws.primary_peak_excess``) at the crush p [m] so far, the drop's
+    permanent set. A gain of the crush, not of the block's elastic line: before the crush it
+    is the peak's start (1 for a peak that builds up), and 1 once the peak has decayed."""
+    hc = vehicle.honeycomb.curve()
+    return 1.0 + jl.laws.primary_peak_excess(plastic_set_m, hc) / hc.F1
 
 
 def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None,
@@ -183,7 +188,7 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
         if peak_site == FORCES:  # the drop without the peak; the peak on the force channels
             traj, summary = jl.landings(_without_primary_peak(veh), scenes, solver, "quarter")
-            gain = force_channel_gain(veh, traj["stroke_max_m"])  # (drops, saves)
+            gain = force_channel_gain(veh, traj["plastic_set_m"])  # (drops, saves)
         else:
             traj, summary = jl.landings(veh, scenes, solver, "quarter")
         shift = theta[n_z:] * MS if fit_t0 else jnp.zeros_like(speeds)

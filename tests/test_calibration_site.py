@@ -1,9 +1,10 @@
 """Where the fitted crush peak sits (``fit(peak_site=...)``): in the honeycomb (the law's: its
 crush work moves the stroke and the body) or on the force channels alone (the drop runs
-without it, the force channels carry it as a gain of the largest stroke reached).
+without it, the force channels carry it as a gain of the crush so far).
 
-A record whose peak sits on the force channels only (the virtual rig's sensor mode) is fitted
-both ways on one module-scoped pair of fits (short windows, no peak-shape term).
+A record whose peak sits on the force channels only (the virtual rig's sensor mode, a bump of
+the crush) is fitted both ways on one module-scoped pair of fits (short windows, no
+peak-shape term).
 """
 
 import math
@@ -32,34 +33,37 @@ def sensor_fits():
     drop = vr.drop_test(0.2, seed=5, peak_mode="sensor")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return {site: cal.fit(drop, PARAMS, peak_site=site, **KW)
-                for site in ("honeycomb", "forces")}
+        # on the forces, the law's peak built up (L_rise1): a gain that starts at 1 and
+        # peaks after some crush, as the rig's sensor-side bump does
+        return dict(honeycomb=cal.fit(drop, PARAMS, **KW),
+                    forces=cal.fit(drop, PARAMS + ("L_rise1",), peak_site="forces", **KW))
 
 
-def test_the_gain_is_the_peak_ratio_at_its_top_and_one_off_the_peak():
-    """The law's linear peak (ratio r over length L): the gain is 1 up to the plateau's
-    stroke F1 / k_b1, rises with the elastic line to r at r F1 / k_b1, falls linearly to 1
-    over L of crush and stays 1 past it (closed form)."""
-    r, length = 1.3, 1.5e-3
+def test_the_gain_follows_the_peak_over_the_crush_and_is_one_past_it():
+    """The gain of the crush p (closed forms): the law's linear peak (ratio r over length L)
+    starts at r and falls to 1 at p = L; built up over L_r, it starts at 1, reaches r at
+    p = L_r and falls to 1 at L_r + L; 1 from there on."""
+    r, length, rise = 1.3, 1.5e-3, 0.5e-3
     veh = set_values(jl.paper_vehicle(), ("peak1", "L_peak1"), [r, length])
-    hc = veh.honeycomb
-    x_l1 = float(hc.F1 / hc.k_b1)
-    x_pk = r * x_l1
-    xs = np.array([0.0, 0.5 * x_l1, x_l1, 0.5 * (x_l1 + x_pk), x_pk, x_pk + 0.25 * length,
-                   x_pk + length, x_pk + 2.0 * length])
-    want = np.array([1.0, 1.0, 1.0, 0.5 * (1.0 + r), r, r - 0.25 * (r - 1.0), 1.0, 1.0])
-    got = np.asarray(force_channel_gain(veh, jnp.asarray(xs)))
-    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    ps = np.array([0.0, 0.25 * length, length, 2.0 * length, 0.1])
+    got = np.asarray(force_channel_gain(veh, jnp.asarray(ps)))
+    np.testing.assert_allclose(got, [r, r - 0.25 * (r - 1.0), 1.0, 1.0, 1.0], rtol=1e-12)
+    built = set_values(veh, ("L_rise1",), [rise])
+    ps = np.array([0.0, 0.5 * rise, rise, rise + 0.5 * length, rise + length, 0.1])
+    got = np.asarray(force_channel_gain(built, jnp.asarray(ps)))
+    np.testing.assert_allclose(got, [1.0, 0.5 * (1.0 + r), r, 0.5 * (1.0 + r), 1.0, 1.0],
+                               rtol=1e-12)
     # differentiable in the peak's parameters, finite everywhere
     g = jax.grad(lambda p: jnp.sum(force_channel_gain(
-        set_values(veh, ("peak1", "L_peak1"), p), jnp.asarray(xs))))(jnp.array([r, length]))
-    assert np.all(np.isfinite(np.asarray(g)))
+        set_values(built, ("peak1", "L_peak1", "L_rise1"), p), jnp.asarray(ps))))(
+        jnp.array([r, length, rise]))
+    assert np.all(np.isfinite(np.asarray(g))) and np.any(np.asarray(g) != 0.0)
 
 
 def test_a_peak_on_the_force_channels_moves_no_motion_channel():
     """The site "forces" model: stroke and body acceleration are the drop's without the peak,
-    bit for bit; the force channels are that drop's times the gain, which peaks at the peak
-    ratio where the crush passes the peak and is 1 before and long after it."""
+    bit for bit; the force channels are that drop's times the gain, the peak ratio up to the
+    crush's start (the law's linear peak) and 1 once the peak has decayed."""
     r = 1.25
     plain = vr.truth_vehicle()
     peaked = set_values(plain, ("peak1", "L_peak1"), [r, 1.5e-3])
@@ -101,12 +105,16 @@ def test_a_sensor_side_peak_fitted_on_the_forces_recovers_the_honeycomb(sensor_f
     assert not forces.diagnostics["misfit"]
 
 
-def test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak(sensor_fits):
+def test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak(sensor_fits, tmp_path):
     res = sensor_fits["forces"]
     assert res.settings["peak_site"] == "forces"
     assert res.diagnostics["peak_location"] is None  # the peak sits on the forces already
-    hc = res.vehicle.honeycomb
-    assert hc.peak_ratio1 is None and hc.excess1 is None and hc.peak_rise1 is None
+    path = tmp_path / "fitted_vehicle.toml"
+    path.write_text(res.to_toml())
+    for veh in (res.vehicle, jl.load_vehicle(path)):
+        hc = veh.honeycomb
+        assert hc.peak_ratio1 is None and hc.excess1 is None and hc.peak_rise1 is None
+        assert float(hc.k_b1) == pytest.approx(res.value("k_b1"), rel=1e-6)
     assert res.report()["settings"]["peak_site"] == "forces"
     # the honeycomb fit names the force channels and says how to fit them
     loc = sensor_fits["honeycomb"].diagnostics["peak_location"]

@@ -19,6 +19,7 @@ from ._honeycomb import (
     HoneycombOut as HoneycombOut,
     honeycomb as honeycomb,
     honeycomb_virgin_force as honeycomb_virgin_force,
+    primary_peak_excess as primary_peak_excess,
 )
 from ._strut import (
     StrutOut as StrutOut,

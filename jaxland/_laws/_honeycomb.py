@@ -232,6 +232,19 @@ def _table_at(c, hc: HoneycombCurve):
     return e_j + s_j * v, at(hc.t1_int) + e_j * v + 0.5 * s_j * v * v
 
 
+def primary_peak_excess(c, hc: Honeycomb | HoneycombCurve):
+    """The primary stage's crush-peak excess over its plateau, e(c) [N], at the crush c [m]
+    past the peak's onset: the law's linear fall a1 (1 - c / L1), or its table (a build-up
+    included), 0 from the peak's end on and without a primary peak. Pure, like the law."""
+    hc = hc.curve() if isinstance(hc, Honeycomb) else hc
+    if not hc.extended:
+        return jnp.zeros_like(c)
+    c = fclip(c, 0.0, hc.L1)
+    if hc.t1_c is None:
+        return hc.a1 - hc.a1 * c / hc.L1
+    return jnp.vectorize(lambda ci: _table(ci, hc, 0.0)[0])(c)  # any shape of c
+
+
 def _peak_work(a, e, c, length, k):
     """Crush work of a peak beyond the plateau's [J]: (a^2 - e^2) / (2k) + a c (1 - c / 2L)."""
     return (a * a - e * e) / (2.0 * k) + a * c * (1.0 - c / (2.0 * length))
