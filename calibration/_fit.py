@@ -594,9 +594,10 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     and solver."""
     names = _form_names(problem.names, alt)
     veh = peak_form_vehicle(vehicle, "linear") if alt not in RISE_FORMS else vehicle
+    site = problem.peak_site
     if _restarts_rise(problem, vehicle, alt):
-        veh = _rise_start(veh, names, alt)
-    veh = _inside_form(veh, names, alt)
+        veh = _rise_start(veh, names, alt, site)
+    veh = _inside_form(veh, names, alt, site)
     prob = CalibrationProblem(
         problem.drops, names, vehicle=veh, window_s=problem.window_s, pre_s=problem.pre_s,
         dt=problem.solver.dt, save_dt=problem.solver.save_dt, integrator=problem.integrator,
@@ -606,7 +607,7 @@ def _form_problem(problem: CalibrationProblem, vehicle: jl.Vehicle, alt: str):
     return prob, veh
 
 
-def _inside_form(vehicle: jl.Vehicle, names, form: str) -> jl.Vehicle:
+def _inside_form(vehicle: jl.Vehicle, names, form: str, site: str = HONEYCOMB) -> jl.Vehicle:
     """``vehicle`` with each crush-peak value that lies outside its interval in ``form``
     (``interval``) moved inside, so that a refit in that form starts inside its rules instead
     of failing; values already inside are kept. A value above the interval (the exponential
@@ -618,7 +619,7 @@ def _inside_form(vehicle: jl.Vehicle, names, form: str) -> jl.Vehicle:
     for n in ("peak1", "L_peak1", "L_rise1"):
         if n in names:
             vals = get_values(vehicle, names)
-            lo, hi = interval(n, names, vals, vehicle, form)
+            lo, hi = interval(n, names, vals, vehicle, form, site)
             x = vals[names.index(n)]
             if not lo < x < hi:
                 at = START_ABOVE_BOUND if x <= lo else 0.9
@@ -685,7 +686,8 @@ def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle, work: float)
     out = []
     no_peak = vals.copy()
     no_peak[i["peak1"]] = 1.0
-    hi = float(interval("L_rise1", names, no_peak, veh, "ripple")[1])  # the room's end
+    site = problem.peak_site
+    hi = float(interval("L_rise1", names, no_peak, veh, "ripple", site)[1])  # the room's end
     for q in RIPPLE_DECAYS:
         lo = max(math.sqrt(8.0 * work * q / k), hi / RIPPLE_START_RATIO ** RIPPLE_STARTS_MAX)
         n = max(math.ceil(math.log(hi / lo) / math.log(RIPPLE_START_RATIO)), 1) if hi > lo else 0
@@ -694,7 +696,7 @@ def ripple_starts(problem: CalibrationProblem, vehicle: jl.Vehicle, work: float)
             v = vals.copy()
             v[i["peak1"]], v[i["L_peak1"]], v[i["L_rise1"]] = (
                 1.0 + 2.0 * work * q / (fold * f1), fold / q, fold)
-            bounds = {n_: interval(n_, names, v, veh, "ripple") for n_ in i}
+            bounds = {n_: interval(n_, names, v, veh, "ripple", site) for n_ in i}
             if all(lo_ < v[i[n_]] < hi_ for n_, (lo_, hi_) in bounds.items()):
                 out.append(tuple(float(v[i[n_]]) for n_ in i))
     return out
@@ -933,23 +935,24 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
     result.diagnostics["peak_model_term"] = rec
 
 
-def _rise_start(vehicle: jl.Vehicle, names, form: str | None = None) -> jl.Vehicle:
+def _rise_start(vehicle: jl.Vehicle, names, form: str | None = None,
+                site: str = HONEYCOMB) -> jl.Vehicle:
     """``vehicle`` with the rise switched on at its ``START_IF_OFF`` length, or where that
     lies outside its bounds in ``form``, in the middle of them; in the ripple form, where
     L_rise1 is the fold length, always in the middle of its bounds."""
     veh = set_values(vehicle, ("L_rise1",), [START_IF_OFF["L_rise1"]])
     vals = get_values(veh, names)
-    lo, hi = interval("L_rise1", names, vals, veh, form)
+    lo, hi = interval("L_rise1", names, vals, veh, form, site)
     if form == "ripple" or not lo < START_IF_OFF["L_rise1"] < hi:
         veh = set_values(vehicle, ("L_rise1",), [0.5 * (lo + hi)])
     return veh
 
 
-def _bound_message(n, names, values, vehicle, form=None) -> str:
-    """What a value at a bound of its transform (``at_bound``; the primary peak in ``form``)
-    means, for the report."""
+def _bound_message(n, names, values, vehicle, form=None, site=HONEYCOMB) -> str:
+    """What a value at a bound of its transform (``at_bound``; the primary peak in ``form``,
+    sitting at ``site``) means, for the report."""
     i = names.index(n)
-    lo, hi = interval(n, names, values, vehicle, form)
+    lo, hi = interval(n, names, values, vehicle, form, site)
     side = "lower" if values[i] - lo < hi - values[i] else "upper"
     return (f"{n} = {values[i]:.6g} {PARAMS[n][1]} ended at the {side} bound of its range "
             f"({lo:.6g}, {hi:.6g}) set by the vehicle's rules (jaxland.validate_vehicle): the "
@@ -1069,6 +1072,11 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     if not drops:
         raise jl.ConfigError("drops", "[]", "give at least one drop test")
     names = check_names(params)
+    if peak_site not in PEAK_SITES:
+        raise jl.ConfigError("peak_site", peak_site, "must be one of " + ", ".join(PEAK_SITES))
+    if peak_site == FORCES and "peak1" not in names:
+        raise jl.ConfigError("peak_site", peak_site, "needs peak1 among the fitted parameters "
+                             "(the peak it puts on the force channels)")
     if method not in ("lm", "lbfgs"):
         raise jl.ConfigError("method", method, "must be 'lm' or 'lbfgs'")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
@@ -1091,7 +1099,7 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     given = _start_vehicle(base, names, start)
     start_vehicle = switch_on(given, names)
     if peak_form == "ripple" and given.honeycomb.peak_rise1 is None:
-        start_vehicle = _rise_start(start_vehicle, names, "ripple")  # a fold length
+        start_vehicle = _rise_start(start_vehicle, names, "ripple", peak_site)  # a fold length
     limit = float(jl.stable_step(start_vehicle, method=integrator))
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
@@ -1109,11 +1117,6 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
     if peak_model_term not in ("auto", False):
         raise jl.ConfigError("peak_model_term", peak_model_term, "must be 'auto' or False")
-    if peak_site not in PEAK_SITES:
-        raise jl.ConfigError("peak_site", peak_site, "must be one of " + ", ".join(PEAK_SITES))
-    if peak_site == FORCES and "peak1" not in names:
-        raise jl.ConfigError("peak_site", peak_site, "needs peak1 among the fitted parameters "
-                             "(the peak it puts on the force channels)")
     if model_form is True and "peak1" not in names:
         raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
                              "parameters (the term spans the crush peak's forms)")
@@ -1291,9 +1294,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             f"the fit found no usable minimum ({err}): the model does not follow the record "
             "at all; check the drop test's metadata against the record (drop_height_m, "
             "sink_speed_mps or touchdown_speed_mps, sensor_leg, units)") from None
-    bound = at_bound(names, values, final.vehicle, form=final.peak_form)
+    bound = at_bound(names, values, final.vehicle, form=final.peak_form, site=peak_site)
     identified, msgs = _identifiability(names, values, unc, bound)
-    msgs += [_bound_message(n, names, values, final.vehicle, final.peak_form) for n in bound]
+    msgs += [_bound_message(n, names, values, final.vehicle, final.peak_form, peak_site)
+             for n in bound]
     for m in msgs:
         warn(m, IdentifiabilityWarning, stacklevel=2)
     # the misfit test needs a measured noise level: on noise-free records (every channel's

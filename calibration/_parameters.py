@@ -146,6 +146,14 @@ BOUND_MARGIN = 1e-9
 # stays open, at least 6 um on the paper vehicle, whatever L_peak1 is
 RISE_ROOM = 1e-4
 FORM_INDEX = {f: i for i, f in enumerate(PEAK_FORMS)}  # the runtime code of ``forms_vehicle``
+# where the primary crush peak sits: in the honeycomb (its crush work moves the stroke and the
+# body), or on the force channels alone (a gain of the crush; ``_problem``)
+HONEYCOMB, FORCES = "honeycomb", "forces"
+PEAK_SITES = (HONEYCOMB, FORCES)
+# a peak on the force channels: its shortest length (decay, build-up, fold), as a part of the
+# primary plateau's room (about 0.05 mm on the paper vehicle, a quarter sample of the first
+# impact at 5 kHz)
+GAIN_MIN_LENGTH = 1e-3
 DEFAULT_PARAMS = ("k", "gamma", "D_b", "k_b1", "F1", "F2")
 OPTIONAL_PARAMS = tuple(n for n in PARAMS if n not in DEFAULT_PARAMS)
 
@@ -402,11 +410,42 @@ def _in_form(form, name, a, b):
     return jnp.where(jnp.asarray(form) == FORM_INDEX[name], a(), b)
 
 
-def _bounds(n, names, values, vehicle, form=None):
+def _gain_bounds(n, names, values, vehicle, form=None):
+    """(lo, hi) of the primary peak's parameters where the peak sits on the force channels
+    (``FORCES``: a gain of the crush, ``_problem.force_channel_gain``). None of the rules of a
+    peak in the honeycomb's dynamics binds a gain (the falling slope against the ground's
+    stiffness, the build-up against k_b1, the elastic rise to the peak); the peak stays in the
+    primary plateau's room (its decay, build-up or folds end before x_L2), below the
+    secondary plateau (r1 F1 < F2), and no length is shorter than GAIN_MIN_LENGTH of the
+    room. L_peak1's upper bound leaves twice that for the build-up, so every interval stays
+    open."""
+    def v(m):
+        return _value(m, names, values, vehicle)
+
+    m, hc = BOUND_MARGIN, vehicle.honeycomb
+    room = hc.x_L2 - v("F1") / v("k_b1") - m * hc.x_L2
+    floor = GAIN_MIN_LENGTH * room
+    if n == "peak1":
+        return 1.0, 1.0 + (v("F2") - v("F1") - m * v("F2")) / v("F1")
+    if n == "L_peak1":
+        return floor, (1.0 - 2.0 * GAIN_MIN_LENGTH) * room / _span(form)
+    lp = v("L_peak1")  # L_rise1: the build-up before the decay, the smooth form's, or a fold
+    lo, hi = floor, room - _span(form) * lp
+    lo = _in_form(form, "ripple", lambda: jnp.maximum(RIPPLE_MIN_FOLD * lp, floor) * (1.0 + m),
+                  lo)
+    hi = _in_form(form, "smooth_exp", lambda: SMOOTH_RISE_MAX * lp * (1.0 - m), hi)
+    return lo, _in_form(form, "ripple", lambda: room / RIPPLE_SPAN, hi)
+
+
+def _bounds(n, names, values, vehicle, form=None, site=HONEYCOMB):
     """(lo, hi) of a crush-peak or unloading parameter from the vehicle's rules (hi None: no
-    upper bound), given the other values (fitted or the vehicle's) and the primary peak's form
-    (``_span``); each bound that a rule sets lies ``BOUND_MARGIN`` of the rule's scale inside
-    it (module docstring)."""
+    upper bound), given the other values (fitted or the vehicle's), the primary peak's form
+    (``_span``) and where it sits (``PEAK_SITES``; on the force channels: ``_gain_bounds``);
+    each bound that a rule sets lies ``BOUND_MARGIN`` of the rule's scale inside it (module
+    docstring)."""
+    if site == FORCES and n in SHAPE_PARAMS:
+        return _gain_bounds(n, names, values, vehicle, form)
+
     def v(m):
         return _value(m, names, values, vehicle)
 
@@ -483,30 +522,32 @@ def _bounds(n, names, values, vehicle, form=None):
     return lo, (room - a / v(k_el) - (RISE_ROOM * room if first else 0.0)) / span
 
 
-def interval(n, names, values, vehicle, form=None) -> tuple[float, float] | None:
+def interval(n, names, values, vehicle, form=None,
+             site=HONEYCOMB) -> tuple[float, float] | None:
     """(lo, hi) of a bounded parameter's transform: (0, 1) for gamma (logit), ``_bounds`` for
-    the crush peaks, rise and unloading ratio (the primary peak in ``form``); None for the
-    others (log, gap)."""
+    the crush peaks, rise and unloading ratio (the primary peak in ``form``, sitting at
+    ``site``); None for the others (log, gap)."""
     kind = PARAMS[n][3]
     if kind == "logit":
         return 0.0, 1.0
     if kind in ("over1", "length", "rise"):
-        lo, hi = _bounds(n, names, values, vehicle, form)
+        lo, hi = _bounds(n, names, values, vehicle, form, site)
         return float(lo), float(hi)
     return None
 
 
-def at_bound(names, values, vehicle, rel: float = 1e-6, form=None) -> tuple[str, ...]:
+def at_bound(names, values, vehicle, rel: float = 1e-6, form=None,
+             site=HONEYCOMB) -> tuple[str, ...]:
     """The bounded parameters (gamma in (0, 1); ``_bounds``: crush peaks, rise, unloading
     ratio) whose value lies within ``rel`` of its interval's width from a bound (the
     transform's slope is then below ``rel``: |z| > 13.8 for the default): the optimiser ran
     to the limit of the vehicle's rules there, so the value is the rule's, not the data's, and
     the delta-method standard error through the flat transform says nothing about it. The
-    primary peak in ``form`` (``_bounds``)."""
+    primary peak in ``form``, sitting at ``site`` (``_bounds``)."""
     values = np.asarray(values, dtype=float)
     out = []
     for i, n in enumerate(names):
-        bounds = interval(n, names, values, vehicle, form)
+        bounds = interval(n, names, values, vehicle, form, site)
         if bounds is not None and min(values[i] - bounds[0], bounds[1] - values[i]) <= rel * (
                 bounds[1] - bounds[0]):
             out.append(n)
@@ -516,9 +557,9 @@ def at_bound(names, values, vehicle, rel: float = 1e-6, form=None) -> tuple[str,
 _STAGE = {"log": 0, "logit": 0, "gap": 1, "over1": 2, "length": 3, "rise": 4}  # in order
 
 
-def to_unconstrained(vehicle: jl.Vehicle, names, form=None) -> np.ndarray:
+def to_unconstrained(vehicle: jl.Vehicle, names, form=None, site=HONEYCOMB) -> np.ndarray:
     """Unconstrained coordinates z of the selected parameters of ``vehicle``, its primary peak
-    in ``form`` (``_bounds``)."""
+    in ``form``, sitting at ``site`` (``_bounds``)."""
     p = get_values(vehicle, names)
     for i, n in enumerate(names):  # an extension that is off starts from its documented value
         if (PARAMS[n][3] == "over1" and p[i] == 1.0) or (
@@ -542,7 +583,7 @@ def to_unconstrained(vehicle: jl.Vehicle, names, form=None) -> np.ndarray:
             z[i] = np.log(x - f1)
         else:  # bounded by the vehicle's rules
             lo, hi = (None if b is None else float(b)
-                      for b in _bounds(n, names, p, vehicle, form))
+                      for b in _bounds(n, names, p, vehicle, form, site))
             if not (x > lo and (hi is None or x < hi)):
                 shown, unit = (x * 1e3, " mm") if kind in ("length", "rise") else (x, "")
                 raise jl.ConfigError(
@@ -555,11 +596,11 @@ def to_unconstrained(vehicle: jl.Vehicle, names, form=None) -> np.ndarray:
     return z
 
 
-def from_unconstrained(z, names, vehicle: jl.Vehicle, form=None):
+def from_unconstrained(z, names, vehicle: jl.Vehicle, form=None, site=HONEYCOMB):
     """Physical values (jnp) from unconstrained coordinates; traceable. Every value obeys the
     vehicle's rules: positive, gamma in (0, 1), F2 > F1, the crush peaks and unloading ratio
     inside their bounds (``_bounds``, the primary peak in ``form``: a name, or a form's code
-    traced under jit)."""
+    traced under jit; sitting at ``site``)."""
     out = [None] * len(names)
     for stage in range(5):
         for i, n in enumerate(names):
@@ -573,6 +614,6 @@ def from_unconstrained(z, names, vehicle: jl.Vehicle, form=None):
             elif kind == "gap":
                 out[i] = _f1_of(names, out, vehicle) + jnp.exp(z[i])
             else:
-                lo, hi = _bounds(n, names, out, vehicle, form)
+                lo, hi = _bounds(n, names, out, vehicle, form, site)
                 out[i] = lo + (jnp.exp(z[i]) if hi is None else (hi - lo) * jax.nn.sigmoid(z[i]))
     return jnp.stack([jnp.asarray(o, dtype=jnp.float64) for o in out])

@@ -31,7 +31,7 @@ middle of its bounds; the form ignores its value) and drops its Jacobian column.
 With ``peak_site="forces"`` the primary crush peak sits on the force channels alone: the
 landing runs without it, and the model's force channels are multiplied by
 ``force_channel_gain``, 1 + e(p) / F1, e the peak's excess over the plateau (in the problem's
-form) at the crush p so far. The stroke and the body
+form) at the crush p so far (from the crush's start on). The stroke and the body
 acceleration are the drop's without the peak: a force the motion does not show, as a load
 cell's artefact.
 
@@ -64,9 +64,12 @@ from jaxland import FIXED_STEP_METHODS
 from ._data import CHANNELS, LEG_COLUMN, DropTest, base_channel
 from ._filter import IDENTITY, filtfilt_jax, filtfilt_np, noise_gain, settle_time_s, white_lag1
 from ._parameters import (
+    FORCES,
     FORM_INDEX,
+    HONEYCOMB,
     PEAK_FORMS,
     PEAK_PARAMS,
+    PEAK_SITES,
     RISE_FORMS,
     check_names,
     forms_vehicle,
@@ -82,11 +85,6 @@ __all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator", "shared_name
 MS = 1e-3  # the touchdown shifts are fitted in milliseconds
 SHARED = "shared"  # the compiled functions' peak form: every form, chosen at run time
 SWITCH = "switch"  # the compiled functions' primary peak: the linear one, on or off at run time
-HONEYCOMB, FORCES = "honeycomb", "forces"
-# where the primary crush peak sits: in the honeycomb (its crush work moves the stroke and the
-# body), or on the force channels alone (the drop without it, its force channels times
-# ``force_channel_gain``: a force the motion does not show, as a load cell's artefact)
-PEAK_SITES = (HONEYCOMB, FORCES)
 FORCE_CHANNELS = ("normal_force_N", "buffer_force_N")
 PRIMARY_PEAK_FIELDS = ("peak_ratio1", "peak_rise1", "excess1")  # None: off
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
@@ -148,10 +146,12 @@ def force_channel_gain(vehicle: jl.Vehicle, plastic_set_m):
     """The force channels' gain 1 + e(p) / F1 of a primary crush peak that sits on the force
     channels (``peak_site="forces"``): e the peak's excess over the plateau in ``vehicle``'s
     form of it (``jaxland.laws.primary_peak_excess``) at the crush p [m] so far, the drop's
-    permanent set. A gain of the crush, not of the block's elastic line: before the crush it
-    is the peak's start (1 for a peak that builds up), and 1 once the peak has decayed."""
+    permanent set, from the crush's start on (p > 0). A gain of the crush, not of the block's
+    elastic line: 1 until the block starts to crush, then the peak's shape (a form that starts
+    at its top jumps there), and 1 once the peak has decayed."""
     hc = vehicle.honeycomb.curve()
-    return 1.0 + jl.laws.primary_peak_excess(plastic_set_m, hc) / hc.F1
+    excess = jl.laws.primary_peak_excess(plastic_set_m, hc)
+    return 1.0 + jnp.where(plastic_set_m > 0.0, excess, 0.0) / hc.F1
 
 
 def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_form=None,
@@ -177,7 +177,8 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
         z = theta[:n_z]
         # the bounds of the primary peak's parameters depend on its form (the exp table's span)
         bounds_form = form if peak_form == SHARED else None if peak_form == SWITCH else peak_form
-        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle, bounds_form))
+        veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle, bounds_form,
+                                                            peak_site))
         if peak_form == SHARED:
             veh = forms_vehicle(veh, form)
         elif peak_form == SWITCH:  # off: ratio exactly 1, the peak's height (r - 1) F1 is 0
@@ -298,7 +299,10 @@ class CalibrationProblem:
                                  "peak_switch")
         self.peak_site = peak_site
         self.vehicle = drops[0].vehicle if vehicle is None else vehicle
-        jl.validate_vehicle(self.vehicle)
+        # a peak on the force channels is no honeycomb's: the honeycomb's rules for its peak
+        # do not bind it (its own bounds: ``_parameters._gain_bounds``)
+        jl.validate_vehicle(_without_primary_peak(self.vehicle) if peak_site == FORCES
+                            else self.vehicle)
         self.peak_switch = bool(peak_switch)
         self.peak_on = all(n in self.names for n in PEAK_PARAMS)
         if self.peak_switch:
@@ -477,7 +481,7 @@ class CalibrationProblem:
         """theta for ``vehicle``'s values of the fitted parameters (default: the problem's
         vehicle) and touchdown shifts (default 0)."""
         z = to_unconstrained(self.vehicle if vehicle is None else vehicle, self.names,
-                             self.peak_form)
+                             self.peak_form, self.peak_site)
         if not self.fit_touchdown:
             return z
         s = np.zeros(len(self.drops)) if shifts_ms is None else np.asarray(shifts_ms, float)
@@ -488,12 +492,14 @@ class CalibrationProblem:
         functions' parameters, shared by the problems with the same fixed values (the fitted
         ones are not read) and peak form (with ``shared_forms``, every form: its code is read)."""
         form = SHARED if self.shared_forms else self.peak_form
-        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian, form)
+        site = self.peak_site
+        key = ("values", _vehicle_key(self._canonical), self._z_names, jacobian, form, site)
         if key not in _COMPILED:
             names, vehicle = self._z_names, self._canonical
 
             def f(z, code):
-                return from_unconstrained(z, names, vehicle, code if form == SHARED else form)
+                return from_unconstrained(z, names, vehicle, code if form == SHARED else form,
+                                          site)
 
             _COMPILED[key] = jax.jit(jax.jacfwd(f) if jacobian else f)
         return _COMPILED[key]

@@ -40,14 +40,15 @@ def sensor_fits():
 
 
 def test_the_gain_follows_the_peak_over_the_crush_and_is_one_past_it():
-    """The gain of the crush p (closed forms): the law's linear peak (ratio r over length L)
-    starts at r and falls to 1 at p = L; built up over L_r, it starts at 1, reaches r at
-    p = L_r and falls to 1 at L_r + L; 1 from there on."""
+    """The gain of the crush p (closed forms): 1 before the crush (p = 0); the law's linear
+    peak (ratio r over length L) jumps to r as the crush starts and falls to 1 at p = L;
+    built up over L_r, it starts at 1, reaches r at p = L_r and falls to 1 at L_r + L; 1 from
+    there on."""
     r, length, rise = 1.3, 1.5e-3, 0.5e-3
     veh = set_values(jl.paper_vehicle(), ("peak1", "L_peak1"), [r, length])
-    ps = np.array([0.0, 0.25 * length, length, 2.0 * length, 0.1])
+    ps = np.array([0.0, 1e-12, 0.25 * length, length, 2.0 * length, 0.1])
     got = np.asarray(force_channel_gain(veh, jnp.asarray(ps)))
-    np.testing.assert_allclose(got, [r, r - 0.25 * (r - 1.0), 1.0, 1.0, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(got, [1.0, r, r - 0.25 * (r - 1.0), 1.0, 1.0, 1.0], rtol=1e-9)
     built = set_values(veh, ("L_rise1",), [rise])
     ps = np.array([0.0, 0.5 * rise, rise, rise + 0.5 * length, rise + length, 0.1])
     got = np.asarray(force_channel_gain(built, jnp.asarray(ps)))
@@ -62,8 +63,8 @@ def test_the_gain_follows_the_peak_over_the_crush_and_is_one_past_it():
 
 def test_a_peak_on_the_force_channels_moves_no_motion_channel():
     """The site "forces" model: stroke and body acceleration are the drop's without the peak,
-    bit for bit; the force channels are that drop's times the gain, the peak ratio up to the
-    crush's start (the law's linear peak) and 1 once the peak has decayed."""
+    bit for bit; the force channels are that drop's times the gain: 1 before the crush, up to
+    the peak ratio as it starts (the law's linear peak) and 1 once the peak has decayed."""
     r = 1.25
     plain = vr.truth_vehicle()
     peaked = set_values(plain, ("peak1", "L_peak1"), [r, 1.5e-3])
