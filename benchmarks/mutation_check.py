@@ -181,10 +181,19 @@ MUTATIONS = [
       ("tests/test_calibration_site.py::"
        "test_a_peak_on_the_force_channels_moves_no_motion_channel",), ("calibration",)),
     M("peak_site_gain_sign", "the force channels' gain below 1 where the peak is",
-      "return 1.0 + jl.laws.primary_peak_excess(plastic_set_m, hc) / hc.F1",
-      "return 1.0 - jl.laws.primary_peak_excess(plastic_set_m, hc) / hc.F1",
+      "return 1.0 + jnp.where(plastic_set_m > 0.0, excess, 0.0) / hc.F1",
+      "return 1.0 - jnp.where(plastic_set_m > 0.0, excess, 0.0) / hc.F1",
       ("tests/test_calibration_site.py::"
        "test_the_gain_follows_the_peak_over_the_crush_and_is_one_past_it",), ("calibration",)),
+    M("peak_site_gain_before_crush", "a peak on the force channels there before the crush",
+      "return 1.0 + jnp.where(plastic_set_m > 0.0, excess, 0.0) / hc.F1",
+      "return 1.0 + excess / hc.F1",
+      ("tests/test_calibration_site.py::"
+       "test_the_gain_follows_the_peak_over_the_crush_and_is_one_past_it",), ("calibration",)),
+    M("peak_site_bounds_ignored", "a peak on the force channels bound by the honeycomb's rules",
+      "if site == FORCES and n in SHAPE_PARAMS:", "if False:",
+      ("tests/test_calibration_site.py::"
+       "test_a_peak_on_the_forces_is_bound_by_the_plateaus_room_only",), ("calibration",)),
     M("lm_atol_ignored", "the optimiser's absolute loss tolerance ignored",
       "if rel < ftol or decrease < atol or", "if rel < ftol or",
       ("tests/test_calibration_site.py::"

@@ -163,3 +163,31 @@ def test_a_bad_peak_site_is_refused_by_name(capsys, tmp_path):
     add_subcommands(sub)
     fit_parser = sub.choices["fit"]
     assert fit_parser.parse_args(["x.toml"]).peak_site == "honeycomb"
+
+
+def test_a_peak_on_the_forces_is_bound_by_the_plateaus_room_only():
+    """The honeycomb's rules for a peak in its dynamics (the falling slope (r - 1) F1 / L at
+    most k / 2) do not bind a gain on the force channels: L_peak1 may go far below that
+    slope's bound there, while the decay still ends in the plateau's room; every form's
+    L_rise1 interval stays open at L_peak1's extremes."""
+    from calibration._parameters import GAIN_MIN_LENGTH, PEAK_FORMS, RISE_FORMS, _span, interval
+
+    names = PARAMS + ("L_rise1",)
+    veh = set_values(vr.truth_vehicle(), ("peak1", "L_peak1", "L_rise1"), [1.2, 1e-3, 2e-4])
+    vals = get_values(veh, names)
+    hc, k = veh.honeycomb, float(veh.ground.k)
+    room = float(hc.x_L2 - hc.F1 / hc.k_b1)
+    slope_lo = 2.0 * 0.2 * float(hc.F1) / k
+    for form in PEAK_FORMS:
+        lo_h, _ = interval("L_peak1", names, vals, veh, form)
+        lo_f, hi_f = interval("L_peak1", names, vals, veh, form, "forces")
+        assert lo_h >= slope_lo and lo_f == pytest.approx(GAIN_MIN_LENGTH * room, rel=1e-6)
+        assert lo_f < 0.1 * slope_lo and float(_span(form)) * hi_f < room
+        if form in RISE_FORMS:
+            for lp in (lo_f * 1.000001, hi_f * 0.999999):
+                v = vals.copy()
+                v[names.index("L_peak1")] = lp
+                lo_r, hi_r = interval("L_rise1", names, v, veh, form, "forces")
+                assert 0.0 < lo_r < hi_r, (form, lp, lo_r, hi_r)
+    assert interval("peak1", names, vals, veh, "exp", "forces")[1] == pytest.approx(
+        float(hc.F2 / hc.F1), rel=1e-6)
