@@ -95,6 +95,7 @@ from ._parameters import (
     START_IF_OFF,
     at_bound,
     check_names,
+    check_peak_site,
     get_values,
     interval,
     peak_form_vehicle,
@@ -107,7 +108,6 @@ from ._problem import (
     HONEYCOMB,
     INTEGRATORS,
     MS,
-    PEAK_SITES,
     PLAIN,
     CalibrationProblem,
     check_integrator,
@@ -770,7 +770,7 @@ def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, 
     except (jl.SimulationError, jl.ConfigError):
         return None
     probe = RIPPLE_PROBE_ITER if len(starts) > 1 else max_iter
-    # a peak on the force channels is a kinked gain of the stroke: its refits crawl on in
+    # a peak on the force channels is a kinked gain of the crush: its refits crawl on in
     # steps that change chi^2 by thousandths (tens of iterations), far below what moves the
     # forms' comparison
     atol = FORCES_REFIT_ATOL if problem.peak_site == FORCES else 0.0
@@ -1072,11 +1072,7 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     if not drops:
         raise jl.ConfigError("drops", "[]", "give at least one drop test")
     names = check_names(params)
-    if peak_site not in PEAK_SITES:
-        raise jl.ConfigError("peak_site", peak_site, "must be one of " + ", ".join(PEAK_SITES))
-    if peak_site == FORCES and "peak1" not in names:
-        raise jl.ConfigError("peak_site", peak_site, "needs peak1 among the fitted parameters "
-                             "(the peak it puts on the force channels)")
+    check_peak_site(peak_site, names)
     if method not in ("lm", "lbfgs"):
         raise jl.ConfigError("method", method, "must be 'lm' or 'lbfgs'")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:

@@ -158,6 +158,16 @@ DEFAULT_PARAMS = ("k", "gamma", "D_b", "k_b1", "F1", "F2")
 OPTIONAL_PARAMS = tuple(n for n in PARAMS if n not in DEFAULT_PARAMS)
 
 
+def check_peak_site(site, names) -> None:
+    """Refuse by name a ``peak_site`` that is not one of ``PEAK_SITES``, or the force
+    channels' (``FORCES``) without peak1 among the fitted ``names``."""
+    if site not in PEAK_SITES:
+        raise jl.ConfigError("peak_site", site, "must be one of " + ", ".join(PEAK_SITES))
+    if site == FORCES and "peak1" not in names:
+        raise jl.ConfigError("peak_site", site, "needs peak1 among the fitted parameters "
+                             "(the peak it puts on the force channels)")
+
+
 def check_names(names) -> tuple[str, ...]:
     """Validate a parameter selection (order kept, duplicates refused)."""
     if isinstance(names, str):

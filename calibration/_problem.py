@@ -69,9 +69,9 @@ from ._parameters import (
     HONEYCOMB,
     PEAK_FORMS,
     PEAK_PARAMS,
-    PEAK_SITES,
     RISE_FORMS,
     check_names,
+    check_peak_site,
     forms_vehicle,
     from_unconstrained,
     peak_form_vehicle,
@@ -290,13 +290,10 @@ class CalibrationProblem:
                 raise jl.ConfigError("peak_form", peak_form, "the built-up forms ("
                                      + ", ".join(RISE_FORMS) + "), and only they, fit L_rise1")
         self.peak_form = peak_form
-        if peak_site not in PEAK_SITES:
-            raise jl.ConfigError("peak_site", peak_site, "must be one of "
-                                 + ", ".join(PEAK_SITES))
-        if peak_site == FORCES and ("peak1" not in self.names or peak_switch):
-            raise jl.ConfigError("peak_site", peak_site, "the peak on the force channels "
-                                 "needs peak1 among the fitted parameters, and not "
-                                 "peak_switch")
+        check_peak_site(peak_site, self.names)
+        if peak_site == FORCES and peak_switch:
+            raise jl.ConfigError("peak_site", peak_site, "the peak on the force channels is "
+                                 "fitted (peak1): not with peak_switch")
         self.peak_site = peak_site
         self.vehicle = drops[0].vehicle if vehicle is None else vehicle
         # a peak on the force channels is no honeycomb's: the honeycomb's rules for its peak
