@@ -194,6 +194,11 @@ MUTATIONS = [
       "if site == FORCES and n in SHAPE_PARAMS:", "if False:",
       ("tests/test_calibration_site.py::"
        "test_a_peak_on_the_forces_is_bound_by_the_plateaus_room_only",), ("calibration",)),
+    M("peak_site_check_force_rows", "the peak site's motion check read on the force channels",
+      "motion = np.array([base_channel(c) in PEAK_MOTION_CHANNELS for c in problem.channels])",
+      "motion = np.array([base_channel(c) in PEAK_FORCE_CHANNELS for c in problem.channels])",
+      ("tests/test_calibration_site.py::"
+       "test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak",), ("calibration",)),
     M("lm_atol_ignored", "the optimiser's absolute loss tolerance ignored",
       "if rel < ftol or decrease < atol or", "if rel < ftol or",
       ("tests/test_calibration_site.py::"

@@ -112,7 +112,7 @@ from ._problem import (
     CalibrationProblem,
     check_integrator,
 )
-from ._uncertainty import hac_covariance, misfit
+from ._uncertainty import MISFIT_SIGMA2, hac_covariance, misfit
 
 __all__ = ["fit", "FitResult", "IdentifiabilityWarning", "MisfitWarning", "WINDOWS_S",
            "REFINE_WINDOW_S",
@@ -725,6 +725,25 @@ def _screen_folds(problem: CalibrationProblem, sub: CalibrationProblem, vehicle:
         if len(picked) == RIPPLE_REFITS:
             break
     return [veh for _, _, veh in picked]
+
+
+def motion_fit(problem: CalibrationProblem, res) -> dict | None:
+    """For a fit whose peak sits on the force channels (``peak_site="forces"``): the residual
+    variance factor of the motion channels alone (stroke, body acceleration; ``res`` the
+    plain least-squares residuals at the optimum), and ``misfit``: above the misfit test's
+    MISFIT_SIGMA2. There the drop runs without the peak, so the motion of a record whose peak
+    is the honeycomb's (crush work) misfits; a peak on the force channels leaves it at the
+    noise. None for a fit in the honeycomb or without motion channels."""
+    if problem.peak_site != FORCES:
+        return None
+    motion = np.array([base_channel(c) in PEAK_MOTION_CHANNELS for c in problem.channels])
+    rows = (problem.mask > 0) & motion[None, :, None]
+    if not rows.any():
+        return None
+    r = np.asarray(res).reshape(problem.data.shape)[rows]
+    s2 = float(r @ r) / r.size
+    return dict(variance_factor=s2, misfit=bool(s2 > MISFIT_SIGMA2),
+                channels=[c for c, m in zip(problem.channels, motion) if m])
 
 
 def precompile_forms(problem: CalibrationProblem, form: str):
@@ -1401,6 +1420,15 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
              "with the peak on the force channels (peak_site='forces', --peak-site forces) "
              "keeps it out of the honeycomb",
              MisfitWarning, stacklevel=2)
+    site_check = None if _inner else motion_fit(final, unc["residuals"])
+    if site_check is not None and site_check["misfit"]:
+        warn(f"the peak sits on the force channels in this fit, and the motion misfits: "
+             f"{' and '.join(site_check['channels'])} have a residual variance factor of "
+             f"{site_check['variance_factor']:.3g} (> {MISFIT_SIGMA2:g}), where the drop without "
+             "the peak should follow them to the noise. The motion shows crush work the model "
+             "lacks: the peak is likely the honeycomb's, and the values here are biased; fit "
+             "with the peak in the honeycomb (peak_site='honeycomb') and read its peak location "
+             "(misfit.peak_site_check)", MisfitWarning, stacklevel=2)
     fitted = final.vehicle_at(theta)
     result = FitResult(
         names=names, values=values, std_errors=unc["se"], correlation=unc["corr"],
@@ -1421,7 +1449,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                             for g, v in shifts.items()},
             channel_spread_failed=spread_failed,
             noise_free_record=bool(unc.get("noise_free", False)),
-            peak_location=where_peak),
+            peak_location=where_peak, peak_site_check=site_check),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,
         theta=theta,

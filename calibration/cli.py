@@ -105,6 +105,20 @@ def peak_location_line(loc: dict) -> str:
     return head + "the motion shows less of it, within its error: undecided"
 
 
+def peak_site_line(check: dict | None) -> str:
+    """The CLI's line for a fit whose peak sits on the force channels, with whether the
+    motion channels fit without it (``_fit.motion_fit``)."""
+    head = ("  peak site: the force channels alone (fitted as a gain on them; the drop runs "
+            "without it, and fitted_vehicle.toml has no primary crush peak); ")
+    if check is None:
+        return head + "no motion channel to check it against"
+    vf = check["variance_factor"]
+    if check["misfit"]:
+        return head + (f"THE MOTION MISFITS (variance factor {vf:.3g}): the peak is likely the "
+                       "honeycomb's, and these values are biased")
+    return head + f"the motion fits without it (variance factor {vf:.3g})"
+
+
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
@@ -250,8 +264,7 @@ def _cmd_fit(args) -> int:
     if diag.get("peak_location") is not None:
         print(peak_location_line(diag["peak_location"]))
     if result.settings.get("peak_site") == "forces":
-        print("  peak site: the force channels alone (fitted as a gain on them; the drop runs "
-              "without it, and fitted_vehicle.toml has no primary crush peak)")
+        print(peak_site_line(diag.get("peak_site_check")))
     for i, n in enumerate(result.names):
         flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
                 else "" if result.identified[i] else "   NOT IDENTIFIED")

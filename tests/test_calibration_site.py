@@ -21,7 +21,7 @@ from calibration import _fit as cal_fit, virtual_rig as vr
 from calibration._optim import levenberg_marquardt
 from calibration._parameters import get_values, set_values
 from calibration._problem import CalibrationProblem, force_channel_gain
-from calibration.cli import add_subcommands
+from calibration.cli import add_subcommands, peak_site_line
 
 PARAMS = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
 KW = dict(windows=(0.01, 0.03), refine_window_s=0.1, model_form=False)
@@ -117,6 +117,10 @@ def test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak(sensor_fits, tm
         assert hc.peak_ratio1 is None and hc.excess1 is None and hc.peak_rise1 is None
         assert float(hc.k_b1) == pytest.approx(res.value("k_b1"), rel=1e-6)
     assert res.report()["settings"]["peak_site"] == "forces"
+    check = res.diagnostics["peak_site_check"]  # the drop without the peak follows the motion
+    assert not check["misfit"] and check["variance_factor"] < 1.1, check
+    assert check["channels"] == ["stroke_m", "body_accel_mps2"]
+    assert sensor_fits["honeycomb"].diagnostics["peak_site_check"] is None
     # the honeycomb fit names the force channels and says how to fit them
     loc = sensor_fits["honeycomb"].diagnostics["peak_location"]
     assert loc["force_only"]
@@ -191,3 +195,22 @@ def test_a_peak_on_the_forces_is_bound_by_the_plateaus_room_only():
                 assert 0.0 < lo_r < hi_r, (form, lp, lo_r, hi_r)
     assert interval("peak1", names, vals, veh, "exp", "forces")[1] == pytest.approx(
         float(hc.F2 / hc.F1), rel=1e-6)
+
+
+def test_a_honeycombs_peak_fitted_on_the_forces_is_named_by_the_motion():
+    """The wrong site: a record whose peak is the honeycomb's (crush work in the stroke and the
+    body acceleration) fitted with the peak on the force channels. The drop without the peak
+    cannot follow the motion, the motion channels' variance factor exceeds the misfit test's,
+    and the fit warns by name."""
+    drop = vr.drop_test(0.2, seed=5, peak_mode="physical")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(drop, PARAMS, peak_site="forces", **KW)
+    check = res.diagnostics["peak_site_check"]
+    assert check["misfit"] and check["variance_factor"] > 1.3, check
+    assert any(issubclass(w.category, cal.MisfitWarning) and "the motion misfits" in str(
+        w.message) for w in caught)
+    assert "THE MOTION MISFITS" in peak_site_line(check)
+    assert peak_site_line(dict(check, misfit=False, variance_factor=1.01)).endswith(
+        "the motion fits without it (variance factor 1.01)")
+    assert peak_site_line(None).endswith("no motion channel to check it against")
