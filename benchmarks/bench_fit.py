@@ -737,6 +737,7 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
                                        {p: d[p] / float(t) for p, t in zip(base, p_true)}
                                        for c, d in r.diagnostics["channel_spread"].items()},
                     peak_location=r.diagnostics.get("peak_location"),
+                    peak_site_check=r.diagnostics.get("peak_site_check"),
                     **_recovery_form(r, base, p_true))
 
     for shape in vr.PEAK_SHAPES:
@@ -852,6 +853,8 @@ FIT_TIME_CASES = {
     "with the crush peak, joint 0.15 + 0.30 m (bump peak)": dict(
         data="rig", heights=(0.15, 0.3), peak=True, rig=dict(seed=300)),
     "lab record: 4 legs, CFC 600, from release (bundled)": dict(data="lab", heights=(0.2,)),
+    "the crush peak on the force channels (--peak-site forces), bundled 0.2 m drop": dict(
+        data="bundled", heights=(0.2,), peak=True, peak_site="forces"),
 }
 
 
@@ -889,7 +892,7 @@ def one_fit(case: str) -> dict:
     cpu0 = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cal.MisfitWarning)
-        r, wall = _fit(drops, params=names)
+        r, wall = _fit(drops, params=names, peak_site=spec.get("peak_site", "honeycomb"))
     cpu = time.process_time() - cpu0  # all of the process's threads
     truth = vr.truth_vehicle()
     p_true = get_values(truth, cal.DEFAULT_PARAMS)

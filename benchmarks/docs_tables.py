@@ -813,6 +813,39 @@ def calibration_peak_location() -> str:
                    "excess kept by the motion-only step [-]", "z of that step [-]"], rows)
 
 
+def calibration_peak_site() -> str:
+    """The peak fitted on the force channels (``--peak-site forces``), per rig peak mode and
+    shape: on the rig's sensor-side records (the right site) and on its honeycomb peaks (the
+    wrong one): the fit's and the best-supported form's values within 3 %, the truth inside 2
+    of the fit's total standard errors, and the motion check (``peak_site_check``)."""
+    b = _load("bench_fit.json")
+    rows = []
+    for key, label in (("peak_recovery_sensor_site_forces", "on the force channels only"),
+                       ("peak_recovery_site_forces", "in the honeycomb")):
+        pr = b[key]
+        names = pr["targets"]["checked"]
+        for shape, rec in pr["shapes"].items():
+            runs, n = rec["runs"], len(rec["runs"])
+            own3 = _recovery_checks(runs, names, "rel_error")[0]
+            best3, best2 = _recovery_checks(runs, names)[:2]
+            kb1 = sum(abs(r_["best_form_rel_error"]["k_b1"]) <= 2.0 * r_["se_total_rel"]["k_b1"]
+                      for r_ in runs)
+            vf = [r_["peak_site_check"]["variance_factor"] for r_ in runs]
+            warned = sum(r_["peak_site_check"]["misfit"] for r_ in runs)
+            worst = {p: max(abs(r_["best_form_rel_error"][p]) for r_ in runs)
+                     for p in ("k", "gamma", "k_b1")}
+            rows.append([label, shape, f"{own3}/{n}", f"{best3}/{n}", f"{best2}/{n}",
+                         f"{kb1}/{n}", ", ".join(f"{p} {v * 100:.1f}" for p, v in worst.items()),
+                         f"{min(vf):.2f} to {max(vf):.2f}", f"{warned}/{n}",
+                         ", ".join(f"{f} {c}" for f, c in rec["best_form_counts"].items())])
+    return _table(["rig peak", "shape", "fit's values: all five within 3 %",
+                   "best-supported form's values: all five within 3 %",
+                   "... the truth inside 2 total SE of all five", "... of k_b1",
+                   "best form's largest error [%]", "motion channels' variance factor [-]",
+                   "fits that warn the motion misfits", "best-supported form (of the seeds)"],
+                  rows)
+
+
 def calibration_coverage() -> str:
     """Coverage of the 95 % intervals per rig case (``coverage`` in bench_fit.json): the
     classical, HAC and trusted intervals, the total one (the trusted error with the channel
@@ -1025,6 +1058,8 @@ def readme_calibration_targets() -> str:
     final = joint["prediction"]["0.30 (fitted)"]["rel_error"]["final_stroke_m"]
     ft = b["fit_time"]
     slowest = max(ft["runs"], key=lambda r_: r_["wall_s"])
+    in_honeycomb = max((r_ for r_ in ft["runs"] if "--peak-site forces" not in r_["case"]),
+                       key=lambda r_: r_["wall_s"])
     cov = min(case["coverage_of_truth"]["total_all"] for case in b["coverage"]["cases"].values())
     rows = [
         ["honeycomb crush peak of 4 shapes unlike the law's, 10 noise seeds each: k, gamma, "
@@ -1048,8 +1083,9 @@ def readme_calibration_targets() -> str:
          "3 % / 1 %", f"{joint['rel_error']['F2']:+.2%} / {final:+.2%}",
          _met(abs(joint['rel_error']['F2']) <= 0.03 and abs(final) <= 0.01)],
         ["fit time with compilation, slowest case", f"<= {ft['target_s']:g} s",
-         f"{slowest['wall_s']:.1f} s ({slowest['case']})", _met(slowest["wall_s"] <=
-                                                                 ft["target_s"])],
+         f"{slowest['wall_s']:.1f} s ({slowest['case']}); without the peak on the force "
+         f"channels {in_honeycomb['wall_s']:.1f} s ({in_honeycomb['case']})",
+         _met(slowest["wall_s"] <= ft["target_s"])],
         ["coverage of the reported 95 % intervals, worst rig case of "
          f"{len(b['coverage']['cases'])} ({b['coverage']['n_seeds']} seeds each)", ">= 0.90",
          f"{cov:.2f}",
@@ -1131,6 +1167,7 @@ TABLES = {
     "calibration-best-form-prediction": calibration_best_form_prediction,
     "calibration-best-form-coverage": calibration_best_form_coverage,
     "calibration-peak-location": calibration_peak_location,
+    "calibration-peak-site": calibration_peak_site,
     "calibration-coverage": calibration_coverage,
     "calibration-offset-coverage": calibration_offset_coverage,
     "calibration-sample-rate": calibration_sample_rate,
