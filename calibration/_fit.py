@@ -87,6 +87,8 @@ from ._optim import lbfgs, levenberg_marquardt
 from ._parameters import (
     DEFAULT_PARAMS,
     EXP_TABLE_SPAN,
+    FORCES,
+    HONEYCOMB,
     PARAMS,
     PEAK_FORMS,
     PEAK_PARAMS,
@@ -104,8 +106,6 @@ from ._parameters import (
 )
 from ._problem import (
     FORCE_CHANNELS,
-    FORCES,
-    HONEYCOMB,
     INTEGRATORS,
     MS,
     PLAIN,

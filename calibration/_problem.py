@@ -132,14 +132,13 @@ def switch_names(names) -> tuple:
 
 def _without_primary_peak(vehicle: jl.Vehicle) -> jl.Vehicle:
     """``vehicle`` with no primary crush peak (every other field, the secondary's peak
-    included, kept; the unused table length at its default); jit-safe."""
+    included, kept; the unused table length at its default); jit-safe. A plain
+    ``jaxland.Honeycomb``, also where the peak's form made it another kind."""
     hc = vehicle.honeycomb
     kw = {f.name: getattr(hc, f.name) for f in dataclasses.fields(jl.Honeycomb)}
-    kw["excess_length1"] = jl.Honeycomb.__dataclass_fields__["excess_length1"].default
-    plain = eqx.tree_at(lambda h: tuple(getattr(h, f) for f in PRIMARY_PEAK_FIELDS),
-                        jl.Honeycomb(**kw), (None,) * len(PRIMARY_PEAK_FIELDS),
-                        is_leaf=lambda x: x is None)
-    return eqx.tree_at(lambda v: v.honeycomb, vehicle, plain)
+    kw.update(dict.fromkeys(PRIMARY_PEAK_FIELDS),
+              excess_length1=jl.Honeycomb.__dataclass_fields__["excess_length1"].default)
+    return eqx.tree_at(lambda v: v.honeycomb, vehicle, jl.Honeycomb(**kw))
 
 
 def force_channel_gain(vehicle: jl.Vehicle, plastic_set_m):

@@ -239,10 +239,10 @@ def primary_peak_excess(c, hc: Honeycomb | HoneycombCurve):
     hc = hc.curve() if isinstance(hc, Honeycomb) else hc
     if not hc.extended:
         return jnp.zeros_like(c)
-    c = fclip(c, 0.0, hc.L1)
     if hc.t1_c is None:
-        return hc.a1 - hc.a1 * c / hc.L1
-    return jnp.vectorize(lambda ci: _table(ci, hc, 0.0)[0])(c)  # any shape of c
+        return _excess(c, hc.a1, 0.0, hc.L1)
+    # c of any shape against the table's nodes (the law reads one c at a time)
+    return jnp.vectorize(lambda ci: _table(_crushed(ci, 0.0, hc.L1), hc, 0.0)[0])(c)
 
 
 def _peak_work(a, e, c, length, k):
