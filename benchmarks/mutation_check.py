@@ -166,11 +166,14 @@ MUTATIONS = [
       "step[keep] = -(inv @ (js.T @ r)) / col[keep]", "step[keep] = (inv @ (js.T @ r)) / col[keep]",
       ("tests/test_calibration_form.py::"
        "test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs",), ("calibration",)),
-    M("peak_location_force_rows", "the peak's location read from the force channels instead "
-      "of the motion", "motion = np.array([b in PEAK_MOTION_CHANNELS for b in base])",
-      "motion = np.array([b in PEAK_FORCE_CHANNELS for b in base])",
+    M("motion_rows_force", "the peak's location and the peak site's check read on the force "
+      "channels instead of the motion",
+      "motion = np.array([base_channel(c) in PEAK_MOTION_CHANNELS for c in problem.channels])",
+      "motion = np.array([base_channel(c) in PEAK_FORCE_CHANNELS for c in problem.channels])",
       ("tests/test_calibration_form.py::"
-       "test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs",), ("calibration",)),
+       "test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs",
+       "tests/test_calibration_site.py::"
+       "test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak"), ("calibration",)),
     M("peak_site_dynamics", "a peak on the force channels run in the honeycomb too",
       'traj, summary = jl.landings(_without_primary_peak(veh), scenes, solver, "quarter")',
       'traj, summary = jl.landings(veh, scenes, solver, "quarter")',
@@ -194,11 +197,6 @@ MUTATIONS = [
       "if site == FORCES and n in SHAPE_PARAMS:", "if False:",
       ("tests/test_calibration_site.py::"
        "test_a_peak_on_the_forces_is_bound_by_the_plateaus_room_only",), ("calibration",)),
-    M("peak_site_check_force_rows", "the peak site's motion check read on the force channels",
-      "motion = np.array([base_channel(c) in PEAK_MOTION_CHANNELS for c in problem.channels])",
-      "motion = np.array([base_channel(c) in PEAK_FORCE_CHANNELS for c in problem.channels])",
-      ("tests/test_calibration_site.py::"
-       "test_a_fit_on_the_forces_says_so_and_its_vehicle_has_no_peak",), ("calibration",)),
     M("lm_atol_ignored", "the optimiser's absolute loss tolerance ignored",
       "if rel < ftol or decrease < atol or", "if rel < ftol or",
       ("tests/test_calibration_site.py::"

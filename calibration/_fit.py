@@ -465,6 +465,13 @@ PEAK_MOTION_CHANNELS, PEAK_FORCE_CHANNELS = ("stroke_m", "body_accel_mps2"), FOR
 PEAK_MOTION_RATIO, PEAK_MOTION_Z = 0.8, 2.0
 
 
+def _motion_rows(problem: CalibrationProblem):
+    """The motion channels (``PEAK_MOTION_CHANNELS``) of ``problem``: a mask over its
+    channels, and one over its fitted samples (drops x channels x samples)."""
+    motion = np.array([base_channel(c) in PEAK_MOTION_CHANNELS for c in problem.channels])
+    return motion, (problem.mask > 0) & motion[None, :, None]
+
+
 def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     """Whether the fitted primary crush peak shows in the motion as in the forces: peak1 after
     one Gauss-Newton step from ``theta`` on the stroke and body-acceleration channels alone
@@ -477,13 +484,11 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
     a motion channel."""
     if "peak1" not in problem.names or problem.peak_site == FORCES:
         return None
-    base = [base_channel(c) for c in problem.channels]
-    motion = np.array([b in PEAK_MOTION_CHANNELS for b in base])
-    if not motion.any() or not any(b in PEAK_FORCE_CHANNELS for b in base):
+    motion, rows = _motion_rows(problem)
+    if not motion.any() or not any(base_channel(c) in PEAK_FORCE_CHANNELS
+                                   for c in problem.channels):
         return None
     shape = problem.data.shape
-    mask = problem.mask > 0
-    rows = mask & motion[None, :, None]
     r = np.asarray(res).reshape(shape)[rows]
     j = np.asarray(jac).reshape(*shape, -1)[rows]
     inv, js, col, keep = _normal_inverse(j)
@@ -736,8 +741,7 @@ def motion_fit(problem: CalibrationProblem, res) -> dict | None:
     noise. None for a fit in the honeycomb or without motion channels."""
     if problem.peak_site != FORCES:
         return None
-    motion = np.array([base_channel(c) in PEAK_MOTION_CHANNELS for c in problem.channels])
-    rows = (problem.mask > 0) & motion[None, :, None]
+    motion, rows = _motion_rows(problem)
     if not rows.any():
         return None
     r = np.asarray(res).reshape(problem.data.shape)[rows]
