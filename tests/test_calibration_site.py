@@ -10,6 +10,7 @@ peak-shape term).
 import math
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -19,7 +20,7 @@ import calibration as cal
 import jaxland as jl
 from calibration import _fit as cal_fit, virtual_rig as vr
 from calibration._optim import levenberg_marquardt
-from calibration._parameters import get_values, set_values
+from calibration._parameters import FORM_INDEX, PEAK_FORMS, forms_vehicle, get_values, set_values
 from calibration._problem import CalibrationProblem, force_channel_gain
 from calibration.cli import add_subcommands, peak_site_line
 
@@ -59,6 +60,25 @@ def test_the_gain_follows_the_peak_over_the_crush_and_is_one_past_it():
         set_values(built, ("peak1", "L_peak1", "L_rise1"), p), jnp.asarray(ps))))(
         jnp.array([r, length, rise]))
     assert np.all(np.isfinite(np.asarray(g))) and np.any(np.asarray(g) != 0.0)
+
+
+def test_the_gain_reads_every_peak_form_as_its_table_does():
+    """The gain of a tabulated peak (every one of calibration's forms) read at the one segment
+    that holds the crush (the table's node values) equals the table's sum over every segment,
+    over the whole crush and past the peak's end."""
+    veh = set_values(jl.paper_vehicle(), ("peak1", "L_peak1", "L_rise1"), [1.3, 1.5e-3, 0.6e-3])
+    ps = jnp.linspace(0.0, 1e-2, 2001)
+    for form in PEAK_FORMS:
+        formed = forms_vehicle(veh, FORM_INDEX[form])
+        curve = formed.honeycomb.curve()
+        assert curve.t1_e is not None, form
+        summed = eqx.tree_at(lambda c: (c.t1_e, c.t1_int), curve, (None, None),
+                             is_leaf=lambda x: x is None)
+        got = np.asarray(jl.laws.primary_peak_excess(ps, curve))
+        want = np.asarray(jl.laws.primary_peak_excess(ps, summed))
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9 * float(curve.F1),
+                                   err_msg=form)
+        assert np.ptp(want) > 0.01 * float(curve.F1), form  # a peak to read
 
 
 def test_a_peak_on_the_force_channels_moves_no_motion_channel():

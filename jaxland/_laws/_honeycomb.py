@@ -241,6 +241,8 @@ def primary_peak_excess(c, hc: Honeycomb | HoneycombCurve):
         return jnp.zeros_like(c)
     if hc.t1_c is None:
         return _excess(c, hc.a1, 0.0, hc.L1)
+    if hc.t1_e is not None:  # as the law reads it: at the one segment that holds c
+        return jnp.vectorize(lambda ci: _table_at(_crushed(ci, 0.0, hc.L1), hc)[0])(c)
     # c of any shape against the table's nodes (the law reads one c at a time)
     return jnp.vectorize(lambda ci: _table(_crushed(ci, 0.0, hc.L1), hc, 0.0)[0])(c)
 
