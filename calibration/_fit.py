@@ -48,7 +48,7 @@ benchmarks/results/bench_fit.json):
    ``std_errors_total``. A form the data reject adds nothing. The report names the supported
    form of least misfit-adjusted BIC (``best_supported_form``). The fit and its refits in
    every form share one compiled program (``CalibrationProblem(shared_forms=True)``), and the
-   refits run in a second thread beside the channel spread's.
+   refits share a pool of threads, one per core, with the channel spread's.
 8. **Missing peak** (``add_peak_model_term``), where the misfit is warned and the fitted model
    has no crush peak at all: the same fit is run again with the primary peak (``PEAK_PARAMS``,
    the law's linear form, from the same start, as ``compare_models`` fits it), in a second
@@ -144,6 +144,9 @@ FTOL = 1e-8
 # before made every fit run all five starts to full convergence.
 FTOL_MULTISTART = 1e-5
 AGREE_REL = 1e-3
+# starts run at once, and refits of a fit's uncertainty terms (this project's CI and most
+# users' laptops have 2 or more cores)
+MULTISTART_THREADS = REFIT_THREADS = 2
 EXTENSION_PARAMS = ("peak1", "L_peak1", "peak2", "L_peak2", "unload")
 PRE_S = 0.005  # samples this long before the detected touchdown are fitted too (they pin t0)
 # a parameter is "not identified" when its Jacobian column is this small against the largest
@@ -518,27 +521,36 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
                 motion_channels=[c for c, m in zip(problem.channels, motion) if m])
 
 
-def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: int = 60):
+def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: int = 60,
+                   pool=None):
     """How far the fitted values move when one measured quantity is left out: for each base
     channel (every leg and drop of it), the final window refitted from ``theta`` without it
     (Levenberg-Marquardt, same Huber threshold, same compiled functions). Returns ``(spread,
     shifts)``: the largest absolute shift of each parameter [SI] over the channels left out,
     and per channel the shifts (None where that refit failed). Fewer than two base channels:
-    no spread (zeros)."""
+    no spread (zeros). ``pool``: an executor the refits run on (default: one after the other
+    here)."""
     groups = list(dict.fromkeys(base_channel(c) for c in problem.channels))
     values = problem.values(theta)
     shifts = {}
     if len(groups) < 2:
         return np.zeros_like(values), shifts
-    for g in groups:
+
+    def without(g):
         keep = [c for c in problem.channels if base_channel(c) != g]
         sub = problem.windowed(problem.active_window_s, channels=keep).robust(huber_c)
         try:
             th, _, _ = levenberg_marquardt(sub, theta, max_iter=max_iter, ftol=FTOL)
-            shift = sub.values(th) - values
-            shifts[g] = shift if np.all(np.isfinite(shift)) else None
         except (jl.SimulationError, np.linalg.LinAlgError):
-            shifts[g] = None
+            return None
+        shift = sub.values(th) - values
+        return shift if np.all(np.isfinite(shift)) else None
+
+    if pool is None:
+        shifts = {g: without(g) for g in groups}
+    else:
+        futures = {g: pool.submit(without, g) for g in groups}
+        shifts = {g: f.result() for g, f in futures.items()}
     done = [v for v in shifts.values() if v is not None]
     spread = np.max(np.abs(done), axis=0) if done else np.full_like(values, np.nan)
     return spread, shifts
@@ -827,8 +839,21 @@ def _refit_form(problem: CalibrationProblem, base: jl.Vehicle, theta, alt: str, 
                 starts=len(starts))
 
 
+def form_refits(problem: CalibrationProblem, theta, form: str, huber_c, max_iter: int,
+                pool) -> dict:
+    """``model_form_spread``'s refits of ``problem``'s final window in every other peak form,
+    submitted to ``pool`` (an executor: XLA frees the interpreter lock, so they share the
+    cores): {form: future of ``_refit_form``}, the ripple's (its screen and refits, the
+    longest) first."""
+    base = set_values(problem.vehicle, problem.names, problem.values(theta))
+    alts = (["ripple"] if form != "ripple" else []) + [
+        alt for alt in PEAK_FORMS if alt not in (form, "ripple")]
+    return {alt: pool.submit(_refit_form, problem, base, theta, alt, huber_c, max_iter)
+            for alt in alts}
+
+
 def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=None,
-                      max_iter: int = 60, rho1: float = 0.0, threads: int = 1) -> dict:
+                      max_iter: int = 60, rho1: float = 0.0, refits: dict | None = None) -> dict:
     """How far the fitted values move when the primary crush peak takes another of its forms
     (``PEAK_FORMS``), among the forms the data support: the final window refitted from
     ``theta``'s values in each other form (same drops, channels, window and Huber
@@ -840,31 +865,19 @@ def model_form_spread(problem: CalibrationProblem, theta, form: str, huber_c=Non
     the refit failed). ``spread``: per parameter the largest absolute shift over the
     plausible forms (this fit's own form included, shift 0), 0 on the peak's own parameters,
     whose meaning differs between forms (``SHAPE_PARAMS``); ``best_supported``: the plausible
-    form of least misfit-adjusted BIC (``best_supported_form``). The ripple's refit runs in a
-    thread of its own, the other forms' in ``threads`` more (2 where the caller has no work of
-    its own to run beside them)."""
+    form of least misfit-adjusted BIC (``best_supported_form``). ``refits``: the refits'
+    futures (``form_refits``), where the caller runs them on an executor it shares with other
+    work (default: run here on REFIT_THREADS threads)."""
     names = problem.names
     values = problem.values(theta)
     n_t = len(problem.drops) if problem.fit_touchdown else 0
-    base = set_values(problem.vehicle, names, values)
+    if refits is None:
+        with ThreadPoolExecutor(max_workers=REFIT_THREADS) as pool:
+            refits = form_refits(problem, theta, form, huber_c, max_iter, pool)
     forms = {form: dict(values=dict(zip(names, values.tolist())), chi2=_chi2(problem, theta),
                         n_params=len(names) + n_t, refit=False,
                         shift=dict.fromkeys(names, 0.0))}
-    # the ripple's screen and refits, the longest, run in a thread of their own beside the
-    # other forms' (XLA frees the interpreter lock: the second core works)
-    others = [alt for alt in PEAK_FORMS if alt not in (form, "ripple")]
-    ripple = (_in_thread(_refit_form, problem, base, theta, "ripple", huber_c, max_iter)
-              if form != "ripple" else None)
-    if threads > 1:
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            done_ = {alt: pool.submit(_refit_form, problem, base, theta, alt, huber_c, max_iter)
-                     for alt in others}
-        forms.update((alt, f.result()) for alt, f in done_.items())
-    else:
-        for alt in others:
-            forms[alt] = _refit_form(problem, base, theta, alt, huber_c, max_iter)
-    if ripple is not None:
-        forms["ripple"] = ripple.result()
+    forms.update((alt, f.result()) for alt, f in refits.items())
     done = {k: f for k, f in forms.items() if f is not None}
     n_obs = problem.n_obs
     for f in done.values():
@@ -1268,9 +1281,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
 
     labels = [f"{k + 1}/{len(stages_w)} ({w * 1e3:g} ms)" for k, w in enumerate(stages_w)]
     starts = _start_variants(problem, theta0) if (multistart and n_ms) else [theta0]
-    candidates = []
-    for j, th in enumerate(starts):
-        hist_j, recs_j = [], []
+
+    def from_start(j):
+        th, hist_j, recs_j = starts[j], [], []
         tag = f" start {j + 1}/{len(starts)}" if len(starts) > 1 else ""
         for k in range(n_ms):
             th, hist, rec = run(problem.windowed(stages_w[k]), th, labels[k], tag, frozen,
@@ -1278,12 +1291,26 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             hist_j += hist
             recs_j.append(dict(rec, start=j + 1))
         loss_j = recs_j[-1]["final_loss"] if recs_j else 0.0
-        candidates.append(dict(theta=th, loss=loss_j, history=hist_j, stages=recs_j))
-        best = min(c["loss"] for c in candidates)
-        at_best = [c for c in candidates if c["loss"] - best <= AGREE_REL * max(abs(best),
-                                                                                1e-12)]
-        if len(at_best) >= 2:
-            break  # two starts agree on the lowest loss so far: take it
+        return dict(theta=th, loss=loss_j, history=hist_j, stages=recs_j)
+
+    def agree(cands):  # two starts agree on the lowest loss so far
+        best = min(c["loss"] for c in cands)
+        return sum(c["loss"] - best <= AGREE_REL * max(abs(best), 1e-12) for c in cands) >= 2
+
+    # the starts run in pairs, one per core (XLA frees the interpreter lock), and are taken
+    # in order until two agree: the same candidates as one after the other, since at least
+    # two always run; a pair's second start is discarded where the first settles it
+    candidates = []
+    for b in range(0, len(starts), MULTISTART_THREADS):
+        futures = [_in_thread(from_start, j)
+                   for j in range(b, min(b + MULTISTART_THREADS, len(starts)))]
+        for f in futures:
+            candidates.append(f.result())
+            if agree(candidates):
+                break
+        else:
+            continue
+        break
     chosen = min(range(len(candidates)), key=lambda i: candidates[i]["loss"])
     theta = candidates[chosen]["theta"]
     history += candidates[chosen]["history"]
@@ -1330,12 +1357,13 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # a CFC filter correlates the noise itself: the classical errors never hold then
     trust = "std_error_hac" if unc["misfit"] or final.filtered else "std_error"
     trusted = unc["se_hac"] if trust == "std_error_hac" else unc["se"]
-    if forms:  # the peak-shape refits run in a second thread beside the channel spread's
-        if forms_thread is not None:  # (each refit's time is XLA's, which frees the GIL)
+    # the peak-shape refits and the channel spread's share one pool, one thread per core
+    # (each refit's time is XLA's, which frees the interpreter lock), the forms' first
+    pool = ThreadPoolExecutor(max_workers=REFIT_THREADS)
+    if forms:
+        if forms_thread is not None:
             forms_thread.join()
-        # where no channel spread runs beside them, the refits take both cores
-        forms_future = _in_thread(model_form_spread, final, theta, form, huber_c, max_iter,
-                                  unc["rho1"], 1 if unc["misfit"] and not _inner else 2)
+        form_jobs = form_refits(final, theta, form, huber_c, max_iter, pool)
     peak_future = None
     if wants_peak_model_term(peak_model_term, unc["misfit"], names, start_vehicle):
         # the fit with the crush peak runs in a second thread beside the channel spread's
@@ -1351,7 +1379,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
             channels=channels, model_form=False, peak_model_term=False, progress=tagged,
             _inner=True)
-    spread, shifts = (channel_spread(final, theta, huber_c, max_iter)
+    spread, shifts = (channel_spread(final, theta, huber_c, max_iter, pool)
                       if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
     spread_failed = [g for g, v in shifts.items() if v is None]
     if spread_failed:
@@ -1359,9 +1387,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
              "leaves out how far those channels pull the fit (channel_spread_failed "
              "in the report)", MisfitWarning, stacklevel=2)
-    mform = None
+    mform = (model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"], form_jobs)
+             if forms else None)
+    pool.shutdown(wait=False)
     if forms:
-        mform = forms_future.result()
         if mform["failed"]:
             warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
                  "form failed, so std_error_total leaves out how far that form "
