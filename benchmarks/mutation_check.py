@@ -206,6 +206,12 @@ MUTATIONS = [
       "return jnp.vectorize(lambda ci: _table_at(_crushed(ci, 0.0, hc.L1) - 1e-4, hc)[0])(c)",
       ("tests/test_calibration_site.py::"
        "test_the_gain_reads_every_peak_form_as_its_table_does",)),
+    M("multistart_keeps_discarded_starts", "a batch of starts kept whole, past the agreeing one",
+      "        for f in futures:\n            candidates.append(f.result())\n"
+      "            if _starts_agree(candidates):\n                return candidates",
+      "        candidates += [f.result() for f in futures]\n"
+      "        if _starts_agree(candidates):\n            return candidates",
+      ("tests/test_calibration_optim.py",), ("calibration",)),
 ]
 
 

@@ -325,6 +325,29 @@ def _start_variants(problem: CalibrationProblem, theta0) -> list:
     return out
 
 
+def _starts_agree(candidates) -> bool:
+    """Two of the ``candidates`` (dicts with ``loss``) agree on the lowest loss so far: their
+    losses lie within AGREE_REL of it."""
+    best = min(c["loss"] for c in candidates)
+    return sum(c["loss"] - best <= AGREE_REL * max(abs(best), 1e-12) for c in candidates) >= 2
+
+
+def _until_two_agree(from_start, n: int, threads: int) -> list:
+    """``from_start(j)`` for the starts j = 0, 1, ... in order until two agree
+    (``_starts_agree``): the candidates, those of the starts taken. The starts run ``threads``
+    at a time (XLA frees the interpreter lock: one per core), so the candidates are those of
+    one start after the other: a batch's later starts are discarded where an earlier one
+    settles it."""
+    candidates = []
+    for b in range(0, n, threads):
+        futures = [_in_thread(from_start, j) for j in range(b, min(b + threads, n))]
+        for f in futures:
+            candidates.append(f.result())
+            if _starts_agree(candidates):
+                return candidates
+    return candidates
+
+
 def _start_vehicle(base: jl.Vehicle, names, start) -> jl.Vehicle:
     if start is None:
         return base
@@ -1293,24 +1316,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         loss_j = recs_j[-1]["final_loss"] if recs_j else 0.0
         return dict(theta=th, loss=loss_j, history=hist_j, stages=recs_j)
 
-    def agree(cands):  # two starts agree on the lowest loss so far
-        best = min(c["loss"] for c in cands)
-        return sum(c["loss"] - best <= AGREE_REL * max(abs(best), 1e-12) for c in cands) >= 2
-
-    # the starts run in pairs, one per core (XLA frees the interpreter lock), and are taken
-    # in order until two agree: the same candidates as one after the other, since at least
-    # two always run; a pair's second start is discarded where the first settles it
-    candidates = []
-    for b in range(0, len(starts), MULTISTART_THREADS):
-        futures = [_in_thread(from_start, j)
-                   for j in range(b, min(b + MULTISTART_THREADS, len(starts)))]
-        for f in futures:
-            candidates.append(f.result())
-            if agree(candidates):
-                break
-        else:
-            continue
-        break
+    candidates = _until_two_agree(from_start, len(starts), MULTISTART_THREADS)
     chosen = min(range(len(candidates)), key=lambda i: candidates[i]["loss"])
     theta = candidates[chosen]["theta"]
     history += candidates[chosen]["history"]
