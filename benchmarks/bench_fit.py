@@ -768,6 +768,55 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
 RECOVERY_CHECKED = ("k", "gamma", "D_b", "k_b1", "F1")  # the issue's five
 
 
+def noise_response(n_seeds: int, height: float = 0.2, shape: str = "exp") -> dict:
+    """How far each sensor-side record's noise alone moves the values of the fit with the peak
+    on the force channels, in units of their standard errors: at the fit of the noise-free
+    record (the rig's sensor mode, ``shape``; weighted by the rig's noise), the least-squares
+    response pinv(J) (y_noisy - y_clean) / sigma of each parameter to the noise of the
+    peak-recovery study's seeds, over the standard error from the same J (with the offsets'
+    error: each channel's offset is the mean of its free fall). No model error enters: this
+    is the noise's share of each record's error, which lies beyond 2 on about 1 record in 20
+    whatever the model."""
+    names = cal.DEFAULT_PARAMS + ("peak1", "L_peak1")
+    base = cal.DEFAULT_PARAMS
+    rig = dict(peak_mode="sensor", peak_shape=shape)
+    clean = _clean_drop(height, **rig)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cal.MisfitWarning)
+        res, _ = _fit([clean], params=names, peak_site="forces", model_form=False)
+    prob = res.problem.robust(None)
+    theta = np.asarray(res.theta)
+    _, jac, _ = prob.residuals_and_jacobian(theta)
+    act = prob.mask.ravel() > 0
+    # d values / d (noise-weighted data) of the default parameters: (parameters, samples)
+    rows = (prob.transform_jacobian(theta) @ np.linalg.pinv(jac[act])[:prob.n_z])[:len(base)]
+    chan = np.broadcast_to(np.arange(prob.data.shape[1])[None, :, None],
+                           prob.data.shape).ravel()[act]
+    offsets = sum(np.sum(rows[:, chan == j], axis=1) ** 2
+                  for j in range(prob.data.shape[1])) / clean.offset_samples
+    sd = np.sqrt(np.sum(rows ** 2, axis=1) + offsets)
+    sel = prob._in_window(clean)
+    seeds = list(range(PEAK_RECOVERY_SEEDS, PEAK_RECOVERY_SEEDS + n_seeds))
+    z = []
+    for seed in seeds:
+        noisy = vr.drop_test(height, seed=seed, **rig)
+        eps = np.zeros(prob.data.shape)
+        for j, c in enumerate(prob.channels):
+            eps[0, j, :int(sel.sum())] = (noisy.corrected[c][sel]
+                                          - clean.corrected[c][sel]) / vr.NOISE[c]
+        z.append(rows @ eps.ravel()[act] / sd)
+        print(f"[noise response] {shape}, seed {seed}: "
+              + ", ".join(f"{n} {v:+.2f}" for n, v in zip(base, z[-1])), flush=True)
+    z = np.array(z)
+    values = res.values[:len(base)]
+    return dict(shape=shape, drop_height_m=height, rig=rig, params=list(base), seeds=seeds,
+                values_noise_free=dict(zip(base, values.tolist())),
+                se_rel=dict(zip(base, (sd / values).tolist())),
+                z={n: z[:, i].tolist() for i, n in enumerate(base)},
+                rms_z=dict(zip(base, np.sqrt(np.mean(z ** 2, axis=0)).tolist())),
+                beyond_2=dict(zip(base, np.sum(np.abs(z) > 2.0, axis=0).tolist())))
+
+
 def _recovery_form(r, base, p_true) -> dict:
     """The peak-shape term's part of a recovery row: the best-supported form, its values'
     error against the truth, the z against the total error without the term."""
@@ -972,11 +1021,14 @@ def main_coverage(args) -> int:
            else "best_form_coverage" if args.best_form_coverage
            else "peak_recovery" if args.peak_recovery
            else "offset_coverage" if args.offset_coverage
+           else "noise_response" if args.noise_response
            else "sample_rate_study" if args.sample_rate_study else "coverage")
     if args.sample_rate_study:
         result = sample_rate_study(3 if args.quick else args.sample_rate_study)
     elif args.offset_coverage:
         result = offset_coverage(5 if args.quick else args.offset_coverage)
+    elif args.noise_response:
+        result = noise_response(3 if args.quick else args.noise_response)
     elif args.peak_recovery:
         result = peak_recovery(2 if args.quick else args.peak_recovery,
                                peak_mode=args.rig_peak_mode, model=args.peak_model_kind,
@@ -1084,6 +1136,10 @@ def main(argv=None) -> int:
                     help="the law's own peak fitted with it (representable data) over N seeds "
                          "at 5 and 20 kHz: each parameter's coverage and scatter over its "
                          "reported error (bench_fit.json's 'sample_rate_study')")
+    ap.add_argument("--noise-response", type=int, default=0, metavar="N",
+                    help="how far the noise alone of N sensor-side records (the peak-recovery "
+                         "seeds, exp shape) moves the values of the fit on the force channels, "
+                         "in standard errors (bench_fit.json's 'noise_response')")
     ap.add_argument("--one-fit", metavar="CASE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one_fit:
@@ -1092,7 +1148,7 @@ def main(argv=None) -> int:
     if args.coverage or args.quick or args.coverage_summary or args.coverage_pseudo_truth or \
             args.peak_model or args.best_form_prediction or args.best_form_coverage or \
             args.fit_time or args.peak_recovery or args.offset_coverage or \
-            args.sample_rate_study:
+            args.sample_rate_study or args.noise_response:
         return main_coverage(args)
     if args.replot:
         path = Path(args.out) / "bench_fit.json"
