@@ -1206,8 +1206,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     robust : Huber threshold in robust standard deviations of the residuals (None: plain least
         squares). It keeps localised model errors (a honeycomb crush peak) from biasing the fit
     multistart : run the short windows (all but the last of ``windows``) from the start and
-        from ``START_VARIANTS`` of it (k and gamma moved), stopping once two starts agree on the
-        lowest loss, and continue from the best (default True)
+        from ``START_VARIANTS`` of it (k and gamma moved), taken in order, two at a time, until
+        two agree on the lowest loss, and continue from the best (default True)
     method : ``"lm"`` (Levenberg-Marquardt on the jacfwd Jacobian, default) or ``"lbfgs"``
         (``optax.lbfgs`` on the jacfwd gradient)
     max_iter : iteration limit per stage (and per start)
