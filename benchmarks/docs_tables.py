@@ -861,7 +861,7 @@ def calibration_peak_site() -> str:
 def calibration_noise_response() -> str:
     """The noise's own share of the sensor-side records' errors (``noise_response`` in
     bench_fit.json): per parameter the standard error, the rms of the noise's response in
-    standard errors over the seeds, how many lie beyond 2, and the seeds where k_b1's does."""
+    standard errors over the seeds, how many lie beyond 2, and which seeds."""
     d = _load("bench_fit.json")["noise_response"]
     n = len(d["seeds"])
     rows = []
