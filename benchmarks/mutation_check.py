@@ -202,8 +202,8 @@ MUTATIONS = [
       ("tests/test_calibration_site.py::"
        "test_the_forces_refits_stop_once_the_loss_stops_moving",), ("calibration",)),
     M("peak_excess_segment_off_by_one", "the gain read at the segment before the crush's",
-      "return jnp.vectorize(lambda ci: _table_at(_crushed(ci, 0.0, hc.L1), hc)[0])(c)",
-      "return jnp.vectorize(lambda ci: _table_at(_crushed(ci, 0.0, hc.L1) - 1e-4, hc)[0])(c)",
+      "_primary_table(_crushed(ci, 0.0, hc.L1), hc, 0.0)[0])(c)",
+      "_primary_table(_crushed(ci, 0.0, hc.L1) - 1e-4, hc, 0.0)[0])(c)",
       ("tests/test_calibration_site.py::"
        "test_the_gain_reads_every_peak_form_as_its_table_does",)),
     M("multistart_keeps_discarded_starts", "a batch of starts kept whole, past the agreeing one",

@@ -232,6 +232,13 @@ def _table_at(c, hc: HoneycombCurve):
     return e_j + s_j * v, at(hc.t1_int) + e_j * v + 0.5 * s_j * v * v
 
 
+def _primary_table(c, hc: HoneycombCurve, w: float):
+    """The primary's tabulated excess and its integral at the crush c (``_table``): read at the
+    one segment that holds c (``_table_at``) where the curve carries its node values and no
+    kink is rounded (``w`` = 0), else summed over every segment."""
+    return _table_at(c, hc) if hc.t1_e is not None and w == 0.0 else _table(c, hc, w)
+
+
 def primary_peak_excess(c, hc: Honeycomb | HoneycombCurve):
     """The primary stage's crush-peak excess over its plateau, e(c) [N], at the crush c [m]
     past the peak's onset: the law's linear fall a1 (1 - c / L1), or its table (a build-up
@@ -241,10 +248,8 @@ def primary_peak_excess(c, hc: Honeycomb | HoneycombCurve):
         return jnp.zeros_like(c)
     if hc.t1_c is None:
         return _excess(c, hc.a1, 0.0, hc.L1)
-    if hc.t1_e is not None:  # as the law reads it: at the one segment that holds c
-        return jnp.vectorize(lambda ci: _table_at(_crushed(ci, 0.0, hc.L1), hc)[0])(c)
-    # c of any shape against the table's nodes (the law reads one c at a time)
-    return jnp.vectorize(lambda ci: _table(_crushed(ci, 0.0, hc.L1), hc, 0.0)[0])(c)
+    # c of any shape, one element at a time against the table's nodes (as the law reads it)
+    return jnp.vectorize(lambda ci: _primary_table(_crushed(ci, 0.0, hc.L1), hc, 0.0)[0])(c)
 
 
 def _peak_work(a, e, c, length, k):
@@ -267,8 +272,7 @@ def _honeycomb_extended(x, x_max_prev, hc: HoneycombCurve, w: float) -> Honeycom
         e1 = hc.a1 - hc.a1 * c_1 / hc.L1  # strength left over F1 (the peak fades as it crushes)
         work1 = _peak_work(hc.a1, e1, c_1, hc.L1, hc.k_b1)
     else:  # the tabulated excess
-        e1, int1 = (_table_at(c_1, hc) if hc.t1_e is not None and w == 0.0
-                    else _table(c_1, hc, w))
+        e1, int1 = _primary_table(c_1, hc, w)
         work1 = (hc.a1 * hc.a1 - e1 * e1) / (2.0 * hc.k_b1) + int1
     e2 = hc.a2 - hc.a2 * c_2 / hc.L2
     cap1 = hc.x_L1 + e1 / hc.k_b1  # elastic capacity of stage 1: strength / k_b1
