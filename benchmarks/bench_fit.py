@@ -57,7 +57,14 @@ import numpy as np  # noqa: E402
 import calibration as cal  # noqa: E402
 import jaxland as jl  # noqa: E402
 from calibration import virtual_rig as vr  # noqa: E402
-from calibration._parameters import EXP_TABLE_SPAN, get_values, set_values  # noqa: E402
+from calibration._parameters import (  # noqa: E402
+    EXP_TABLE_SPAN,
+    FORCES,
+    HONEYCOMB,
+    PEAK_SITES,
+    get_values,
+    set_values,
+)
 
 jax.config.update("jax_enable_x64", True)
 
@@ -695,7 +702,7 @@ PEAK_RECOVERY_SEEDS = 3000  # first noise seed of --peak-recovery (none of the o
 
 
 def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical",
-                  model: str = "law", peak_site: str = "honeycomb") -> dict:
+                  model: str = "law", peak_site: str = HONEYCOMB) -> dict:
     """The crush-peak model (default parameters + peak1, L_peak1) on rig records of every
     ``vr.PEAK_SHAPES`` at ``height``, over ``n_seeds`` noise seeds each: per parameter the
     error against the truth and z = error / SE (HAC, total: with the channel spread, and
@@ -743,7 +750,7 @@ def peak_recovery(n_seeds: int, height: float = 0.2, peak_mode: str = "physical"
     for shape in vr.PEAK_SHAPES:
         clean = _clean_drop(height, peak_shape=shape, **rig)
         kw = dict(params=names)
-        if peak_site != "honeycomb":
+        if peak_site != HONEYCOMB:
             kw.update(peak_site=peak_site)
         if model == "true_shape":  # the rig's table in the model; started at the truth (at
             # the nominal k the folds table's fall is steeper than the rule's k / 2): this
@@ -783,7 +790,7 @@ def noise_response(n_seeds: int, height: float = 0.2, shape: str = "exp") -> dic
     clean = _clean_drop(height, **rig)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cal.MisfitWarning)
-        res, _ = _fit([clean], params=names, peak_site="forces", model_form=False)
+        res, _ = _fit([clean], params=names, peak_site=FORCES, model_form=False)
     prob = res.problem.robust(None)
     theta = np.asarray(res.theta)
     _, jac, _ = prob.residuals_and_jacobian(theta)
@@ -903,7 +910,7 @@ FIT_TIME_CASES = {
         data="rig", heights=(0.15, 0.3), peak=True, rig=dict(seed=300)),
     "lab record: 4 legs, CFC 600, from release (bundled)": dict(data="lab", heights=(0.2,)),
     "the crush peak on the force channels (--peak-site forces), bundled 0.2 m drop": dict(
-        data="bundled", heights=(0.2,), peak=True, peak_site="forces"),
+        data="bundled", heights=(0.2,), peak=True, peak_site=FORCES),
 }
 
 
@@ -941,7 +948,7 @@ def one_fit(case: str) -> dict:
     cpu0 = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cal.MisfitWarning)
-        r, wall = _fit(drops, params=names, peak_site=spec.get("peak_site", "honeycomb"))
+        r, wall = _fit(drops, params=names, peak_site=spec.get("peak_site", HONEYCOMB))
     cpu = time.process_time() - cpu0  # all of the process's threads
     truth = vr.truth_vehicle()
     p_true = get_values(truth, cal.DEFAULT_PARAMS)
@@ -1037,7 +1044,7 @@ def main_coverage(args) -> int:
             key = f"peak_recovery_{args.rig_peak_mode}"
         if args.peak_model_kind != "law":
             key = f"{key}_{args.peak_model_kind}"
-        if args.peak_site != "honeycomb":
+        if args.peak_site != HONEYCOMB:
             key = f"{key}_site_{args.peak_site}"
     elif args.peak_model:
         result = peak_model_study(args.quick)
@@ -1124,7 +1131,7 @@ def main(argv=None) -> int:
                          "with its rise length (law_rise: + L_rise1), or the default "
                          "parameters with the rig's own peak table in the model (true_shape); "
                          "into 'peak_recovery[_KIND]'")
-    ap.add_argument("--peak-site", choices=("honeycomb", "forces"), default="honeycomb",
+    ap.add_argument("--peak-site", choices=PEAK_SITES, default=HONEYCOMB,
                     help="with --peak-recovery: where the fitted peak sits (fit's peak_site; "
                          "forces: on the force channels alone, into "
                          "'peak_recovery[_MODE][_KIND]_site_forces')")

@@ -122,7 +122,7 @@ def peak_site_line(check: dict | None) -> str:
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
-    from ._parameters import PARAMS, SHAPE_PARAMS, check_names
+    from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
 
     out = _out_dir(args.out)
     names = check_names(args.params)
@@ -149,7 +149,7 @@ def _cmd_fit(args) -> int:
                   model_form=False if args.no_model_form else "auto",
                   peak_model_term=False if args.no_peak_model_term else "auto",
                   peak_site=args.peak_site)
-    if args.compare_models and args.peak_site != "honeycomb":
+    if args.compare_models and args.peak_site != HONEYCOMB:
         raise jl.ConfigError("--peak-site", args.peak_site, "--compare-models fits the peak "
                              "in the honeycomb; fit with --peak-site forces on its own")
     # every argument refused before the banner; --compare-models fits the peak model
@@ -263,7 +263,7 @@ def _cmd_fit(args) -> int:
                   + ", ".join(f"{k} {v:.6g}" for k, v in vals.items() if k in SHAPE_PARAMS))
     if diag.get("peak_location") is not None:
         print(peak_location_line(diag["peak_location"]))
-    if result.settings.get("peak_site") == "forces":
+    if result.settings.get("peak_site") == FORCES:
         print(peak_site_line(diag.get("peak_site_check")))
     for i, n in enumerate(result.names):
         flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
@@ -312,7 +312,7 @@ def _cmd_predict(args) -> int:
 def add_subcommands(subparsers) -> None:
     """Register ``fit`` and ``predict`` on an argparse subparsers object."""
     from ._fit import INTEGRATOR, INTEGRATORS, REFINE_WINDOW_S, ROBUST_K, SMOOTHING, WINDOWS_S
-    from ._parameters import DEFAULT_PARAMS, EXP_TABLE_SPAN, PARAMS
+    from ._parameters import DEFAULT_PARAMS, EXP_TABLE_SPAN, HONEYCOMB, PARAMS, PEAK_SITES
 
     f = subparsers.add_parser(
         "fit", help="calibrate the quarter model to drop-test traces; write the fitted "
@@ -366,7 +366,7 @@ def add_subcommands(subparsers) -> None:
                         "peak over the other half, the peaks decaying as exp(-c / L_peak1), "
                         "L_rise1 the fold length (with L_rise1 fitted for the last three) "
                         "(default law)")
-    f.add_argument("--peak-site", choices=("honeycomb", "forces"), default="honeycomb",
+    f.add_argument("--peak-site", choices=PEAK_SITES, default=HONEYCOMB,
                    help="where the fitted crush peak sits (with peak1): honeycomb, the law's "
                         "(its crush work moves the stroke and the body); forces, the force "
                         "channels alone (the drop runs without it; the force channels carry it "
