@@ -44,8 +44,9 @@ def _start(text: str | None) -> dict | None:
     return out
 
 
-def _out_dir(path: str) -> Path:
-    return jl.check_output_folder(path)  # before any work: a file, or someone else's folder
+def _out_dir(path: str, inputs=()) -> Path:
+    # before any work: a file, someone else's folder, or a folder holding an input
+    return jl.check_output_folder(path, inputs)
 
 
 def stopped_at_cap(result) -> bool:
@@ -124,7 +125,7 @@ def _cmd_fit(args) -> int:
     from ._data import load_drop_tests
     from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
 
-    out = _out_dir(args.out)
+    out = _out_dir(args.out, (args.config, *args.data))
     names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config) if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
@@ -284,7 +285,7 @@ def _cmd_predict(args) -> int:
     from ._data import load_drop_tests
     from ._predict import predict
 
-    out = _out_dir(args.out)
+    out = _out_dir(args.out, (args.config, *args.data))
     vehicle = jl.load_vehicle(args.config)
     drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
     preds = [predict(vehicle, d) for d in drops]

@@ -18,4 +18,6 @@ class ConfigError(JaxlandError, ValueError):
 
 
 class SimulationError(JaxlandError, RuntimeError):
-    """The integration failed numerically (non-finite state or energy growth)."""
+    """A landing's answer is not to be used (``jaxland.Result``'s failure codes): the state
+    turned non-finite, the energy ledger grew or did not close, the step was above the limit
+    of the forces reached, or an adaptive solver stopped; the message says what to change."""

@@ -89,10 +89,11 @@ def atomic_savefig(fig, path, dpi: int = 110) -> Path:
 MARKER = ".jaxland-output.json"  # in every output folder jaxland publishes
 
 
-def check_out(out) -> Path:
-    """Refuse an output folder that jaxland may not replace: a file, a path below a file, or a
-    non-empty folder without jaxland's marker (someone else's files). Call it before any long
-    computation."""
+def check_out(out, inputs=()) -> Path:
+    """Refuse an output folder that jaxland may not replace: a file, a path below a file, the
+    current folder or one holding it, a folder holding one of the run's ``inputs`` (paths;
+    None skipped), or a non-empty folder without jaxland's marker (someone else's files,
+    hidden ones included). Call it before any long computation."""
     from ._errors import ConfigError
 
     out = Path(out)
@@ -102,9 +103,16 @@ def check_out(out) -> Path:
                 raise ConfigError("--out", str(out), "exists and is not a folder" if p == out
                                   else f"lies below {p}, which is a file")
             break
+    here, where = Path.cwd().resolve(), out.resolve()
+    if where == here or where in here.parents:
+        raise ConfigError("--out", str(out), "is the current folder or holds it: give a "
+                          "subfolder, since the whole folder is replaced")
+    for path in inputs:
+        if path is not None and where in Path(path).resolve().parents:
+            raise ConfigError("--out", str(out), f"holds {path}, an input of this run, and "
+                              "would be replaced as a whole: give another folder")
     _check_writable(out, out.parent if p == out else p)  # the staging folder's place
-    if out.is_dir() and not (out / MARKER).exists() and any(
-            not c.name.startswith(".") and not _known_output(c.name) for c in out.iterdir()):
+    if out.is_dir() and not (out / MARKER).exists() and any(out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
                           f"{MARKER}): give a new or empty folder, its files would be replaced")
     return out
@@ -122,17 +130,6 @@ def _check_writable(out: Path, folder: Path) -> None:
     except OSError as err:
         raise ConfigError("--out", str(out), f"cannot be written: creating a folder in {folder} "
                           f"fails ({err.strerror})") from None
-
-
-# What jaxland's commands write: a folder holding only these (written before the marker existed)
-# is jaxland's too.
-_OUTPUT_NAMES = {"trajectory.csv", "summary.json", "vehicle.toml", "scene.toml", "figures",
-                 "samples.csv", "samples.npz", "design_report.json", "design_vehicle.toml",
-                 "fitted_vehicle.toml", "fit_report.json", "model_comparison.json"}
-
-
-def _known_output(name: str) -> bool:
-    return name in _OUTPUT_NAMES or (name.startswith("prediction_") and name.endswith(".json"))
 
 
 def _alive(pid: int) -> bool:

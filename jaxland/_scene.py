@@ -151,6 +151,12 @@ class Scene(eqx.Module):
                 ok = ok & jnp.all(jnp.isfinite(x) & (x >= lo) & (x <= hi))
         return ok
 
+    def symmetric(self):
+        """``is_symmetric`` as a jnp bool, also under jit and vmap: a quarter-model landing of
+        an asymmetric scene carries ``Result.OUTSIDE_ENVELOPE`` (that model cannot represent
+        it)."""
+        return _symmetric(self, jnp)
+
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
         for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():
@@ -211,20 +217,27 @@ def _axes_scene(axes: dict) -> Scene:
     return obj
 
 
+def _symmetric(scene: Scene, xp):
+    """Whether every landing in ``scene`` is a symmetric vertical drop, with the array module
+    ``xp`` (numpy on concrete values, jax.numpy under jit): the one rule ``is_symmetric`` and
+    ``Scene.symmetric`` share."""
+    ok = xp.all(xp.stack([xp.all(xp.asarray(getattr(scene, name)) == 0.0) for name in
+                          ("horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate",
+                           "yaw_rate", "slope")]))
+    if scene.com_offset is not None:
+        ok = ok & xp.all(xp.asarray(scene.com_offset) == 0.0)
+    if scene.plateau_scale is not None:
+        ps = xp.asarray(scene.plateau_scale)
+        ok = ok & xp.all(ps == ps[..., :1])
+    return ok
+
+
 def is_symmetric(scene: Scene) -> bool:
     """True if every landing in ``scene`` (a batch allowed) is a symmetric vertical drop, so the
     quarter model represents it exactly: no horizontal speed, level attitude (yaw is free), no
-    angular rate, level ground, the same honeycomb in every leg. Needs concrete values."""
-    for name in ("horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate", "yaw_rate",
-                 "slope"):
-        if np.any(np.asarray(getattr(scene, name)) != 0.0):
-            return False
-    if scene.com_offset is not None and np.any(np.asarray(scene.com_offset) != 0.0):
-        return False
-    if scene.plateau_scale is None:
-        return True
-    ps = np.asarray(scene.plateau_scale)
-    return bool(np.all(ps == ps[..., :1]))
+    angular rate, level ground, the same honeycomb in every leg. Needs concrete values
+    (``Scene.symmetric`` is the same test under jit)."""
+    return bool(_symmetric(scene, np))
 
 
 def scene_from_dict(data: dict) -> Scene:

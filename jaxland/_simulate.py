@@ -87,10 +87,7 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     ``"full"``, a model object, or ``"auto"`` (``choose_model``; needs a concrete scene, so
     under jit name it). The summary's ``result`` is a ``Result`` code, ``OUTSIDE_ENVELOPE`` for
     a scene outside the documented envelope (``Scene.inside_envelope``)."""
-    traj, summary = integrate(get_model(model, scene), vehicle, scene, solver)
-    summary["result"] = jnp.where(scene.inside_envelope(), summary["result"],
-                                  int(Result.OUTSIDE_ENVELOPE)).astype(summary["result"].dtype)
-    return traj, summary
+    return integrate(get_model(model, scene), vehicle, scene, solver)
 
 
 def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),
@@ -182,7 +179,6 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
     else:
         stroke_first = s["max_stroke_m"]
         foot_v = None
-    dissipated = float(s["energy_dissipated_J"])
     max_stroke = np.max(s["max_stroke_m"])
     bottomed = bool(max_stroke > float(hc.x_L4))
     out = {
@@ -222,16 +218,20 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         out["min_stability_margin_m"] = -float(s["peak_margin_deficit_m"])
     out["tipped_over"] = bool(s["tipped"])  # a symmetric vertical drop cannot tip
     out["tip_over_time_s"] = float(s["tip_over_time_s"]) if out["tipped_over"] else None
-    out["classification"] = ("no_touchdown" if int(s["result"]) == Result.NO_TOUCHDOWN else
+    code = int(s["result"])
+    out["classification"] = ("no_touchdown" if code == Result.NO_TOUCHDOWN else
                              "tipped" if out["tipped_over"] else
+                             "unfinished" if code == Result.UNFINISHED else
                              "bottomed_out" if bottomed else "stable")
-    # relative to the energy dissipated: none without a touchdown (0 J: no ratio, not 1e9)
+    # the verdict's measure (CLOSURE_LIMIT judges it): relative to the energy dissipated, or
+    # to a tenth of the energy scale where less is dissipated; none without a touchdown
     out["energy_closure_rel"] = (None if out["classification"] == "no_touchdown" else
-                                 float(s["energy_closure_max_J"]) / max(dissipated, 1e-12))
+                                 float(s["ledger_error_rel"]))
     return out
 
 
-def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: AbstractModel) -> None:
+def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: AbstractModel,
+                    scene: Scene) -> None:
     """Refuse to return a landing whose answer is not to be used (``verdict``), saying why and
     what to change."""
     code = Result(int(summary["result"]))
@@ -260,9 +260,15 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: Abst
         setting = f"{name} dt = {dt:.3g} s"
     elif fixed:
         reached = float(step_limit_reached(summary, vehicle, solver, model))
-        why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground force "
-               f"of {n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which limits dt "
-               f"to {reached:.3g} s for {name}; rerun with dt <= {0.5 * reached:.2g} s")
+        if math.isfinite(reached):
+            why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground "
+                   f"force of {n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which "
+                   f"limits dt to {reached:.3g} s for {name}; rerun with dt <= "
+                   f"{0.5 * reached:.2g} s")
+        else:  # the blown-up state's peaks say nothing: the forces its energy can reach
+            again = retry_step(vehicle, scene, method, model)
+            why = (f"the forces it reached are not finite; those this scene's energy can reach "
+                   f"limit dt for {name}: rerun with dt <= {again:.2g} s")
         setting = f"{name} dt = {dt:.3g} s"
     else:
         why = f"tighten rtol = {method.rtol:g} / atol = {method.atol:g}"
@@ -381,7 +387,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
             solver.validate()
             traj, summary = _landing_jit(vehicle, scene, solver, mod)
     traj = {k: np.asarray(traj[k]) for k in mod.COLUMNS}
-    _check_numerics(summary, vehicle, solver, mod)
+    _check_numerics(summary, vehicle, solver, mod, scene)
     outcomes = _outcomes(summary, traj, vehicle, scene, solver, mod.name)
     if retried is not None:
         outcomes["retried_from_dt_s"] = retried
@@ -389,4 +395,6 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         outcomes["note"] = ("the vehicle tipped over; after tip_over_time_s the body, which has "
                             "no ground contact of its own, is not modelled physically, and "
                             "peaks and checks stop there")
+    elif outcomes["classification"] == "unfinished":
+        outcomes["note"] = f"{Result.UNFINISHED.message}; rerun with a longer t_end"
     return Landing(traj, outcomes, vehicle, scene, solver)

@@ -258,11 +258,117 @@ def test_a_fit_stopped_at_its_iteration_cap_is_told_apart():
     assert not stopped_at_cap(SimpleNamespace(stages=[{"status": "no_decrease"}]))
 
 
-def test_a_folder_of_earlier_jaxland_outputs_is_replaced(tmp_path):
-    """Outputs written before the marker existed (only jaxland's file names) are jaxland's."""
-    out = tmp_path / "old"
-    (out / "figures").mkdir(parents=True)
-    (out / "summary.json").write_text("{}")
-    (out / "figures" / "fig09_foot_velocity.png").write_bytes(b"")
-    assert _simulate(out, "--no-plots") == 0
-    assert not (out / "figures").exists() and (out / ".jaxland-output.json").exists()
+def test_a_folder_without_the_marker_is_refused_whatever_it_holds(tmp_path, capsys):
+    """Only a folder jaxland marked (or an empty one) is replaced: file names like jaxland's own,
+    or hidden entries alone (a .git, a .env), are someone else's files."""
+    named = tmp_path / "named"
+    (named / "figures").mkdir(parents=True)
+    (named / "summary.json").write_text("{}")
+    (named / "figures" / "my_sketch.png").write_bytes(b"")
+    hidden = tmp_path / "hidden"
+    (hidden / ".git").mkdir(parents=True)
+    (hidden / ".env").write_text("secret")
+    for out in (named, hidden):
+        assert _simulate(out, "--no-plots") == 2
+        assert "no .jaxland-output.json" in capsys.readouterr().err
+    assert (named / "figures" / "my_sketch.png").exists() and (hidden / ".env").exists()
+
+
+def test_an_output_folder_holding_an_input_or_the_current_folder_is_refused(
+        tmp_path, capsys, monkeypatch):
+    """--out is replaced as a whole: never the folder a run reads its inputs from (even one
+    jaxland wrote), never the current folder."""
+    out = tmp_path / "study"
+    assert _simulate(out, "--no-plots") == 0  # a jaxland folder, with its vehicle.toml
+    assert main(["simulate", "--config", str(out / "vehicle.toml"), "--t-end", "0.1",
+                 "--out", str(out)]) == 2
+    assert "an input of this run" in capsys.readouterr().err
+    assert (out / "vehicle.toml").exists()
+    monkeypatch.chdir(out)
+    assert _simulate(".", "--no-plots") == 2
+    assert "the current folder" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------- verdicts a run can give
+
+def test_a_landing_cut_off_during_its_impact_is_unfinished_not_stable():
+    """A 0.4 m drop touches down at 0.286 s: at t_end = 0.3 s its strut is still crushing, so
+    its max stroke is not final (the same landing run to 0.8 s ends far deeper). It is
+    UNFINISHED: classified so, with a note, counted apart by a Monte Carlo (no failure, no
+    statistic). Run to its end, the same landing is successful and its max stroke stays put."""
+    scene = jl.Scene(drop_height=0.4)
+    cut = jl.simulate(scene, t_end=0.3).outcomes
+    full = jl.simulate(scene, t_end=0.8).outcomes
+    longer = jl.simulate(scene, t_end=1.2).outcomes
+    assert cut["result"] == cut["classification"] == "unfinished" and "not final" in cut["note"]
+    assert full["result"] == "successful" and full["classification"] == "stable"
+    assert full["max_stroke_m"] > 2 * cut["max_stroke_m"]  # the cut-off stroke was no answer
+    assert longer["max_stroke_m"] == pytest.approx(full["max_stroke_m"], rel=1e-9)
+    spec = jl.MonteCarloSpec(dispersion={"drop_height_m": jl.Distribution("uniform", low=0.35,
+                                                                          high=0.45)},
+                             n=4, seed=1, t_end=0.3)
+    mc = jl.run_montecarlo(spec, progress=False)
+    codes = [jl.Result(c) for c in mc.failure]
+    assert mc.summary["n_unfinished"] == codes.count(jl.Result.UNFINISHED) > 0
+    assert mc.summary["n_failed"] == 0 and not any(c.failed for c in codes)
+    assert mc.summary["bottoming"]["n"] == codes.count(jl.Result.SUCCESSFUL)
+
+
+def test_a_scene_the_model_cannot_take_fails_with_nan_derivatives_also_under_jit():
+    """Outside the documented envelope (a negative drop height, friction 2.5), or asymmetric
+    for the quarter model (which jit keeps simulate's refusal from seeing): OUTSIDE_ENVELOPE,
+    and its derivatives NaN like every failure's; the same landing inside is finite."""
+    solver = jl.Solver(dt=1e-5, t_end=0.4, save_dt=0.4)
+
+    def stroke(d_b, scene):
+        veh = eqx.tree_at(lambda v: v.leg.D_b, VEH, d_b)
+        _, s = jl.landing(veh, scene, solver, "quarter")
+        return s["max_stroke_m"], s["result"]
+
+    for scene, inside in ((jl.Scene(drop_height=-0.001, sink_speed=2.0), False),
+                          (jl.Scene(friction=2.5), False), (jl.Scene(roll=0.05), False),
+                          (jl.Scene(horizontal_speed=1.0), False), (jl.Scene(), True)):
+        (value, code), grad = jax.jit(jax.value_and_grad(stroke, has_aux=True))(1.5, scene)
+        assert np.isfinite(float(value))
+        assert (jl.Result(int(code)) == jl.Result.SUCCESSFUL) == bool(inside)
+        assert np.isfinite(float(grad)) == bool(inside), scene
+
+
+def test_the_pure_landing_checks_its_solver_settings():
+    for kw, field in ((dict(dt=0.0, t_end=0.3, save_dt=1e-4), "solver.dt"),
+                      (dict(dt=-1e-5, t_end=0.3, save_dt=1e-4), "solver.dt"),
+                      (dict(t_end=0.0, save_dt=1e-5), "solver.t_end")):
+        with pytest.raises(jl.ConfigError, match=field):
+            jl.landing(VEH, jl.Scene(), jl.Solver(**kw), "quarter")
+
+
+def test_the_exit_3_message_names_a_finite_step_after_a_blow_up():
+    """A 20 m/s touchdown at 1e-4 s blows up, so the peaks it reached are NaN; the step to rerun
+    at comes from the forces the scene's energy can reach, and rerunning there lands."""
+    scene = jl.Scene.from_touchdown_speed(20.0)
+    with pytest.raises(jl.SimulationError, match=r"rerun with dt <= ") as err:
+        jl.simulate(scene, dt=1e-4, t_end=0.05)
+    step = float(str(err.value).rsplit("dt <= ", 1)[1].split(" s")[0])
+    assert np.isfinite(step) and 0 < step < 1e-4
+    assert jl.simulate(scene, dt=step, t_end=0.05).outcomes["result"] in ("successful",
+                                                                         "unfinished")
+
+
+def test_simulate_and_monte_carlo_report_one_ledger_closure():
+    """energy_closure_rel is the verdict's measure in both, relative to the energy dissipated
+    or to a tenth of the energy scale where less is dissipated (a 0.2 m/s touchdown)."""
+    scene = jl.Scene.from_touchdown_speed(0.2)
+    one = jl.simulate(scene, t_end=0.3).outcomes
+    spec = jl.MonteCarloSpec(dispersion={"sink_speed_mps": jl.Distribution("constant",
+                                                                           mean=0.2)},
+                             fixed={"drop_height_m": 0.0}, n=1, t_end=0.3,
+                             ledger_check=0.0)  # every step, as simulate checks it
+    mc = jl.run_montecarlo(spec, progress=False)
+    # the quarter model's energy scale: its ledger's masses over the sink and 2.5 strokes
+    scale = 0.1 * float(VEH.m_quarter + VEH.m_foot) * (
+        0.5 * 0.2 ** 2 + float(VEH.g) * 2.5 * float(VEH.honeycomb.x_L4))
+    assert one["energy_dissipated_J"] < scale  # the case where the two measures differ
+    assert one["energy_closure_rel"] == pytest.approx(one["energy_closure_max_J"] / scale,
+                                                      rel=1e-9)
+    assert mc.outputs["energy_closure_rel"][0] == pytest.approx(one["energy_closure_rel"],
+                                                                rel=1e-6)

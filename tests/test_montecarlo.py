@@ -198,8 +198,11 @@ def test_failed_samples_are_counted_and_the_rest_is_intact():
     s = res.summary
     assert 0 < s["n_failed"] < spec.n and sum(s["failures"].values()) == s["n_failed"]
     v = res.inputs["sink_speed_mps"]
-    assert v[res.failure != 0].min() > v[res.failure == 0].max()  # the hard ones failed
-    for i in np.flatnonzero(res.failure == 0):
+    failed = np.array([jl.Result(c).failed for c in res.failure])
+    assert v[failed].min() > v[~failed].max()  # the hard ones failed
+    # the slow ones are still compressing at 0.1 s: counted apart, not failed
+    assert s["n_unfinished"] == int(np.sum(res.failure == jl.Result.UNFINISHED)) > 0
+    for i in np.flatnonzero(~failed):
         one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1).outcomes
         np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one["max_stroke_m"],
                                    rtol=1e-9)

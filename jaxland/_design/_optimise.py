@@ -135,7 +135,8 @@ def _summaries(problem: DesignProblem, vec, per, z) -> dict:
                max_peak_body_accel_mps2=float(np.max(per["peak_body_accel_mps2"])),
                max_stroke_m=float(np.max(per["max_stroke_m"])),
                x_L4_m=float(problem.vehicle_at(jnp.asarray(z)).honeycomb.x_L4),
-               n_failed=int(np.sum(per["failed"])), n_tipped=int(np.sum(per["tipped"])))
+               n_failed=int(np.sum(per["failed"])), n_tipped=int(np.sum(per["tipped"])),
+               n_unfinished=int(np.sum(per["unfinished"])))
     if "min_stability_margin_m" in per:
         out["min_stability_margin_m"] = float(np.min(per["min_stability_margin_m"]))
     if "ill_conditioned" in per:  # scenes whose derivatives the gradient replaces

@@ -300,7 +300,11 @@ class DesignProblem:
                    max_stroke_m=legmax(s["max_stroke_m"]),
                    slip_distance_m=legmax(s["slip_distance_m"]),
                    peak_honeycomb_force_N=legmax(s["peak_honeycomb_force_N"]),
-                   failed=s["result"] != int(Result.SUCCESSFUL),
+                   # an UNFINISHED scene (still in its impact at t_end) keeps its numbers, as
+                   # a landing record does; the summaries count it (raise design.t_end_s)
+                   failed=((s["result"] != int(Result.SUCCESSFUL))
+                           & (s["result"] != int(Result.UNFINISHED))),
+                   unfinished=s["result"] == int(Result.UNFINISHED),
                    tipped=s["tipped"])
         if "peak_margin_deficit_m" in s:
             out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]

@@ -17,13 +17,22 @@ from ._problem import DesignProblem, risk_measure
 from ._spec import VARIABLES, DesignSpec
 
 
+def _count(flags) -> dict:
+    """How many of the judged landings have a flag, with its 95 % Wilson interval."""
+    k, n = int(np.sum(flags)), int(np.size(flags))
+    return dict(count=k, n=n, probability=k / n if n else None, ci95_wilson=wilson_interval(k, n))
+
+
 def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
-    ok = res.failure == int(Result.SUCCESSFUL)
+    # as in the design's own scenes, a landing still in its impact at t_end keeps its numbers
+    # (counted: n_unfinished)
+    ok = np.isin(res.failure, [int(Result.SUCCESSFUL), int(Result.UNFINISHED)])
     o = res.outputs
     n = int(ok.sum())
     stroke = o["max_stroke_m"].max(axis=1)[ok]
     accel = o["peak_body_accel_mps2"][ok]
     out = dict(n=int(res.failure.size), n_ok=n, n_failed=res.summary["n_failed"],
+               n_unfinished=res.summary["n_unfinished"],
                seed=res.summary["seed"], model=res.summary["model"],
                peak_body_accel_mps2=percentiles(accel),
                objective_measure_mps2=float(risk_measure(jnp.asarray(accel),
@@ -31,7 +40,7 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
                                                          spec.objective.level)) if n else None,
                max_stroke_m=percentiles(stroke),
                slip_distance_m=percentiles(o["slip_distance_m"].max(axis=1)[ok]),
-               tip_over=res.summary["tip_over"], bottoming=res.summary["bottoming"],
+               tip_over=_count(o["tipped_over"][ok]), bottoming=_count(o["bottomed_out"][ok]),
                wall_s=res.summary["wall_s"])
     if "min_stability_margin_m" in o:
         out["min_stability_margin_m"] = percentiles(o["min_stability_margin_m"][ok])
@@ -42,9 +51,7 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
     index = np.flatnonzero(ok)
     for c in spec.constraints:
         bad = np.asarray(c.badness(per, float(vehicle.honeycomb.x_L4)))
-        k = int(np.sum(bad > 0))
-        viol[c.name] = dict(count=k, n=n, probability=k / n if n else None,
-                            ci95_wilson=wilson_interval(k, n))
+        viol[c.name] = _count(bad > 0)
         checks[c.name] = _check(c, bad, index, res.summary["seed"])
     out["constraint_violations"] = viol
     out["constraints"] = checks

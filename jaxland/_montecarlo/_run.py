@@ -376,6 +376,8 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         n_failed=int(failed.sum()), failures=reasons,
         failed_samples=np.flatnonzero(failed).tolist()[:100],
         n_no_touchdown=int((failure == int(Result.NO_TOUCHDOWN)).sum()),
+        # still in an impact at t_end: outcomes not final, counted apart (raise t_end_s)
+        n_unfinished=int((failure == int(Result.UNFINISHED)).sum()),
         n_retried=int(outputs["retried"].sum()),
         early_stop=spec.early_stop,
         n_settled=(int(np.isfinite(outputs["settled_time_s"]).sum())

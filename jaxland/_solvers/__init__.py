@@ -1,4 +1,4 @@
-"""Integrators: one contract (``AbstractIntegrator``), five methods, every model that has what
+"""Integrators: one contract (``AbstractIntegrator``), six methods, every model that has what
 each method needs. ``Solver`` holds the settings they share."""
 
 import jax
@@ -39,13 +39,21 @@ from ._verdict import (
 def integrate(model, vehicle, scene, solver: Solver):
     """One landing of ``model`` with ``solver``: ``(trajectory, summary)``. Pure, jittable.
 
-    The summary's ``result`` is the landing's ``verdict`` (a ``Result`` code), and
-    ``bottomed`` says whether the stroke reached the bottoming stop (where the stroke's
-    derivatives are the stop's, not the honeycomb's). Every output of a failed landing keeps its
-    value (for the diagnosis) but has NaN derivatives: a failure never passes as a gradient."""
+    The summary's ``result`` is the landing's ``verdict`` (a ``Result`` code;
+    ``OUTSIDE_ENVELOPE`` for a scene outside ``Scene.inside_envelope``, or not
+    ``Scene.symmetric`` for the quarter model), and ``bottomed`` says
+    whether the stroke reached the bottoming stop (where the stroke's derivatives are the
+    stop's, not the honeycomb's). Every output of a failed landing keeps its value (for the
+    diagnosis) but has NaN derivatives: a failure never passes as a gradient. The solver's
+    settings are checked first (``Solver.validate``; a ``ConfigError`` names the one refused)."""
+    solver.validate()
     solver.method.check_model(model)
     traj, summary = solver.method.integrate(model, vehicle, scene, solver)
-    code = verdict(summary, vehicle, solver, model)
+    inside = scene.inside_envelope()
+    if model.name == "quarter":  # it represents symmetric vertical drops only
+        inside = inside & scene.symmetric()
+    code = jnp.where(inside, verdict(summary, vehicle, solver, model),
+                     int(Result.OUTSIDE_ENVELOPE)).astype(jnp.int32)
     failed = jnp.isin(code, jnp.asarray(FAILED_CODES, code.dtype))
     summary = dict(summary, result=code, bottomed=model.leg_max(summary["max_stroke_m"])
                    > jnp.min(vehicle.honeycomb.x_L4))

@@ -41,6 +41,7 @@ class Result(enum.IntEnum):
     LEDGER = 5
     SOLVER_STOPPED = 6
     NO_TOUCHDOWN = 7
+    UNFINISHED = 8
 
     @property
     def message(self) -> str:
@@ -48,13 +49,15 @@ class Result(enum.IntEnum):
 
     @property
     def failed(self) -> bool:
-        """The landing's numbers are not to be used (a landing without touchdown is no failure,
-        but no landing either: statistics count it apart)."""
+        """The landing's numbers are not to be used. A landing without touchdown, or one that
+        t_end cut off during an impact, is no failure (its trajectory is what the model
+        computes), but its outcomes are no landing's either: statistics count it apart."""
         return int(self) in FAILED_CODES
 
 
 # the codes whose numbers are not to be used (Result.failed), as plain ints for array tests
-FAILED_CODES = tuple(int(r) for r in Result if r not in (Result.SUCCESSFUL, Result.NO_TOUCHDOWN))
+FAILED_CODES = tuple(int(r) for r in Result
+                     if r not in (Result.SUCCESSFUL, Result.NO_TOUCHDOWN, Result.UNFINISHED))
 
 _MESSAGES = {
     Result.SUCCESSFUL: "the landing ran to its end",
@@ -66,7 +69,10 @@ _MESSAGES = {
     Result.CLOSURE: "energy ledger did not close to 1 % of the energy dissipated (step too large "
                     "for this landing)",
     Result.STEP_ABOVE_LIMIT: "step above the stability limit of the forces the landing reached",
-    Result.OUTSIDE_ENVELOPE: "scene outside the documented envelope (not simulated as valid)",
+    Result.OUTSIDE_ENVELOPE: "scene outside the documented envelope, or asymmetric for the "
+                             "quarter model (not simulated as valid)",
+    Result.UNFINISHED: "t_end came during an impact (a leg on the ground still compressing at "
+                       "its largest stroke): the max stroke and the peaks are not final",
 }
 
 
@@ -121,7 +127,8 @@ class Solver(eqx.Module):
     """Run settings shared by every integrator (static: they set loop lengths and choose code).
 
     ``method`` is an integrator (``Euler()``, ``EulerImplicit()``, ``Verlet()``,
-    ``Impulse(dI=...)``, ``Tsit5(rtol=..., atol=...)``) or its name for the defaults.
+    ``Leapfrog()``, ``Impulse(dI=...)``, ``Tsit5(rtol=..., atol=...)``) or its name for the
+    defaults. ``jaxland.landing`` checks the settings (``validate``) before it runs.
     ``save_dt=None`` is the smallest whole multiple of ``dt`` that is at least 1e-4 s.
     """
 

@@ -21,6 +21,10 @@ from ._base import N_EVENTS, Result
 from ._settle import check_steps, mass_diagonal, settled
 
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
+# m/s: a leg compressing at its largest stroke faster than this at t_end makes the landing
+# UNFINISHED. At a strut deceleration of 1 g it would add 5 um of stroke, below 1e-3 of any
+# landing's max stroke; a leg creeping under a settling vehicle stays below it.
+UNFINISHED_RATE_MPS = 0.01
 ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
 # peaks that are always kept when ``Solver.peaks`` names a subset: the verdict judges the step
 # limit by the first two, the early-stop bound reads all four
@@ -186,13 +190,25 @@ def record(model: AbstractModel, s, ev: Evaluation, e0) -> dict:
     return out
 
 
+def unfinished(record: dict) -> Array:
+    """The landing is still in an impact at the state of ``record`` (a model's outputs): some
+    leg on the ground is compressing at its largest stroke faster than ``UNFINISHED_RATE_MPS``,
+    so its max stroke and the peaks can still grow."""
+    pressing = ((record["normal_force_N"] > 0.0) & (record["stroke_m"] >= record["stroke_max_m"])
+                & (record["buffer_velocity_mps"] > UNFINISHED_RATE_MPS))
+    return jnp.any(pressing)
+
+
 def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict:
-    """The landing's scalars: peaks, memories, the event log, ledger closure and the result."""
+    """The landing's scalars: peaks, memories, the event log, ledger closure and the result
+    (``UNFINISHED`` where an upright landing is still in an impact at its end)."""
     ev_end = model.evaluate(st.vehicle, s_end, scene, st.derived)
     dissipated = sum(ev_end.dissipated.values()) + jnp.sum(s_end.diss_rate)
     failed = track.failure_time >= 0.0
+    cut = unfinished(ev_end.record) & (track.tip_time < 0.0)
     result = jnp.where(failed, track.failure,
-                       jnp.where(track.n_events > 0, int(Result.SUCCESSFUL),
+                       jnp.where(track.n_events > 0,
+                                 jnp.where(cut, int(Result.UNFINISHED), int(Result.SUCCESSFUL)),
                                  int(Result.NO_TOUCHDOWN)))
     return dict(
         **track.peaks,

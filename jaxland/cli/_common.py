@@ -63,9 +63,10 @@ def use_compilation_cache() -> str | None:
     return folder
 
 
-def out_dir(path) -> Path:
-    """The output folder ``--out``, checked before any work (``jaxland._files.check_out``)."""
-    return check_out(path)
+def out_dir(path, inputs=()) -> Path:
+    """The output folder ``--out``, checked before any work against the run's ``inputs``
+    (``jaxland._files.check_out``)."""
+    return check_out(path, inputs)
 
 
 def fmt(v, scale=1.0, unit="", nd=4):

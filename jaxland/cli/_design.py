@@ -44,7 +44,7 @@ def _cmd_design(args) -> int:
 
     from .._design import check_bounds, design_verified, load_design_spec, optimise_design
 
-    out = out_dir(args.out)
+    out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
     # verification Monte Carlo are split over them
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)

@@ -18,13 +18,16 @@ def _no_successful_landing(s: dict) -> None:
     from .._solvers import Result
 
     why = dict(s["failures"])
-    if s["n_no_touchdown"]:
-        why[Result.NO_TOUCHDOWN.message] = s["n_no_touchdown"]
+    for code, key in ((Result.NO_TOUCHDOWN, "n_no_touchdown"), (Result.UNFINISHED, "n_unfinished")):
+        if s[key]:
+            why[code.message] = s[key]
     text = ", ".join(f"{k}: {v}" for k, v in why.items())
-    if set(why) <= {Result.OUTSIDE_ENVELOPE.message, Result.NO_TOUCHDOWN.message}:
+    if set(why) <= {Result.OUTSIDE_ENVELOPE.message, Result.NO_TOUCHDOWN.message,
+                    Result.UNFINISHED.message}:
         raise ConfigError("dispersion", f"{s['n']} samples", f"no landing succeeded ({text}), so "
                           "there is no probability or envelope to report: keep the dispersions "
-                          "inside the documented envelope and t_end_s long enough to touch down")
+                          "inside the documented envelope and t_end_s long enough to touch down "
+                          "and finish the impact")
     raise SimulationError(f"none of the {s['n']} landings succeeded ({text}): there is no "
                           "probability or envelope to report")
 
@@ -40,7 +43,7 @@ def cmd_montecarlo(args) -> int:
             if v is not None:
                 raise ConfigError(flag, v, "needs --coordinator HOST:PORT (a run of several "
                                   "processes); without it the run is one process")
-    out = out_dir(args.out)
+    out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
@@ -73,6 +76,9 @@ def cmd_montecarlo(args) -> int:
               + (f" (median {settled['p50']:.3g} s)" if settled else ""))
     if s["n_no_touchdown"]:
         print(f"  no touchdown        {s['n_no_touchdown']} (counted apart; raise t_end_s)")
+    if s["n_unfinished"]:
+        print(f"  unfinished          {s['n_unfinished']} (t_end_s came during an impact: "
+              "counted apart; raise t_end_s)")
     print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
           f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
