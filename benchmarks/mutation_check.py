@@ -212,6 +212,21 @@ MUTATIONS = [
       "        candidates += [f.result() for f in futures]\n"
       "        if _starts_agree(candidates):\n            return candidates",
       ("tests/test_calibration_optim.py",), ("calibration",)),
+    # --- verdicts and output folders a new user's review found wanting
+    M("unfinished_never", "a landing cut off during its impact passes as successful",
+      "    cut = unfinished(ev_end.record) & (track.tip_time < 0.0)",
+      "    cut = unfinished(ev_end.record) & False",
+      ("tests/test_contracts.py::test_a_landing_cut_off_during_its_impact_is_unfinished_not_stable",)),
+    M("envelope_keeps_derivatives", "a scene outside the envelope keeps finite derivatives",
+      "    failed = jnp.isin(code, jnp.asarray(FAILED_CODES, code.dtype))",
+      "    failed = jnp.isin(verdict(summary, vehicle, solver, model),\n"
+      "                      jnp.asarray(FAILED_CODES, code.dtype))",
+      ("tests/test_contracts.py::"
+       "test_a_scene_the_model_cannot_take_fails_with_nan_derivatives_also_under_jit",)),
+    M("out_ignores_hidden_entries", "a folder of hidden entries only is replaced",
+      "not (out / MARKER).exists() and any(out.iterdir())",
+      "not (out / MARKER).exists() and any(not c.name.startswith('.') for c in out.iterdir())",
+      ("tests/test_contracts.py::test_a_folder_without_the_marker_is_refused_whatever_it_holds",)),
 ]
 
 
