@@ -227,6 +227,9 @@ MUTATIONS = [
       "not (out / MARKER).exists() and any(out.iterdir())",
       "not (out / MARKER).exists() and any(not c.name.startswith('.') for c in out.iterdir())",
       ("tests/test_contracts.py::test_a_folder_without_the_marker_is_refused_whatever_it_holds",)),
+    M("dispersion_bounds_outside_accepted", "bounds reaching outside the envelope pass the spec",
+      "    if a < lo or b > hi:\n", "    if False:\n",
+      ("tests/test_montecarlo.py::test_bad_specs_are_refused_by_name",)),
 ]
 
 

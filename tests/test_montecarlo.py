@@ -254,6 +254,17 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         assert str(err.value).startswith(field), str(err.value)
     with pytest.raises(jl.ConfigError, match="entirely outside the scene envelope"):
         MonteCarloSpec(dispersion={"roll_deg": Distribution("uniform", low=35, high=50)}, n=2)
+    # bounds reaching outside: refused before the run (it used to report statistics over the
+    # samples inside); a normal is unbounded, its few samples outside count as failures
+    from jaxland._montecarlo._spec import envelope
+
+    lo, hi = envelope("mass_scale")
+    for dist in (Distribution("uniform", low=0.1, high=0.6),
+                 Distribution("truncnormal", mean=1.0, std=0.5, low=lo, high=hi + 0.5)):
+        with pytest.raises(jl.ConfigError, match=r"dispersion.mass_scale = .*reaches outside "
+                                                 r"the scene envelope"):
+            MonteCarloSpec(dispersion={"mass_scale": dist}, n=2)
+    MonteCarloSpec(dispersion={"mass_scale": Distribution("uniform", low=lo, high=hi)}, n=2)
     # built in Python, checked as a TOML table is (it used to sample a 'lognormal' as a
     # normal, a uniform from mean/std as NaN, and take a negative std)
     for dist, needle in ((Distribution("lognormal", mean=0.0, std=0.5), "dist = 'lognormal'"),

@@ -56,6 +56,20 @@ _SYMMETRIC_KEYS = {"drop_height_m", "sink_speed_mps", "yaw_deg", "friction", "ma
 # Least probability of the normal inside a truncnormal's bounds: far in a tail the sampler
 # returns the bound itself for every sample.
 TRUNCNORMAL_MIN_MASS = 1e-6
+def _check_inside_envelope(key: str, dist) -> None:
+    """Refuse a dispersion whose bounds (or constant) leave the scene envelope: its samples
+    there would be no landings. A normal is unbounded: its samples outside the envelope are
+    counted as failures with their reason (OUTSIDE_ENVELOPE)."""
+    if dist.kind == "normal":
+        return
+    lo, hi = envelope(key)
+    where = f"the scene envelope [{lo:.4g}, {hi:.4g}]"
+    a, b = (dist.mean, dist.mean) if dist.kind == "constant" else (dist.low, dist.high)
+    if b < lo or a > hi:
+        raise ConfigError(f"dispersion.{key}", f"[{a}, {b}]", f"lies entirely outside {where}")
+    if a < lo or b > hi:
+        raise ConfigError(f"dispersion.{key}", f"[{a}, {b}]", f"reaches outside {where}, where "
+                          "its samples would be no landings: keep its bounds inside")
 
 
 def _normal_mass(a: float, b: float) -> float:
@@ -199,12 +213,7 @@ class MonteCarloSpec:
                 raise ConfigError(f"fixed.{key}", val,
                                   f"must lie in the scene envelope [{lo:.4g}, {hi:.4g}]")
         for key, dist in self.dispersion.items():
-            lo, hi = envelope(key)
-            support = ((dist.mean, dist.mean) if dist.kind == "constant" else
-                       (dist.low, dist.high) if dist.kind != "normal" else (-math.inf, math.inf))
-            if support[1] < lo or support[0] > hi:
-                raise ConfigError(f"dispersion.{key}", f"[{support[0]}, {support[1]}]",
-                                  f"lies entirely outside the scene envelope [{lo:.4g}, {hi:.4g}]")
+            _check_inside_envelope(key, dist)
         both = set(self.dispersion) & set(self.fixed)
         if both:
             raise ConfigError(f"fixed.{sorted(both)[0]}", "?", "is also dispersed; give one")
