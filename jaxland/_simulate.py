@@ -86,8 +86,10 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     """Pure landing: ``(trajectory, summary)`` dicts of jnp arrays. ``model`` is ``"quarter"``,
     ``"full"``, a model object, or ``"auto"`` (``choose_model``; needs a concrete scene, so
     under jit name it). The summary's ``result`` is a ``Result`` code, ``OUTSIDE_ENVELOPE`` for
-    a scene outside the documented envelope (``Scene.inside_envelope``)."""
-    return integrate(get_model(model, scene), vehicle, scene, solver)
+    a scene outside the documented envelope (``Scene.inside_envelope``). The vehicle's concrete
+    values are checked first (``validate_vehicle``: a ``ConfigError`` names the one refused);
+    traced ones (inside jit, vmap or grad) cannot be, and are not."""
+    return integrate(get_model(model, scene), validate_vehicle(vehicle), scene, solver)
 
 
 def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),

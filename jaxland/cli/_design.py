@@ -89,6 +89,10 @@ def _cmd_design(args) -> int:
           f"{s1['objective_measure_mps2']:.4g} m/s^2")
     for name, c in s1["constraints"].items():
         print(f"  constraint {name:<10} g {s0['constraints'][name]['g']:+.4f} -> {c['g']:+.4f}")
+    if s1["n_unfinished"]:
+        print(f"  note: {s1['n_unfinished']} design scene(s) still in their impact at "
+              f"t_end_s = {spec.t_end:g} s: their strokes and peaks are not final; raise "
+              "design.t_end_s", file=sys.stderr)
     if result.verification:
         v = result.verification
         print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples), "
