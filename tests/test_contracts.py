@@ -334,6 +334,20 @@ def test_a_scene_the_model_cannot_take_fails_with_nan_derivatives_also_under_jit
         assert np.isfinite(float(grad)) == bool(inside), scene
 
 
+def test_the_pure_landing_checks_the_vehicle_values_it_can_see():
+    """Concrete invalid values are refused by name (they used to run to SUCCESSFUL); traced
+    ones, as a fit or a design moves them, cannot be checked and run."""
+    solver = jl.Solver(dt=1e-5, t_end=0.05, save_dt=0.05)
+    for get, val, field in ((lambda v: v.ground.gamma, -0.5, "ground.gamma"),
+                            (lambda v: v.honeycomb.k_b1, -1e7, "honeycomb.k_b1")):
+        with pytest.raises(jl.ConfigError, match=field):
+            jl.landing(eqx.tree_at(get, VEH, jax.numpy.asarray(val)), jl.Scene(), solver,
+                       "quarter")
+    traced = jax.jit(lambda g: jl.landing(eqx.tree_at(lambda v: v.ground.gamma, VEH, g),
+                                          jl.Scene(), solver, "quarter")[1]["result"])
+    assert int(traced(0.2)) in (int(jl.Result.NO_TOUCHDOWN), int(jl.Result.SUCCESSFUL))
+
+
 def test_the_pure_landing_checks_its_solver_settings():
     for kw, field in ((dict(dt=0.0, t_end=0.3, save_dt=1e-4), "solver.dt"),
                       (dict(dt=-1e-5, t_end=0.3, save_dt=1e-4), "solver.dt"),
