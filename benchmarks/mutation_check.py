@@ -231,8 +231,8 @@ MUTATIONS = [
       "    if a < lo or b > hi:\n", "    if False:\n",
       ("tests/test_montecarlo.py::test_bad_specs_are_refused_by_name",)),
     M("landing_skips_vehicle_check", "the pure landing runs an invalid concrete vehicle",
-      "integrate(get_model(model, scene), validate_vehicle(vehicle), scene, solver)",
-      "integrate(get_model(model, scene), vehicle, scene, solver)",
+      "integrate(get_model(model, scene), validate_vehicle(vehicle, fields_only=True),",
+      "integrate(get_model(model, scene), vehicle,",
       ("tests/test_contracts.py::test_the_pure_landing_checks_the_vehicle_values_it_can_see",)),
 ]
 

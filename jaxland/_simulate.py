@@ -86,10 +86,13 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     """Pure landing: ``(trajectory, summary)`` dicts of jnp arrays. ``model`` is ``"quarter"``,
     ``"full"``, a model object, or ``"auto"`` (``choose_model``; needs a concrete scene, so
     under jit name it). The summary's ``result`` is a ``Result`` code, ``OUTSIDE_ENVELOPE`` for
-    a scene outside the documented envelope (``Scene.inside_envelope``). The vehicle's concrete
-    values are checked first (``validate_vehicle``: a ``ConfigError`` names the one refused);
-    traced ones (inside jit, vmap or grad) cannot be, and are not."""
-    return integrate(get_model(model, scene), validate_vehicle(vehicle), scene, solver)
+    a scene outside the documented envelope (``Scene.inside_envelope``). Each concrete value of
+    the vehicle is checked first against its own rule (``validate_vehicle(fields_only=True)``:
+    a ``ConfigError`` names the one refused); traced ones (inside jit, vmap or grad) cannot be.
+    The rules between fields are ``simulate``'s and the loaders': a fit's crush-peak forms may
+    bend them on purpose."""
+    return integrate(get_model(model, scene), validate_vehicle(vehicle, fields_only=True),
+                     scene, solver)
 
 
 def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),
