@@ -305,8 +305,8 @@ def _cmd_predict(args) -> int:
         for k, v in p.metrics.items():
             print(f"  {k:<22} data {v['data']:<12.6g} model {v['model']:<12.6g} "
                   f"error {v['rel_error']:+.2%}")
-    print(f"wrote {out}/prediction_*.json, vehicle.toml"
-          + ("" if args.no_plots else ", figures/*.png"))
+    print(f"wrote {out}/" + ", ".join(f"prediction_{p.drop.name}.json" for p in preds)
+          + ", vehicle.toml" + ("" if args.no_plots else ", figures/*.png"))
     return 0
 
 

@@ -132,7 +132,8 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
                               f"give either [honeycomb.cells] or {sorted(given)}, not both")
         unknown = set(cells) - _CELL_KEYS
         if unknown:
-            raise ConfigError(f"honeycomb.cells.{sorted(unknown)[0]}", "?",
+            bad = sorted(unknown)[0]
+            raise ConfigError(f"honeycomb.cells.{bad}", cells[bad],
                               f"unknown key; known: {', '.join(sorted(_CELL_KEYS))}")
         full = {**PAPER_CELLS, **cells}
         for key, val in full.items():
@@ -212,7 +213,10 @@ def _rule_ok(rule: str, val: np.ndarray) -> np.ndarray | None:
 def _fail(section, f, val, rule):
     md = f.metadata
     shown = float(val) / md["to_si"]
-    raise ConfigError(f"{section}.{md['toml']}", shown, f"must be {rule} ({md['doc']})")
+    off = md.get("off")  # an extension's "not used" value, allowed beside the rule
+    ok = None if off is None else _rule_ok(rule, np.asarray(off))
+    either = "" if ok is None or bool(ok) else f" or {off / md['to_si']:g} (off)"
+    raise ConfigError(f"{section}.{md['toml']}", shown, f"must be {rule}{either} ({md['doc']})")
 
 
 def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:

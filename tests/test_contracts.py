@@ -334,6 +334,29 @@ def test_a_scene_the_model_cannot_take_fails_with_nan_derivatives_also_under_jit
         assert np.isfinite(float(grad)) == bool(inside), scene
 
 
+def test_refusals_show_the_value_given(tmp_path, capsys):
+    """A refusal names the field, the value given (not '?') and the rule, with an extension's
+    'off' value where the rule alone would exclude it; a write that fails is one line, exit 1."""
+    cases = (("[honeycomb]\npeak_rise1_mm = -1.0\n", ["config", "--config"],
+              "honeycomb.peak_rise1_mm = -1.0: must be > 0 or 0 (off)"),
+             ("[montecarlo]\nn = 4\n[dispersion.sink_speed_mps]\ndist = 'uniform'\nlow = 1.0\n"
+              "high = 2.0\nmode = 3\n", ["montecarlo"], "dispersion.sink_speed_mps.mode = 3: not"),
+             ("[montecarlo]\nn = 4\n[fixed]\nsink_speed_mps = 2.0\n[dispersion.sink_speed_mps]\n"
+              "dist = 'uniform'\nlow = 1.0\nhigh = 2.0\n", ["montecarlo"],
+              "fixed.sink_speed_mps = 2.0: is also dispersed"))
+    for text, argv, needle in cases:
+        path = tmp_path / "in.toml"
+        path.write_text(text)
+        out = [] if argv[0] == "config" else ["--out", str(tmp_path / "o")]
+        assert main([*argv, str(path), *out]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err
+    full = subprocess.run(f"{sys.executable} -m jaxland.cli config > /dev/full", shell=True,
+                          capture_output=True, text=True, timeout=120)
+    assert full.returncode == 1 and full.stderr.strip().startswith("jaxland: cannot write:")
+    assert len(full.stderr.strip().splitlines()) == 1
+
+
 def test_the_pure_landing_checks_the_vehicle_values_it_can_see():
     """Concrete invalid values are refused by name (they used to run to SUCCESSFUL); traced
     ones, as a fit or a design moves them, cannot be checked and run."""

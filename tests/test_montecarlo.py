@@ -127,6 +127,8 @@ def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
     # flags that cannot hold are refused before any work: several processes without a
     # coordinator (it used to run as one), more samples than the host can hold
     for flags, needle in ((["--num-processes", "2"], "--num-processes = 2: needs --coordinator"),
+                          (["--coordinator", "localhost:1234"],
+                           "--coordinator = 'localhost:1234': needs --num-processes too"),
                           (["--n", "1000000000000"], "montecarlo.n = 1000000000000: its "
                                                      "per-sample results take up to")):
         bad = subprocess.run([*cli, *flags, "--out", str(tmp_path / "bad")], env=env,

@@ -56,6 +56,11 @@ _SYMMETRIC_KEYS = {"drop_height_m", "sink_speed_mps", "yaw_deg", "friction", "ma
 # Least probability of the normal inside a truncnormal's bounds: far in a tail the sampler
 # returns the bound itself for every sample.
 TRUNCNORMAL_MIN_MASS = 1e-6
+def _shown(value):
+    """A spec entry as an error message shows it: a distribution by its table."""
+    return value.table() if isinstance(value, Distribution) else value
+
+
 def _check_inside_envelope(key: str, dist) -> None:
     """Refuse a dispersion whose bounds (or constant) leave the scene envelope: its samples
     there would be no landings. A normal is unbounded: its samples outside the envelope are
@@ -104,7 +109,8 @@ class Distribution:
                               f"must be one of {', '.join(need)}")
         unknown = set(d) - {"dist", *need[kind]}
         if unknown:
-            raise ConfigError(f"dispersion.{name}.{sorted(unknown)[0]}", "?",
+            bad = sorted(unknown)[0]
+            raise ConfigError(f"dispersion.{name}.{bad}", d[bad],
                               f"not a parameter of a {kind} distribution ({', '.join(need[kind])})")
         vals = {}
         for key in need[kind]:
@@ -194,7 +200,7 @@ class MonteCarloSpec:
         for table, keys in (("dispersion", self.dispersion), ("fixed", self.fixed)):
             for key in keys:
                 if key not in DISPERSIBLE:
-                    raise ConfigError(f"{table}.{key}", "?", "unknown input; known: "
+                    raise ConfigError(f"{table}.{key}", _shown(keys[key]), "unknown input; known: "
                                       + ", ".join(sorted(DISPERSIBLE)))
         for key, dist in self.dispersion.items():  # one built in Python, as a TOML one
             if not isinstance(dist, Distribution):
@@ -216,7 +222,8 @@ class MonteCarloSpec:
             _check_inside_envelope(key, dist)
         both = set(self.dispersion) & set(self.fixed)
         if both:
-            raise ConfigError(f"fixed.{sorted(both)[0]}", "?", "is also dispersed; give one")
+            key = sorted(both)[0]
+            raise ConfigError(f"fixed.{key}", self.fixed[key], "is also dispersed; give one")
         for f in dataclasses.fields(self):
             if "check" in f.metadata:
                 f.metadata["check"](f"montecarlo.{f.metadata['toml']}", getattr(self, f.name))

@@ -20,6 +20,7 @@ from ._simulate import cmd_config, cmd_simulate
 EXIT_INVALID = 2
 EXIT_NUMERICAL = 3
 EXIT_INTERRUPTED = 130
+EXIT_OS = 1  # writing failed (the system's error, named)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -131,6 +132,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("jaxland: interrupted (nothing was written to the output folder)", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except OSError as err:  # a full disk, a closed pipe: the output folder is left untouched
+        print(f"jaxland: cannot write: {err}", file=sys.stderr)
+        return EXIT_OS
 
 
 if __name__ == "__main__":

@@ -43,12 +43,18 @@ def cmd_montecarlo(args) -> int:
             if v is not None:
                 raise ConfigError(flag, v, "needs --coordinator HOST:PORT (a run of several "
                                   "processes); without it the run is one process")
+    else:
+        for flag, v in (("--num-processes", args.num_processes),
+                        ("--process-id", args.process_id)):
+            if v is None:
+                raise ConfigError("--coordinator", args.coordinator,
+                                  f"needs {flag} too (each process of the run gives the count "
+                                  "and its own rank)")
     out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
-        init_distributed(args.coordinator, 1 if args.num_processes is None else
-                         args.num_processes, 0 if args.process_id is None else args.process_id)
+        init_distributed(args.coordinator, args.num_processes, args.process_id)
     spec = load_montecarlo_spec(args.spec)
     if args.n is not None:
         spec.n = args.n
