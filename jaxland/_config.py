@@ -215,7 +215,7 @@ def _fail(section, f, val, rule):
     shown = float(val) / md["to_si"]
     off = md.get("off")  # an extension's "not used" value, allowed beside the rule
     ok = None if off is None else _rule_ok(rule, np.asarray(off))
-    either = "" if ok is None or bool(ok) else f" or {off / md['to_si']:g} (off)"
+    either = "" if ok is None or np.all(ok) else f" or {off / md['to_si']:g} (off)"
     raise ConfigError(f"{section}.{md['toml']}", shown, f"must be {rule}{either} ({md['doc']})")
 
 

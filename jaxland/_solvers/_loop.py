@@ -22,8 +22,8 @@ from ._settle import check_steps, mass_diagonal, settled
 
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
 # m/s: a leg compressing at its largest stroke faster than this at t_end makes the landing
-# UNFINISHED. At a strut deceleration of 1 g it would add 5 um of stroke, below 1e-3 of any
-# landing's max stroke; a leg creeping under a settling vehicle stays below it.
+# UNFINISHED. At a strut deceleration of 1 g it would add 5 um of stroke, below 1e-3 of a max
+# stroke of 5 mm or more; a leg creeping under a settling vehicle stays below it.
 UNFINISHED_RATE_MPS = 0.01
 ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
 # peaks that are always kept when ``Solver.peaks`` names a subset: the verdict judges the step
