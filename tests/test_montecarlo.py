@@ -159,6 +159,22 @@ def test_a_run_without_a_successful_landing_is_refused_and_writes_nothing(tmp_pa
     assert r.summary["tip_over"]["n"] == 0 and r.summary["tip_over"]["probability"] is None
 
 
+def test_the_cli_can_skip_the_figures_and_the_progress_line(tmp_path, capsys):
+    """--no-plots writes the data without figures/, --quiet prints no progress line; with too
+    few landings for the sensitivity regression the command says why there are no drivers."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "quarter.toml"
+    spec.write_text(QUARTER_TOML.replace("n = 12", "n = 3"))
+    out = tmp_path / "mc"
+    assert main(["montecarlo", str(spec), "--no-plots", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr()
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [
+        "samples.csv", "samples.npz", "summary.json", "vehicle.toml"]
+    assert "montecarlo:" not in printed.err and "figures" not in printed.out
+    assert "not estimated (3 successful landings" in printed.out
+
+
 TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,
                        "friction": 2.0}, n=4, seed=0, t_end=1.5)
 

@@ -129,10 +129,10 @@ class MonteCarloResult:
         return {"sample": np.arange(self.failure.size),
                 **flat_columns(self.inputs, self.outputs), "failure_code": self.failure}
 
-    def save(self, out_dir) -> list[Path]:
+    def save(self, out_dir, plots: bool = True) -> list[Path]:
         """Write samples.csv and samples.npz (every sample with its inputs), summary.json,
-        vehicle.toml (the vehicle run, where known) and the figures into ``out_dir``, all
-        through a staging folder."""
+        vehicle.toml (the vehicle run, where known) and the figures (``plots``) into
+        ``out_dir``, all through a staging folder."""
         out = Path(out_dir)
         with staged(out, "montecarlo") as staging:
             if self.vehicle is not None:
@@ -144,9 +144,10 @@ class MonteCarloResult:
             np.savez_compressed(staging / "samples.npz", **cols)
             (staging / "summary.json").write_text(
                 json.dumps(self.summary, indent=2, default=float) + "\n")
-            from .._plots import plot_montecarlo
+            if plots:
+                from .._plots import plot_montecarlo
 
-            plot_montecarlo(self, staging / "figures")
+                plot_montecarlo(self, staging / "figures")
             written = sorted(out / p.relative_to(staging) for p in staging.rglob("*")
                              if p.is_file())
         return written

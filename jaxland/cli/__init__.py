@@ -89,9 +89,13 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("spec", help="Monte Carlo spec TOML ([montecarlo], [dispersion.*], [fixed])")
     m.add_argument("--n", type=int, help="number of landings (overrides the spec)")
     m.add_argument("--seed", type=int, help="random seed (overrides the spec)")
-    m.add_argument("--chunk", type=int, help="landings per compiled batch (bounds memory)")
+    m.add_argument("--chunk", type=int, help="landings per compiled batch (bounds memory; "
+                   "default 64 3-D or 512 quarter landings on a CPU, 131072 on a GPU)")
     m.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
-    m.add_argument("--out", default="out/montecarlo", help="output folder")
+    m.add_argument("--out", default="out/montecarlo",
+                   help="output folder (default out/montecarlo)")
+    m.add_argument("--no-plots", action="store_true", help="skip the figures")
+    m.add_argument("--quiet", action="store_true", help="no progress line")
     m.add_argument("--coordinator", metavar="HOST:PORT",
                    help="run as one of --num-processes processes (jax.distributed; process 0 "
                         "listens on HOST:PORT and writes the outputs)")

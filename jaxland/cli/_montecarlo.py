@@ -62,7 +62,7 @@ def cmd_montecarlo(args) -> int:
         spec.seed = args.seed
     spec.__post_init__()  # re-check n and seed after the overrides
     vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
-    result = run_montecarlo(spec, vehicle, chunk=args.chunk)
+    result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
     import jax
 
     if jax.process_index() != 0:
@@ -70,7 +70,7 @@ def cmd_montecarlo(args) -> int:
     s = result.summary
     if s["tip_over"]["n"] == 0:
         _no_successful_landing(s)
-    result.save(out)
+    result.save(out, plots=not args.no_plots)
     tip, bot = s["tip_over"], s["bottoming"]
     print(f"jaxland montecarlo: {s['n']} landings, {s['model']} model, {s['devices']} device(s),"
           f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
@@ -100,7 +100,11 @@ def cmd_montecarlo(args) -> int:
         top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g})"
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
-    print(f"wrote {out}/samples.csv, samples.npz, summary.json, vehicle.toml, figures/*.png")
+    else:
+        print(f"  drivers of {s['sensitivity']['target']}: not estimated ({tip['n']} successful "
+              "landings; the regression needs more than one per dispersed input and leg)")
+    print(f"wrote {out}/samples.csv, samples.npz, summary.json, vehicle.toml"
+          + ("" if args.no_plots else ", figures/*.png"))
     return 0
 
 
