@@ -48,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="simulate one landing, write CSV, summary and figures")
     s.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
     s.add_argument("--scene", help="scene TOML ([scene] table, keys as the flags below with "
-                                   "their units, e.g. roll_deg = 3); flags override it")
+                                   "their units, e.g. roll_deg = 3; a touchdown speed is "
+                                   "sink_speed_mps with drop_height_m = 0); flags override it")
     s.add_argument("--model", default="auto", choices=("auto", "quarter", "full"),
                    help="auto (default): the smallest model that represents the scene exactly")
     s.add_argument("--drop-height", type=float,

@@ -28,8 +28,11 @@ def _no_successful_landing(s: dict) -> None:
                           "there is no probability or envelope to report: keep the dispersions "
                           "inside the documented envelope and t_end_s long enough to touch down "
                           "and finish the impact")
+    again = ("" if s["n_retried"] else
+             "; retry = true reruns numerical failures at the steps they need")
     raise SimulationError(f"none of the {s['n']} landings succeeded ({text}): there is no "
-                          "probability or envelope to report")
+                          f"probability or envelope to report; rerun with montecarlo.dt_s "
+                          f"below {s['dt_s']:g} s{again}")
 
 
 def cmd_montecarlo(args) -> int:
