@@ -9,18 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import ConfigError
-from .._montecarlo import MonteCarloSpec, percentiles, run_montecarlo, wilson_interval
+from .._montecarlo import MonteCarloSpec, percentiles, proportion, run_montecarlo
 from .._params import Vehicle
 from .._solvers import Result
 from ._optimise import DesignResult, _summaries, optimise_design
 from ._problem import DesignProblem, risk_measure
 from ._spec import VARIABLES, DesignSpec
-
-
-def _count(flags) -> dict:
-    """How many of the judged landings have a flag, with its 95 % Wilson interval."""
-    k, n = int(np.sum(flags)), int(np.size(flags))
-    return dict(count=k, n=n, probability=k / n if n else None, ci95_wilson=wilson_interval(k, n))
 
 
 def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
@@ -40,7 +34,8 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
                                                          spec.objective.level)) if n else None,
                max_stroke_m=percentiles(stroke),
                slip_distance_m=percentiles(o["slip_distance_m"].max(axis=1)[ok]),
-               tip_over=_count(o["tipped_over"][ok]), bottoming=_count(o["bottomed_out"][ok]),
+               tip_over=proportion(o["tipped_over"][ok]),
+               bottoming=proportion(o["bottomed_out"][ok]),
                wall_s=res.summary["wall_s"])
     if "min_stability_margin_m" in o:
         out["min_stability_margin_m"] = percentiles(o["min_stability_margin_m"][ok])
@@ -51,7 +46,7 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
     index = np.flatnonzero(ok)
     for c in spec.constraints:
         bad = np.asarray(c.badness(per, float(vehicle.honeycomb.x_L4)))
-        viol[c.name] = _count(bad > 0)
+        viol[c.name] = proportion(bad > 0)
         checks[c.name] = _check(c, bad, index, res.summary["seed"])
     out["constraint_violations"] = viol
     out["constraints"] = checks

@@ -34,6 +34,7 @@ from ._spec import (
 from ._stats import (
     percentiles as percentiles,
     probability_text as probability_text,
+    proportion as proportion,
     sensitivity as sensitivity,
     wilson_interval as wilson_interval,
 )

@@ -29,7 +29,7 @@ from .._simulate import landings
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec
-from ._stats import percentiles, sensitivity, wilson_interval
+from ._stats import percentiles, proportion, sensitivity
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
 # kept): per model, the quarter's and the 3-D model's attitude peaks
@@ -362,9 +362,6 @@ def _gather(outputs: dict, inputs: dict, n: int, chunk: int, n_proc: int):
 def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dict:
     ok = failure == int(Result.SUCCESSFUL)
     failed = np.isin(failure, FAILED_CODES)
-    n_ok = int(ok.sum())
-    k_tip = int(outputs["tipped_over"][ok].sum())
-    k_bot = int(outputs["bottomed_out"][ok].sum())
     target = (outputs["min_stability_margin_m"] if "min_stability_margin_m" in outputs
               else outputs["max_stroke_m"].max(axis=1))
     reasons = {r.message: int((failure == r).sum()) for r in Result
@@ -388,10 +385,8 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         retry_method=("euler_implicit" if spec.method == "euler" else spec.method)
         if outputs["retried"].any() else None,
         # over the successful landings; None where there is none (0/0 is no probability)
-        tip_over=dict(count=k_tip, n=n_ok, probability=k_tip / n_ok if n_ok else None,
-                      ci95_wilson=wilson_interval(k_tip, n_ok)),
-        bottoming=dict(count=k_bot, n=n_ok, probability=k_bot / n_ok if n_ok else None,
-                       ci95_wilson=wilson_interval(k_bot, n_ok)),
+        tip_over=proportion(outputs["tipped_over"][ok]),
+        bottoming=proportion(outputs["bottomed_out"][ok]),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
             "peak_body_accel_mps2": percentiles(outputs["peak_body_accel_mps2"][ok]),

@@ -56,6 +56,8 @@ _SYMMETRIC_KEYS = {"drop_height_m", "sink_speed_mps", "yaw_deg", "friction", "ma
 # Least probability of the normal inside a truncnormal's bounds: far in a tail the sampler
 # returns the bound itself for every sample.
 TRUNCNORMAL_MIN_MASS = 1e-6
+
+
 def _shown(value):
     """A spec entry as an error message shows it: a distribution by its table."""
     return value.table() if isinstance(value, Distribution) else value

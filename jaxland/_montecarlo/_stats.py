@@ -22,6 +22,13 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     return (lo, hi)
 
 
+def proportion(flags) -> dict:
+    """How many of some landings carry a flag (a boolean array): count, n, probability (None
+    over no landing: 0/0 is no probability) and its 95 % Wilson interval."""
+    k, n = int(np.sum(flags)), int(np.size(flags))
+    return dict(count=k, n=n, probability=k / n if n else None, ci95_wilson=wilson_interval(k, n))
+
+
 def probability_text(p: dict, nd: int = 3) -> str:
     """A probability with its 95 % interval for a report line (``p``: the summary's
     count/n/probability/ci95_wilson); a probability over no landing is none."""
