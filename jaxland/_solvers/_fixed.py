@@ -42,9 +42,10 @@ class AbstractFixedStep(AbstractIntegrator):
         explicit), so saved forces are the ones applied."""
         return None
 
-    def start(self, model, vehicle, s0, scene, derived):
-        """What the step carries from one step to the next, at the initial state (``None``:
-        nothing; a method that reuses its last evaluation carries it)."""
+    def start(self, ev0):
+        """What the step carries from one step to the next, at the initial state, from that
+        state's evaluation ``ev0`` without a kick (``None``: nothing; a method that reuses its
+        last evaluation carries it)."""
         return None
 
     def step_carried(self, model, vehicle, s, scene, derived, dt, carried):
@@ -142,9 +143,8 @@ class Leapfrog(Verlet):
 
     name: ClassVar[str] = "leapfrog"  # Verlet's stable step, record kick and evaluation
 
-    def start(self, model, vehicle, s0, scene, derived):
-        ev = model.evaluate(vehicle, s0, scene, derived)  # the first half kick's forces
-        return ev.accel, ev.power
+    def start(self, ev0):
+        return ev0.accel, ev0.power  # the first half kick's forces
 
     def step_carried(self, model, vehicle, s, scene, derived, dt, carried):
         acc, power = carried
@@ -160,6 +160,6 @@ class Leapfrog(Verlet):
 
     def step(self, model, vehicle, s, scene, derived, dt):
         """One step on its own (two evaluations: the carried one made first)."""
-        carried = self.start(model, vehicle, s, scene, derived)
-        s1, _, _ = self.step_carried(model, vehicle, s, scene, derived, dt, carried)
-        return s1, model.evaluate(vehicle, s, scene, derived)
+        ev0 = model.evaluate(vehicle, s, scene, derived)
+        s1, _, _ = self.step_carried(model, vehicle, s, scene, derived, dt, self.start(ev0))
+        return s1, ev0

@@ -41,6 +41,7 @@ class Setup(eqx.Module):
     energy0: Array  # J, the ledger at t = 0
     energy_scale: Array  # J
     peaks0: dict
+    ev0: Evaluation  # at state0, no kick: the ledger's and peaks' start, a method's first forces
 
 
 def setup(model: AbstractModel, vehicle, scene, solver) -> Setup:
@@ -50,7 +51,7 @@ def setup(model: AbstractModel, vehicle, scene, solver) -> Setup:
     ev0 = model.evaluate(vehicle, s0, scene, derived)
     e0 = ev0.ledger() + jnp.sum(s0.diss_rate)
     return Setup(vehicle, derived, s0, e0, model.energy_scale(vehicle, scene),
-                 kept_peaks(model, solver, model.peak_values(ev0.record, ev0.accel)))
+                 kept_peaks(model, solver, model.peak_values(ev0.record, ev0.accel)), ev0)
 
 
 def kept_peaks(model: AbstractModel, solver, values: dict) -> dict:
@@ -268,7 +269,7 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
         return steps(carry, solver.save_every), out
 
     carry0 = (st.state0, Track.start(st.peaks0, solver.event_log),
-              integrator.start(model, veh, st.state0, scene, derived))
+              integrator.start(st.ev0))
     if solver.early_stop:
         traj = jax.tree.map(lambda x: x[None], save_point(st.state0))
         return traj, _run_until_settled(model, st, scene, solver, steps, carry0)
