@@ -89,3 +89,29 @@ def test_a_landing_without_an_event_log_counts_the_changes(full):
     _assert_same(lean, full, set(full) - {"event_times_s"})
     with pytest.raises(jl.ConfigError, match=r"solver\.event_log = -1"):
         jl.Solver(event_log=-1).validate()
+
+
+def test_time_loop_carry_starts_as_batched_as_the_landing():
+    """``per_landing``: under vmap, a leaf is broadcast over the batch where the reference
+    is batched (so the time loop's scans are batched in one round), and left alone where it is
+    not; values and derivatives pass through unchanged."""
+    import jax.numpy as jnp
+
+    from jaxland._solvers._loop import per_landing
+
+    x = {"peak": jnp.array(-jnp.inf), "log": jnp.zeros(3)}
+    refs = jnp.array([1.0, 2.0])
+    out = jax.vmap(lambda r: per_landing(x, r))(refs)
+    assert out["peak"].shape == (2,) and out["log"].shape == (2, 3)
+    np.testing.assert_array_equal(out["log"], 0.0)
+    with pytest.raises(ValueError):  # batched: cannot be returned unmapped
+        jax.vmap(lambda r: per_landing(x, r), out_axes=None)(refs)
+    # an unbatched reference leaves the leaf unbatched
+    same = jax.vmap(lambda r: per_landing(x, 1.0) ["log"] + 0 * r, out_axes=0)(refs)
+    np.testing.assert_array_equal(same, 0.0)
+    jax.vmap(lambda r: per_landing(x, 1.0), out_axes=None)(refs)
+    # derivatives of the leaf pass through; the reference gets none
+    g = jax.grad(lambda a, r: jnp.sum(per_landing(3.0 * a, r)), argnums=(0, 1))(2.0, 5.0)
+    assert g == (3.0, 0.0)
+    gv = jax.vmap(jax.grad(lambda a, r: per_landing(a * a, r)))(refs, refs)
+    np.testing.assert_array_equal(gv, 2.0 * refs)
