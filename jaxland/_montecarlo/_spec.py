@@ -148,14 +148,20 @@ class Distribution:
         return {"dist": self.kind, **{k: getattr(self, k) for k in keys}}
 
     def sample(self, key, shape=()):
-        if self.kind == "constant":
-            return jnp.full(shape, self.mean)
-        if self.kind == "uniform":
-            return self.low + (self.high - self.low) * jax.random.uniform(key, shape)
-        if self.kind == "normal":
-            return self.mean + self.std * jax.random.normal(key, shape)
-        lo, hi = (self.low - self.mean) / self.std, (self.high - self.mean) / self.std
-        return self.mean + self.std * jax.random.truncated_normal(key, lo, hi, shape)
+        return sample_kind(self.kind, key, shape, self.mean, self.std, self.low, self.high)
+
+
+def sample_kind(kind: str, key, shape, mean, std, low, high):
+    """A draw of shape ``shape`` from a ``Distribution`` of ``kind`` whose parameters may be
+    arrays (several distributions of one kind sampled together under ``vmap``)."""
+    if kind == "constant":
+        return jnp.full(shape, mean)
+    if kind == "uniform":
+        return low + (high - low) * jax.random.uniform(key, shape)
+    if kind == "normal":
+        return mean + std * jax.random.normal(key, shape)
+    lo, hi = (low - mean) / std, (high - mean) / std
+    return mean + std * jax.random.truncated_normal(key, lo, hi, shape)
 
 
 MODEL_CHOICE = Choice(("auto", "quarter", "full"))
