@@ -54,6 +54,9 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--touchdown-speed", "2", "--drop-height", "0.1"], "give either"),
     (["--dt", "1e-3"], "stability limit"),
     (["--touchdown-speed", "-1"], "--touchdown-speed = -1.0: must be finite and in [0, 30]"),
+    # a negative value in scientific notation reaches its rule (argparse took it for an option)
+    (["--dt", "-1e-5"], "solver.dt = -1e-05: must be a finite number > 0 s"),
+    (["--dt=-1E-5"], "solver.dt = -1e-05: must be a finite number > 0 s"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"

@@ -10,6 +10,7 @@ failure of the integration. Compiled programs are kept on disk between runs
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from .._errors import ConfigError, SimulationError
@@ -121,8 +122,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# a negative number in scientific notation, which argparse takes for an option name
+_NEGATIVE_SCI = re.compile(r"^-(\d+\.?\d*|\.\d+)[eE][+-]?\d+$")
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--dt -1e-5`` as ``--dt=-1e-5``, so that the value reaches its rule's check."""
+    out: list[str] = []
+    for tok in argv:
+        if out and _NEGATIVE_SCI.match(tok) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser().parse_args(_join_negative_values(argv))
     from ._common import use_compilation_cache
 
     use_compilation_cache()
