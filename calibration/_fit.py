@@ -1366,36 +1366,38 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # the peak-shape refits and the channel spread's share one pool, one thread per core
     # (each refit's time is XLA's, which frees the interpreter lock), the forms' first
     pool = ThreadPoolExecutor(max_workers=REFIT_THREADS)
-    if forms:
-        if forms_thread is not None:
-            forms_thread.join()
-        form_jobs = form_refits(final, theta, form, huber_c, max_iter, pool)
-    peak_future = None
-    if wants_peak_model_term(peak_model_term, unc["misfit"], names, start_vehicle):
-        # the fit with the crush peak runs in a second thread beside the channel spread's
-        tagged = None if progress is None else (
-            lambda rec: progress(dict(rec, stage="with the crush peak " + rec["stage"])))
-        # a start vehicle's peak is off (read as ratio 1): its fitted values only
-        start_p = (dict(zip(names, get_values(start, names).tolist()))
-                   if isinstance(start, jl.Vehicle) else start)
-        peak_future = _in_thread(
-            fit, drops, names + PEAK_PARAMS, vehicle=vehicle, start=start_p, windows=windows,
-            refine_window_s=refine_window_s, robust=robust, multistart=multistart,
-            method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
-            smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
-            channels=channels, model_form=False, peak_model_term=False, progress=tagged,
-            _inner=True)
-    spread, shifts = (channel_spread(final, theta, huber_c, max_iter, pool)
-                      if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
-    spread_failed = [g for g, v in shifts.items() if v is None]
-    if spread_failed:
-        spread = np.nan_to_num(spread, nan=0.0)  # all failed: the total is the trusted error
-        warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
-             "leaves out how far those channels pull the fit (channel_spread_failed "
-             "in the report)", MisfitWarning, stacklevel=2)
-    mform = (model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"], form_jobs)
-             if forms else None)
-    pool.shutdown(wait=False)
+    try:
+        if forms:
+            if forms_thread is not None:
+                forms_thread.join()
+            form_jobs = form_refits(final, theta, form, huber_c, max_iter, pool)
+        peak_future = None
+        if wants_peak_model_term(peak_model_term, unc["misfit"], names, start_vehicle):
+            # the fit with the crush peak runs in a second thread beside the channel spread's
+            tagged = None if progress is None else (
+                lambda rec: progress(dict(rec, stage="with the crush peak " + rec["stage"])))
+            # a start vehicle's peak is off (read as ratio 1): its fitted values only
+            start_p = (dict(zip(names, get_values(start, names).tolist()))
+                       if isinstance(start, jl.Vehicle) else start)
+            peak_future = _in_thread(
+                fit, drops, names + PEAK_PARAMS, vehicle=vehicle, start=start_p, windows=windows,
+                refine_window_s=refine_window_s, robust=robust, multistart=multistart,
+                method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
+                smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
+                channels=channels, model_form=False, peak_model_term=False, progress=tagged,
+                _inner=True)
+        spread, shifts = (channel_spread(final, theta, huber_c, max_iter, pool)
+                          if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
+        spread_failed = [g for g, v in shifts.items() if v is None]
+        if spread_failed:
+            spread = np.nan_to_num(spread, nan=0.0)  # all failed: the total is the trusted error
+            warn(f"the fit without {', '.join(spread_failed)} failed, so std_error_total "
+                 "leaves out how far those channels pull the fit (channel_spread_failed "
+                 "in the report)", MisfitWarning, stacklevel=2)
+        mform = (model_form_spread(final, theta, form, huber_c, max_iter, unc["rho1"], form_jobs)
+                 if forms else None)
+    finally:  # an interruption leaves no queued refit for the interpreter's exit to wait on
+        pool.shutdown(wait=False, cancel_futures=True)
     if forms:
         if mform["failed"]:
             warn(f"the refit in the crush peak's {', '.join(mform['failed'])} "
