@@ -314,6 +314,22 @@ def test_a_landing_cut_off_during_its_impact_is_unfinished_not_stable():
     assert mc.summary["bottoming"]["n"] == codes.count(jl.Result.SUCCESSFUL)
 
 
+def test_a_3d_landing_that_can_still_tip_over_is_unfinished_not_upright():
+    """On a 20 deg slope this landing balances on its downhill foot after the impact and tips
+    over at 1.02 s. Cut off at 0.3 s, its honeycombs are no longer crushing, but its kinetic
+    energy nearly lifts the centre of mass over the nearest edge: its tip-over is not
+    decided, so it is UNFINISHED, not a successful upright landing."""
+    scene = jl.Scene(drop_height=0.0, sink_speed=1.56, horizontal_speed=1.37,
+                     heading=np.radians(194.7), roll_rate=np.radians(-45.4),
+                     slope=np.radians(20.3), slope_direction=np.radians(19.7), friction=1.17)
+    kw = dict(dt=4e-5, method="leapfrog", model="full")
+    cut = jl.simulate(scene, t_end=0.3, **kw).outcomes
+    later = jl.simulate(scene, t_end=1.5, **kw).outcomes
+    assert later["classification"] == "tipped"
+    assert cut["result"] == cut["classification"] == "unfinished", cut["classification"]
+    assert "tip over" in cut["note"]
+
+
 def test_a_scene_the_model_cannot_take_fails_with_nan_derivatives_also_under_jit():
     """Outside the documented envelope (a negative drop height, friction 2.5), or asymmetric
     for the quarter model (which jit keeps simulate's refusal from seeing): OUTSIDE_ENVELOPE,

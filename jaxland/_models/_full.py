@@ -37,6 +37,9 @@ from ._base import AbstractModel, Evaluation, Smoothing
 
 RATE_CHANNELS = ("diss_struct_damping_J", "diss_ground_damping_J")
 MARGIN_SOFTNESS_M = 0.01  # soft-min width over the support-polygon edges [m]
+# ``could_still_tip`` takes this multiple of the available energy: its bound neglects the
+# slope's tilt of the polygon and a foot in the air (the body then turns about one foot)
+TIP_ENERGY_SAFETY = 2.0
 
 PER_LEG = (
     "stroke_m", "stroke_max_m", "buffer_velocity_mps", "honeycomb_force_N", "strut_force_N",
@@ -472,6 +475,19 @@ class FullModel(AbstractModel):
         """The centre of mass is outside the polygon of the feet (the integrator counts it only
         after the first touchdown, so a tilted vehicle still in the air is not tipping)."""
         return record["stability_margin_m"] < 0.0
+
+    def could_still_tip(self, vehicle, record):
+        """``TIP_ENERGY_SAFETY`` times the kinetic and elastic energy could lift the body's
+        centre of mass over the nearest edge of the feet's polygon: m g (sqrt(h^2 + d^2) - h),
+        the rise of a centre at height h above the lowest foot and d (the stability margin)
+        from the edge as it turns about that edge until it stands above it. A bound in the
+        energy, not a prediction: energy the gear will still dissipate counts as available."""
+        h = record["body_z_m"] - jnp.min(record["foot_z_m"])
+        d = jnp.maximum(record["stability_margin_m"], 0.0)
+        rise = safe_hypot(h, d) - h
+        available = (record["kinetic_J"] + record["elastic_honeycomb_J"] + record["elastic_aux_J"]
+                     + record["elastic_ground_J"] + record["elastic_tangential_J"])
+        return TIP_ENERGY_SAFETY * available >= vehicle.m_body * vehicle.g * rise
 
     def final_summary(self, s: Vehicle3DState, record) -> dict:
         return dict(

@@ -72,7 +72,8 @@ _MESSAGES = {
     Result.OUTSIDE_ENVELOPE: "scene outside the documented envelope, or asymmetric for the "
                              "quarter model (not simulated as valid)",
     Result.UNFINISHED: "t_end came during an impact (a leg on the ground still compressing at "
-                       "its largest stroke): the max stroke and the peaks are not final",
+                       "its largest stroke) or while the vehicle still had the energy to tip "
+                       "over: the max stroke, the peaks or the tip-over are not final",
 }
 
 

@@ -216,11 +216,13 @@ def unfinished(record: dict) -> Array:
 
 def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict:
     """The landing's scalars: peaks, memories, the event log, ledger closure and the result
-    (``UNFINISHED`` where an upright landing is still in an impact at its end)."""
+    (``UNFINISHED`` where an upright landing is still in an impact at its end, or still has
+    the energy to tip over)."""
     ev_end = model.evaluate(st.vehicle, s_end, scene, st.derived)
     dissipated = sum(ev_end.dissipated.values()) + jnp.sum(s_end.diss_rate)
     failed = track.failure_time >= 0.0
-    cut = unfinished(ev_end.record) & (track.tip_time < 0.0)
+    cut = ((unfinished(ev_end.record) | model.could_still_tip(st.vehicle, ev_end.record))
+           & (track.tip_time < 0.0))
     result = jnp.where(failed, track.failure,
                        jnp.where(track.n_events > 0,
                                  jnp.where(cut, int(Result.UNFINISHED), int(Result.SUCCESSFUL)),

@@ -86,8 +86,8 @@ def cmd_montecarlo(args) -> int:
     if s["n_no_touchdown"]:
         print(f"  no touchdown        {s['n_no_touchdown']} (counted apart; raise t_end_s)")
     if s["n_unfinished"]:
-        print(f"  unfinished          {s['n_unfinished']} (t_end_s came during an impact: "
-              "counted apart; raise t_end_s)")
+        print(f"  unfinished          {s['n_unfinished']} (t_end_s came during an impact or "
+              "before the tip-over was decided: counted apart; raise t_end_s)")
     print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
           f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
