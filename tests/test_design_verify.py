@@ -107,3 +107,18 @@ def test_design_method_is_the_design_landings_integrator_and_refused_by_name():
     spec["design"]["method"] = "tsit5"  # adaptive: no fixed step to differentiate through
     with pytest.raises(jl.ConfigError, match=r"design\.method = 'tsit5': must be one of"):
         jl.design_spec_from_dict(spec)
+
+
+@pytest.mark.parametrize("mc_seed,scene_seed", [(1, 2), (4, 3), (0, 7), (6, 8)])
+def test_verification_rounds_draw_distinct_seeds_never_the_scenes(mc_seed, scene_seed):
+    """Every round verifies on samples no earlier round saw and that are not the design
+    scenes' (a seed that skipped the scenes' once gave rounds 1 and 2 the same samples)."""
+    from jaxland._design._spec import design_spec_from_dict
+    from jaxland._design._verify import _fresh_seed
+
+    data = copy.deepcopy(SPEC)
+    data["montecarlo"]["seed"], data["design"]["scene_seed"] = mc_seed, scene_seed
+    spec = design_spec_from_dict(data)
+    seeds = [_fresh_seed(spec, r) for r in range(6)]
+    assert len(set(seeds)) == 6 and scene_seed not in seeds, seeds
+    assert seeds[0] == mc_seed

@@ -128,8 +128,8 @@ def verify_design(result: DesignResult, *, n: int | None = None, seed: int | Non
 def _fresh_seed(spec: DesignSpec, round_: int) -> int:
     """The verification seed of re-optimisation round ``round_``: fresh samples each round,
     never the design scenes' seed."""
-    seed = spec.montecarlo.seed + round_
-    return seed + 1 if seed == spec.scene_seed else seed
+    first, seed = spec.montecarlo.seed, spec.montecarlo.seed + round_
+    return seed + 1 if first <= spec.scene_seed <= seed else seed
 
 
 def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int | None = None,
