@@ -190,6 +190,7 @@ class DropTest:
     noise_std: dict = field(default_factory=dict)
     noise_source: dict = field(default_factory=dict)
     unit_conversions: dict = field(default_factory=dict)
+    files: tuple = ()  # the files its metadata names: itself, the traces, the vehicle's
     touchdown_given_s: float | None = None
     release_time_s: float | None = None
     free_fall: dict = field(default_factory=dict)
@@ -760,6 +761,7 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
             body_accel_kind=table.get("body_accel_kind"), filter_cfc=table.get("filter_cfc"),
             filter_data_prefiltered=table.get("filter_data_prefiltered", False))
         drop.unit_conversions = {**time_conv, **drop.unit_conversions}
+        drop.files = (meta_path, csv_path) + ((meta_path.parent / cfg,) if cfg else ())
         return drop
     except jl.ConfigError as err:
         if err.field.startswith(where):

@@ -129,6 +129,7 @@ def _cmd_fit(args) -> int:
     names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config) if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
+    _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
     for flag, v in (("--refine-window-s", args.refine_window_s), ("--robust", args.robust)):
         if not (math.isfinite(v) and v >= 0.0):
@@ -288,6 +289,7 @@ def _cmd_predict(args) -> int:
     out = _out_dir(args.out, (args.config, *args.data))
     vehicle = jl.load_vehicle(args.config)
     drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
+    _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     preds = [predict(vehicle, d) for d in drops]
     for p, path in zip(preds, args.data):  # each prediction names what it was run from
         p.inputs = dict(vehicle_config=str(Path(args.config).resolve()),

@@ -291,6 +291,29 @@ def test_an_output_folder_holding_an_input_or_the_current_folder_is_refused(
 
 # ------------------------------------------------------------------- verdicts a run can give
 
+@pytest.mark.parametrize("key", ["data_file", "vehicle_config"])
+def test_fit_and_predict_refuse_an_output_folder_holding_a_file_the_metadata_names(
+        tmp_path, capsys, key):
+    """The drop test's metadata names its traces and vehicle: a folder holding either is an
+    input's folder too, refused before any work, and the file stays."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "data" / "synthetic"
+    out = tmp_path / "study"
+    assert _simulate(out, "--no-plots") == 0  # a folder jaxland wrote
+    inside = {"data_file": "drop_h0.20m.csv", "vehicle_config": "nominal_vehicle.toml"}[key]
+    (out / inside).write_bytes((src / inside).read_bytes())
+    meta = (src / "drop_h0.20m.toml").read_text()
+    for k, name in (("data_file", "drop_h0.20m.csv"), ("vehicle_config", "nominal_vehicle.toml")):
+        where = out / name if k == key else src / name
+        meta = meta.replace(f'{k} = "{name}"', f"{k} = {json.dumps(str(where))}")
+    (tmp_path / "drop.toml").write_text(meta)
+    for cmd in (["fit"], ["predict", "--config", str(src / "nominal_vehicle.toml")]):
+        assert main([*cmd, str(tmp_path / "drop.toml"), "--out", str(out)]) == 2
+        assert "an input of this run" in capsys.readouterr().err
+        assert (out / inside).exists()
+
+
 def test_a_landing_cut_off_during_its_impact_is_unfinished_not_stable():
     """A 0.4 m drop touches down at 0.286 s: at t_end = 0.3 s its strut is still crushing, so
     its max stroke is not final (the same landing run to 0.8 s ends far deeper). It is

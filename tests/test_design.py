@@ -429,3 +429,10 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     spec.write_text(TINY.replace("margin_mm = 20.0", "margin_mm = -1.0"))
     assert main(["design", str(spec), "--out", str(out)]) == 2
     assert "constraints.stroke.margin_mm = -1.0" in capsys.readouterr().err
+    # the baseline vehicle the spec names is an input: its folder is not replaced
+    before = (out / "design_vehicle.toml").read_text()
+    spec.write_text(TINY.replace("[design]\n", f"[design]\nvehicle = "
+                                 f"{json.dumps(str(out / 'design_vehicle.toml'))}\n"))
+    assert main(["design", str(spec), "--out", str(out)]) == 2
+    assert "an input of this run" in capsys.readouterr().err
+    assert (out / "design_vehicle.toml").read_text() == before

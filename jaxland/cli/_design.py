@@ -49,6 +49,7 @@ def _cmd_design(args) -> int:
     # verification Monte Carlo are split over them
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     spec = load_design_spec(args.spec)
+    out_dir(args.out, (spec.vehicle,))  # the baseline vehicle the spec names is an input too
     if args.iterations is not None:
         if args.iterations < 0:
             raise jl.ConfigError("--iterations", args.iterations, "must be >= 0")
