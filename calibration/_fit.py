@@ -165,6 +165,11 @@ class MisfitWarning(UserWarning):
     (``FitResult.std_errors_total``)."""
 
 
+def stopped_at_cap(stages: list[dict]) -> bool:
+    """A fit's last stage ended at its iteration cap, not at a minimum."""
+    return bool(stages) and stages[-1].get("status") == "max_iter"
+
+
 @dataclass
 class FitResult:
     """The calibrated parameters with their uncertainty, the fitted vehicle and the record of
@@ -225,6 +230,8 @@ class FitResult:
                 at_bound=n in self.diagnostics.get("at_bound", ()),
                 config_key=PARAMS[n][2], description=PARAMS[n][4])
         return dict(
+            # False: the last stage stopped at its iteration cap, the values are no minimum
+            converged=self.converged,
             parameters=params,
             correlation=dict(names=list(self.names),
                              matrix=[[num(x) for x in row] for row in self.correlation]),
@@ -263,17 +270,39 @@ class FitResult:
 
         return atomic_write_text(Path(path), json.dumps(self.report(), indent=2) + "\n")
 
+    @property
+    def converged(self) -> bool:
+        """The last stage ended at a minimum, not at its iteration cap."""
+        return not stopped_at_cap(self.stages)
+
+    def reported_errors(self) -> tuple[str, np.ndarray]:
+        """The standard errors the fit reports (``diagnostics["interval"]``): the classical
+        ones only where the residuals look like the noise, else the HAC or the total ones."""
+        name = self.diagnostics.get("interval", "std_error")
+        return name, {"std_error": self.std_errors, "std_error_hac": self.std_errors_hac,
+                      "std_error_total": self.std_errors_total}[name]
+
     def to_toml(self) -> str:
-        """The fitted vehicle as a jaxland config (``jaxland simulate --config``)."""
+        """The fitted vehicle as a jaxland config (``jaxland simulate --config``); its header
+        names the records, the fitted values with the errors the fit reports, and the
+        residuals' misfit where there is one."""
+        interval, errors = self.reported_errors()
+        misfit = self.diagnostics.get("misfit") or []
         head = ["# Calibrated by `jaxland fit` (calibration package) against: "
                 + ", ".join(d.source for d in self.drops),
-                "# fitted: " + ", ".join(
+                f"# fitted (+/- {interval}, the standard error the fit reports): " + ", ".join(
                     f"{n} = {v:.6g} +/- {s:.2g} {PARAMS[n][1]}" if ok else
                     f"{n} = {v:.6g} {PARAMS[n][1]} (AT A BOUND OF THE VEHICLE'S RULES)"
                     if n in self.diagnostics.get("at_bound", ()) else
-                    f"{n} = {v:.6g} {PARAMS[n][1]} (NOT IDENTIFIED: left at its start)"
-                    for n, v, s, ok in zip(self.names, self.values, self.std_errors,
-                                           self.identified)), ""]
+                    f"{n} = {v:.6g} {PARAMS[n][1]} (NOT IDENTIFIED by these records; "
+                    f"started at {v0:.6g})"
+                    for n, v, s, ok, v0 in zip(self.names, self.values, errors,
+                                               self.identified, self.start_values)),
+                *([f"# MISFIT: {'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
+                  else []),
+                *([] if self.converged else ["# NOT CONVERGED: the last stage stopped at its "
+                                             "iteration cap; these values are not a minimum"]),
+                ""]
         return "\n".join(head) + jl.vehicle_to_toml(self.vehicle)
 
     def traces(self) -> list[dict]:

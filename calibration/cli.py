@@ -51,7 +51,9 @@ def _out_dir(path: str, inputs=()) -> Path:
 
 def stopped_at_cap(result) -> bool:
     """The fit's last stage ended at its iteration cap, not at a minimum."""
-    return bool(result.stages) and result.stages[-1].get("status") == "max_iter"
+    from ._fit import stopped_at_cap as capped
+
+    return capped(result.stages)
 
 
 class _Progress:
@@ -219,7 +221,8 @@ def _cmd_fit(args) -> int:
     if capped:
         print(f"jaxland fit: warning: the last stage stopped at its iteration cap (--max-iter "
               f"{args.max_iter}) before converging: the values below are not a minimum; "
-              "raise --max-iter or use --method lm", file=sys.stderr)
+              "raise --max-iter" + ("" if result.method == "lm" else " or use --method lm"),
+              file=sys.stderr)
     verb = "NOT CONVERGED," if capped else "fitted"
     print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
@@ -267,15 +270,16 @@ def _cmd_fit(args) -> int:
         print(peak_location_line(diag["peak_location"]))
     if result.settings.get("peak_site") == FORCES:
         print(peak_site_line(diag.get("peak_site_check")))
+    interval, errors = result.reported_errors()
     for i, n in enumerate(result.names):
         flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
                 else "" if result.identified[i] else "   NOT IDENTIFIED")
-        print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {result.std_errors[i]:.2g} "
-              f"(HAC +/- {result.std_errors_hac[i]:.2g}"
-              + (f", total +/- {result.std_errors_total[i]:.2g}"
-                 if diag["interval"] == "std_error_total" else "")
-              + f") {PARAMS[n][1]}  "
-              f"(start {result.start_values[i]:.6g}){flag}")
+        others = {"std_error": f"classical +/- {result.std_errors[i]:.2g}",
+                  "std_error_hac": f"HAC +/- {result.std_errors_hac[i]:.2g}"}
+        others.pop(interval, None)
+        print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {errors[i]:.2g} {PARAMS[n][1]} "
+              f"({interval}; {', '.join(others.values())}; "
+              f"start {result.start_values[i]:.6g}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
           + (", model_comparison.json" if cmp is not None else "")
           + ("" if args.no_plots else ", figures/*.png"))

@@ -6,6 +6,7 @@ exact (linear least squares with AR(1) noise), independently of jaxland; the war
 data with and without an artefact the model lacks.
 """
 
+import dataclasses
 import itertools
 import warnings
 
@@ -208,6 +209,17 @@ def test_a_missing_peak_widens_the_total_to_the_fit_with_the_peak(rig_fits):
     rep = res.report()
     assert rep["misfit"]["peak_model_term"]["term"] == pm["term"]
     assert rep["parameters"]["k"]["std_error_total"] == pytest.approx(res.std_errors_total[0])
+    # the fitted vehicle's header carries the interval the fit reports, and the misfit
+    head = res.to_toml().split("\n[")[0]
+    assert res.diagnostics["interval"] == "std_error_total"
+    assert "+/- std_error_total" in head and "# MISFIT: " in head
+    i = res.names.index("k")
+    assert f"k = {res.values[i]:.6g} +/- {res.std_errors_total[i]:.2g} " in head
+    assert res.std_errors_total[i] > 2 * res.std_errors[i]  # not the classical one
+    assert res.report()["converged"] and "NOT CONVERGED" not in head
+    capped = dataclasses.replace(res, stages=[*res.stages[:-1],
+                                              dict(res.stages[-1], status="max_iter")])
+    assert not capped.report()["converged"] and "# NOT CONVERGED" in capped.to_toml()
 
 
 def test_without_misfit_the_missing_peak_term_changes_nothing(rig_fits, monkeypatch):
