@@ -8,6 +8,7 @@ finishes without an error the staging folder replaces ``out`` as a whole.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import shutil
@@ -40,6 +41,24 @@ def atomic_write(path, writer, suffix: str = ".tmp") -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def json_text(obj) -> str:
+    """``obj`` as strict JSON text (indented, with a final newline): numpy and JAX values as
+    numbers and lists, a non-finite number as null (JSON has no NaN or infinity, and strict
+    readers refuse Python's NaN and Infinity)."""
+    def clean(x):
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, (np.ndarray, np.generic)) or hasattr(x, "__array__"):
+            return clean(np.asarray(x).tolist())
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        return x
+
+    return json.dumps(clean(obj), indent=2, allow_nan=False) + "\n"
 
 
 def atomic_write_text(path, text: str) -> Path:

@@ -142,7 +142,11 @@ def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
     assert not (tmp_path / "bad").exists()
     subprocess.run([*cli, "--out", str(tmp_path / "mc")], env=env, check=True,
                    capture_output=True, timeout=300)
-    summary = json.loads((tmp_path / "mc" / "summary.json").read_text())
+    def refuse(name):  # strict JSON: no NaN or Infinity (a normal's bounds are infinite)
+        raise ValueError(f"not JSON: {name}")
+
+    summary = json.loads((tmp_path / "mc" / "summary.json").read_text(), parse_constant=refuse)
+    assert summary["dispersion"]["mass_scale"]["low"] is None
     assert summary["devices"] == len(os.sched_getaffinity(0))
     got = np.load(tmp_path / "mc" / "samples.npz")
     ref = {k: v for k, v in quarter_run.columns().items() if np.asarray(v).dtype.kind in "fiub"}

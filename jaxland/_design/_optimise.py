@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass
@@ -15,10 +14,9 @@ import optax
 
 from .._config import validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
-from .._files import atomic_write_text
+from .._files import atomic_write_text, json_text
 from .._models import MODELS
 from .._params import Vehicle
-from .._simulate import _py
 from .._solvers import stable_step
 from ._problem import DesignProblem
 from ._spec import CELL_VARS, CONSTRAINTS, VARIABLES, DesignSpec
@@ -119,7 +117,7 @@ class DesignResult:
         )
 
     def to_json(self, path) -> Path:
-        return atomic_write_text(path, json.dumps(self.report(), indent=2, default=_py) + "\n")
+        return atomic_write_text(path, json_text(self.report()))
 
     def plot(self, out_dir) -> list[Path]:
         from .._plots import plot_design

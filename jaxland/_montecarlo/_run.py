@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import math
 import os
 import time
@@ -20,7 +19,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from .. import __version__
 from .._config import paper_vehicle, validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
-from .._files import atomic_write_csv, flat_columns, staged
+from .._files import atomic_write_csv, flat_columns, json_text, staged
 from .._models import MODELS
 from .._params import Vehicle
 from .._progress import ProgressLine
@@ -142,8 +141,7 @@ class MonteCarloResult:
             cols = self.columns()
             atomic_write_csv(staging / "samples.csv", cols)
             np.savez_compressed(staging / "samples.npz", **cols)
-            (staging / "summary.json").write_text(
-                json.dumps(self.summary, indent=2, default=float) + "\n")
+            (staging / "summary.json").write_text(json_text(self.summary))
             if plots:
                 from .._plots import plot_montecarlo
 
