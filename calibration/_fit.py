@@ -986,6 +986,11 @@ def wants_peak_model_term(setting, misfit, names, vehicle: jl.Vehicle) -> bool:
     return setting == "auto" and bool(misfit) and has_no_peak(names, vehicle)
 
 
+# how much worse than the fit without a peak the fit with one may end before it counts as
+# failed (rounding of the two chi^2 sums; its model holds the one without the peak)
+NESTED_CHI2_RTOL = 1e-6
+
+
 def add_peak_model_term(result: FitResult, with_peak) -> None:
     """Widen ``result`` (a fit without a crush peak whose residuals show misfit) by the
     missing-peak term: per parameter |value without the peak - value with it|, ``with_peak``
@@ -1003,7 +1008,16 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
                std_errors_total=None, shift=None, term=dict.fromkeys(names, 0.0))
     if isinstance(with_peak, FitResult):
         shift = np.array([with_peak.value(n) for n in names]) - result.values
-        if np.all(np.isfinite(shift)):
+        chi2_without = _chi2(result.problem, result.theta)
+        chi2_with = _chi2(with_peak.problem, with_peak.theta)
+        if not chi2_with <= chi2_without * (1.0 + NESTED_CHI2_RTOL):
+            # the model with the peak holds the one without it (peak off): its optimum fits
+            # at least as well, so a fit that ends worse stopped short of it
+            rec.update(chi2_without=chi2_without, chi2_with=chi2_with,
+                       failed=f"it ended worse than the fit without a peak (chi2 "
+                              f"{chi2_with:.6g} against {chi2_without:.6g}), short of its "
+                              "optimum")
+        elif np.all(np.isfinite(shift)):
             term = np.abs(shift)
             result.std_errors_total = np.sqrt(result.std_errors_total**2 + term**2)
             d = with_peak.diagnostics
@@ -1012,8 +1026,7 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
                 values=dict(zip(with_peak.names, with_peak.values.tolist())),
                 std_errors_hac=dict(zip(with_peak.names, with_peak.std_errors_hac.tolist())),
                 shift=dict(zip(names, shift.tolist())), term=dict(zip(names, term.tolist())),
-                chi2_without=_chi2(result.problem, result.theta),
-                chi2_with=_chi2(with_peak.problem, with_peak.theta),
+                chi2_without=chi2_without, chi2_with=chi2_with,
                 misfit_with=d["misfit"], at_bound_with=d["at_bound"],
                 wall_s=with_peak.wall_s)
         else:

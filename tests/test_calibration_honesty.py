@@ -222,6 +222,21 @@ def test_a_missing_peak_widens_the_total_to_the_fit_with_the_peak(rig_fits):
     assert not capped.report()["converged"] and "# NOT CONVERGED" in capped.to_toml()
 
 
+def test_a_fit_with_the_peak_that_ends_worse_than_without_it_is_named_failed(rig_fits):
+    """The model with the crush peak holds the one without it, so its fit can only end at
+    least as well; one that ends worse (here: the fit's own optimum moved off) stopped short
+    of its optimum. Its shift is no term: named a failure, the total left as it was."""
+    res, _ = rig_fits["physical peak"]
+    base = dataclasses.replace(res, diagnostics=dict(res.diagnostics),
+                               std_errors_total=res.std_errors_total.copy())
+    worse = dataclasses.replace(res, theta=res.theta + 0.05)
+    cal_fit.add_peak_model_term(base, worse)
+    pm = base.diagnostics["peak_model_term"]
+    assert pm["chi2_with"] > pm["chi2_without"] and not pm["added"]
+    assert pm["failed"].startswith("it ended worse than the fit without a peak")
+    np.testing.assert_array_equal(base.std_errors_total, res.std_errors_total)
+
+
 def test_without_misfit_the_missing_peak_term_changes_nothing(rig_fits, monkeypatch):
     """On a record the model represents no fit warns, so nothing is fitted again and the
     report's values are bit for bit those with the term switched off."""
