@@ -49,6 +49,10 @@ def test_quarter_model_is_chosen_for_symmetric_dispersions(quarter_run):
 
 
 def test_same_seed_same_results_for_any_chunk_size(quarter_run):
+    assert quarter_run.summary["chunk"] == 12
+    big = run_montecarlo(MonteCarloSpec(**QUARTER_SPEC), chunk=100000, progress=False)
+    assert big.summary["chunk"] == 12  # no larger than the run: no padded landings run
+    np.testing.assert_array_equal(big.outputs["max_stroke_m"], quarter_run.outputs["max_stroke_m"])
     other = run_montecarlo(MonteCarloSpec(**QUARTER_SPEC), chunk=5, progress=False)
     for k, v in quarter_run.inputs.items():
         np.testing.assert_array_equal(other.inputs[k], v)

@@ -220,7 +220,8 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     chunk = min(spec.n, default_chunk(model, devices)) if chunk is None else int(chunk)
     if chunk < 1:
         raise ConfigError("chunk", chunk, "must be >= 1")
-    chunk = int(math.ceil(chunk / n_dev) * n_dev)
+    # no larger than the run (padding beyond it is work for nothing), a whole number per device
+    chunk = int(math.ceil(min(chunk, spec.n) / n_dev) * n_dev)
     mesh = Mesh(np.array(devices), ("batch",))
     batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
     limit = float(stable_step(vehicle, method=spec.method, model=MODELS[model]))
