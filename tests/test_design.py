@@ -429,6 +429,10 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     spec.write_text(TINY.replace("margin_mm = 20.0", "margin_mm = -1.0"))
     assert main(["design", str(spec), "--out", str(out)]) == 2
     assert "constraints.stroke.margin_mm = -1.0" in capsys.readouterr().err
+    # verification landings cut off in their impact are named, not passed over
+    spec.write_text(TINY.replace("seed = 1\nt_end_s = 0.1", "seed = 1\nt_end_s = 0.04"))
+    assert main(["design", str(spec), "--out", str(tmp_path / "short")]) in (0, 5)
+    assert "3 of the 3 verification landings still in their impact" in capsys.readouterr().err
     # the baseline vehicle the spec names is an input: its folder is not replaced
     before = (out / "design_vehicle.toml").read_text()
     spec.write_text(TINY.replace("[design]\n", f"[design]\nvehicle = "
