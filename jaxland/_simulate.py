@@ -9,7 +9,6 @@ numerical failure, and returns a ``Landing`` with numpy arrays and a readable su
 from __future__ import annotations
 
 import functools
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 from . import __version__
 from ._config import paper_vehicle, validate_vehicle
 from ._errors import ConfigError, SimulationError
-from ._files import atomic_write_csv, atomic_write_text, flat_columns
+from ._files import atomic_write_csv, atomic_write_text, flat_columns, json_text
 from ._models import MODELS, AbstractModel
 from ._params import Vehicle, field_info
 from ._scene import Scene, batch_axes, is_symmetric
@@ -158,10 +157,7 @@ class Landing:
 
     def to_json(self, path) -> Path:
         """Write the outcomes as JSON. Atomic."""
-        path = Path(path)
-        text = json.dumps(self.outcomes, indent=2, default=float)
-        atomic_write_text(path, text + "\n")
-        return path
+        return atomic_write_text(Path(path), json_text(self.outcomes))
 
 
 def _py(x):

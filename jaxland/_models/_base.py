@@ -165,9 +165,9 @@ class AbstractModel(eqx.Module):
     def tipping(self, record: dict) -> Array:
         """The vehicle is tipping over (only counted after the first touchdown)."""
 
-    def could_still_tip(self, vehicle: Vehicle, record: dict) -> Array:
-        """At the state of ``record``, an upright vehicle still has the energy to tip over, so
-        a tip-over outcome taken there is not final (a model that cannot tip: never)."""
+    def could_still_tip(self, vehicle: Vehicle, ev: Evaluation) -> Array:
+        """At the state evaluated in ``ev``, an upright vehicle still has the energy to tip
+        over, so a tip-over outcome taken there is not final (a model that cannot tip: never)."""
         return jnp.zeros((), bool)
 
     @abc.abstractmethod

@@ -476,17 +476,18 @@ class FullModel(AbstractModel):
         after the first touchdown, so a tilted vehicle still in the air is not tipping)."""
         return record["stability_margin_m"] < 0.0
 
-    def could_still_tip(self, vehicle, record):
-        """``TIP_ENERGY_SAFETY`` times the kinetic and elastic energy could lift the body's
-        centre of mass over the nearest edge of the feet's polygon: m g (sqrt(h^2 + d^2) - h),
-        the rise of a centre at height h above the lowest foot and d (the stability margin)
-        from the edge as it turns about that edge until it stands above it. A bound in the
-        energy, not a prediction: energy the gear will still dissipate counts as available."""
+    def could_still_tip(self, vehicle, ev):
+        """``TIP_ENERGY_SAFETY`` times the kinetic and elastic energy (the ledger's stores but
+        the potential) could lift the body's centre of mass over the nearest edge of the feet's
+        polygon: m g (sqrt(h^2 + d^2) - h), the rise of a centre at height h above the lowest
+        foot and d (the stability margin) from the edge as it turns about that edge until it
+        stands above it. A bound in the energy, not a prediction: energy the gear will still
+        dissipate counts as available."""
+        record = ev.record
         h = record["body_z_m"] - jnp.min(record["foot_z_m"])
         d = jnp.maximum(record["stability_margin_m"], 0.0)
         rise = safe_hypot(h, d) - h
-        available = (record["kinetic_J"] + record["elastic_honeycomb_J"] + record["elastic_aux_J"]
-                     + record["elastic_ground_J"] + record["elastic_tangential_J"])
+        available = sum(v for k, v in ev.stores.items() if k != "potential_J")
         return TIP_ENERGY_SAFETY * available >= vehicle.m_body * vehicle.g * rise
 
     def final_summary(self, s: Vehicle3DState, record) -> dict:

@@ -221,7 +221,7 @@ def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict
     ev_end = model.evaluate(st.vehicle, s_end, scene, st.derived)
     dissipated = sum(ev_end.dissipated.values()) + jnp.sum(s_end.diss_rate)
     failed = track.failure_time >= 0.0
-    cut = ((unfinished(ev_end.record) | model.could_still_tip(st.vehicle, ev_end.record))
+    cut = ((unfinished(ev_end.record) | model.could_still_tip(st.vehicle, ev_end))
            & (track.tip_time < 0.0))
     result = jnp.where(failed, track.failure,
                        jnp.where(track.n_events > 0,
