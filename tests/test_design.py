@@ -432,7 +432,11 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     # verification landings cut off in their impact are named, not passed over
     spec.write_text(TINY.replace("seed = 1\nt_end_s = 0.1", "seed = 1\nt_end_s = 0.04"))
     assert main(["design", str(spec), "--out", str(tmp_path / "short")]) in (0, 5)
-    assert "3 of the 3 verification landings still in their impact" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert ("3 of the 3 verification landings still in their impact or able to tip over at "
+            "t_end_s = 0.04 s were run on to 0.12 s (3 left), then 0.36 s (0 left)") in err
+    short = json.loads((tmp_path / "short" / "design_report.json").read_text())
+    assert short["verification"]["after"]["n_unfinished"] == 0
     # the baseline vehicle the spec names is an input: its folder is not replaced
     before = (out / "design_vehicle.toml").read_text()
     spec.write_text(TINY.replace("[design]\n", f"[design]\nvehicle = "

@@ -122,3 +122,51 @@ def test_verification_rounds_draw_distinct_seeds_never_the_scenes(mc_seed, scene
     seeds = [_fresh_seed(spec, r) for r in range(6)]
     assert len(set(seeds)) == 6 and scene_seed not in seeds, seeds
     assert seeds[0] == mc_seed
+
+
+def _cut_short_verification(t_end):
+    """Quarter-model verification landings at 2.0-2.6 m/s, as in SPEC: at ``t_end`` = 0.04 s
+    every one is still compressing its strut."""
+    return jl.MonteCarloSpec(dispersion={"sink_speed_mps": jl.Distribution("uniform", low=2.0,
+                                                                          high=2.6)},
+                             fixed={"drop_height_m": 0.0}, n=6, seed=5, dt=2e-5, t_end=t_end,
+                             model="quarter")
+
+
+def test_cut_off_verification_landings_are_continued_to_their_final_outcomes():
+    """A verification landing that t_end_s cuts off in its impact is run on (3 x, then 9 x
+    t_end_s) and judged on the outcomes of a Monte Carlo run that long from the start."""
+    from jaxland._design._verify import CONTINUE_FACTORS, _continue_unfinished
+    from jaxland._montecarlo import run_montecarlo
+
+    short = _cut_short_verification(0.04)
+    res = run_montecarlo(short, progress=False, share_program=True)
+    assert res.summary["n_unfinished"] == short.n, "the scene must cut every landing off"
+    log = _continue_unfinished(short, res)
+    assert [c["t_end_s"] for c in log] == pytest.approx([0.04 * f for f in CONTINUE_FACTORS])
+    assert res.summary["n_unfinished"] == 0 and log[-1]["n_unfinished_after"] == 0
+    longest = run_montecarlo(_cut_short_verification(0.04 * CONTINUE_FACTORS[-1]),
+                             progress=False)
+    ran_long = np.isclose(res.outputs["t_end_s"], 0.04 * CONTINUE_FACTORS[-1], rtol=1e-12)
+    assert ran_long.any()
+    for key in ("max_stroke_m", "peak_body_accel_mps2", "peak_strut_force_N"):
+        assert res.outputs[key][ran_long] == pytest.approx(longest.outputs[key][ran_long],
+                                                           rel=1e-9)
+    assert np.all(res.failure == longest.failure)
+
+
+def test_a_landing_no_continuation_finishes_fails_the_verification(monkeypatch):
+    """Without the continuations the cut-off landings stay unfinished: their numbers are not
+    judged as outcomes, and the verification is not met, for a reason that says so."""
+    from jaxland._design import _verify
+
+    monkeypatch.setattr(_verify, "CONTINUE_FACTORS", ())
+    spec = copy.deepcopy(SPEC)
+    spec["design"].update(iterations=0, verify_rounds=0)
+    spec["montecarlo"].update(n=4, t_end_s=0.04)
+    spec["constraints"]["stroke"]["margin_mm"] = 10.0
+    res = jl.design_verified(jl.design_spec_from_dict(spec))
+    v = res.verification
+    assert v["after"]["n_unfinished"] == 4 and v["after"]["n_ok"] == 0
+    assert not v["after"]["met"] and not v["verified"]
+    assert "not final" in v["reason"]

@@ -113,12 +113,14 @@ def _cmd_design(args) -> int:
                   f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; P(tip) "
                   f"{probability_text(r['tip_over'])}; P(bottom) "
                   f"{probability_text(r['bottoming'])}")
-        unfinished = v["after"]["n_unfinished"]
-        if unfinished:
-            print(f"  note: {unfinished} of the {v['after']['n']} verification landings still "
-                  f"in their impact or able to tip over at t_end_s = {spec.montecarlo.t_end:g} "
-                  "s: judged on strokes and outcomes that are not final; raise "
-                  "montecarlo.t_end_s", file=sys.stderr)
+        continued = v["after"]["continued"]
+        if continued:
+            print(f"  note: {continued[0]['n']} of the {v['after']['n']} verification landings "
+                  f"still in their impact or able to tip over at t_end_s = "
+                  f"{spec.montecarlo.t_end:g} s were run on to "
+                  + ", then ".join(f"{c['t_end_s']:g} s ({c['n_unfinished_after']} left)"
+                                   for c in continued)
+                  + ": judged on their final outcomes", file=sys.stderr)
     if result.status != "feasible":
         for name, c in result.violated.items():
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
