@@ -337,6 +337,31 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         assert str(err.value).startswith(field), str(err.value)
 
 
+@pytest.mark.parametrize("key", ["retry", "early_stop"])
+@pytest.mark.parametrize("value", ["1", "0", "1.0"])
+def test_a_switch_takes_only_true_or_false(tmp_path, capsys, key, value):
+    """retry = 1 or early_stop = 0 is no TOML boolean (Python's 1 == True let it pass as
+    one): refused by name before any work, exit 2 and one line."""
+    from jaxland._checks import Choice
+    from jaxland.cli import main
+
+    path = tmp_path / "spec.toml"
+    path.write_text(QUARTER_TOML.replace("t_end_s = 0.3", f"t_end_s = 0.3\n{key} = {value}"))
+    with pytest.raises(jl.ConfigError) as err:
+        load_montecarlo_spec(path)
+    assert str(err.value) == f"montecarlo.{key} = {value}: must be true or false"
+    assert main(["montecarlo", str(path), "--out", str(tmp_path / "mc")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"jaxland: error: montecarlo.{key} = {value}: must be true or false"]
+    assert not (tmp_path / "mc").exists()
+    with pytest.raises(jl.ConfigError, match="must be true or false"):
+        MonteCarloSpec(**{**QUARTER_SPEC, key: int(float(value))})
+    # a choice that holds booleans takes only booleans
+    with pytest.raises(jl.ConfigError, match="must be one of true, false"):
+        Choice((True, False))("x", int(float(value)))
+    assert Choice((True, False))("x", True) is True
+
+
 def test_samples_outside_the_envelope_are_recorded_not_fatal():
     """An unbounded distribution can draw outside the envelope: those samples are failures with
     their reason (code 4), the batch goes on, and padding beyond n is never judged."""

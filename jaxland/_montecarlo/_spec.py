@@ -10,7 +10,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._checks import NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
+from .._checks import FLAG, NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
 from .._errors import ConfigError
 from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS
 from .._solvers import FIXED_STEP_METHODS, check_whole_steps
@@ -193,11 +193,11 @@ class MonteCarloSpec:
     # fixed-step methods batch without waiting for the slowest sample
     method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
     # rerun samples that fail numerically once (with implicit strut damping; run._retry)
-    retry: bool = spec_field(True, toml="retry", check=Choice((True, False)))
+    retry: bool = spec_field(True, toml="retry", check=FLAG)
     # stop each landing once no outcome can change any more (Solver.early_stop; docs/
     # montecarlo.md): pays with a t_end_s beyond the settle time (quarter ~2-3 s); off by
     # default, as 1 s landings do not settle provably and the check costs compile time
-    early_stop: bool = spec_field(False, toml="early_stop", check=Choice((True, False)))
+    early_stop: bool = spec_field(False, toml="early_stop", check=FLAG)
     # the energy ledger and the finiteness of the state are checked every this many seconds
     # (0: every step; None: the model's LEDGER_CHECK_S): a failure is found within it, and
     # energy_closure_rel is the worst over the checks (docs/montecarlo.md). Peaks are maxima
