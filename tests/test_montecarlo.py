@@ -211,6 +211,41 @@ def test_the_cli_can_skip_the_figures_and_the_progress_line(tmp_path, capsys):
     assert "not estimated (3 successful landings" in printed.out
 
 
+def test_a_quarter_run_presents_no_tip_over_probability(quarter_run, tmp_path, capsys):
+    """The quarter model is one leg of a symmetric drop and cannot tip over: the command says
+    so instead of printing P(tip-over) 0 with an interval, summary.json holds no count,
+    probability or interval (null, modelled false, the reason), and the tip-over map is not
+    drawn; n_succeeded counts the landings."""
+    from jaxland._montecarlo import probability_text, proportion
+    from jaxland.cli import main
+
+    s = quarter_run.summary
+    assert s["n_succeeded"] == int(np.sum(quarter_run.failure == 0)) > 0
+    assert s["tip_over"] == dict(modelled=False, reason=s["tip_over"]["reason"], count=None,
+                                 n=s["n_succeeded"], probability=None, ci95_wilson=None)
+    assert "cannot tip over" in s["tip_over"]["reason"]
+    assert probability_text(s["tip_over"]).startswith("not modelled: the quarter model")
+    # the map is drawn for a model that tips (here the same samples, marked as tippable)
+    tippable = jl.MonteCarloResult(quarter_run.inputs, quarter_run.outputs, quarter_run.failure,
+                                   {**s, "tip_over": {**proportion(
+                                       quarter_run.outputs["tipped_over"]), "modelled": True}})
+    maps = [p.name for r, d in ((tippable, "a"), (quarter_run, "b"))
+            for p in jl.plot_montecarlo(r, tmp_path / d) if p.name == "mc_tipover_map.png"]
+    assert maps == ["mc_tipover_map.png"]  # the tippable one's only
+    spec = tmp_path / "quarter.toml"
+    spec.write_text(QUARTER_TOML.replace("n = 12", "n = 3"))
+    out = tmp_path / "mc"
+    assert main(["montecarlo", str(spec), "--no-plots", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "P(tip-over)         not modelled: the quarter model is one leg of a symmetric " \
+        "vertical drop, which cannot tip over" in printed
+    assert "95% CI [0" not in printed.split("P(tip-over)")[1].splitlines()[0]
+    saved = json.loads((out / "summary.json").read_text())
+    assert saved["tip_over"]["modelled"] is False and saved["n_succeeded"] == 3
+    assert saved["tip_over"]["probability"] is None and saved["tip_over"]["count"] is None
+    assert saved["tip_over"]["ci95_wilson"] is None
+
+
 TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,
                        "friction": 2.0}, n=4, seed=0, t_end=1.5)
 
@@ -225,6 +260,7 @@ def test_tip_over_probability_is_one_beyond_and_zero_inside_the_boundary(low, hi
     res = run_montecarlo(spec, progress=False)
     tip = res.summary["tip_over"]
     assert res.summary["model"] == "full" and res.summary["n_failed"] == 0
+    assert tip["modelled"] is True and tip["n"] == res.summary["n_succeeded"]
     assert tip["probability"] == expected
     lo, hi = tip["ci95_wilson"]
     assert lo <= expected <= hi
@@ -381,8 +417,9 @@ def test_results_are_saved_with_inputs(quarter_run, tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["n"] == 12 and summary["sensitivity"]["ranking"][0]["input"] in (
         "sink_speed_mps", "mass_scale")
+    # the quarter model cannot tip over: no tip-over map (every sample would read "stable")
     assert sorted(p.name for p in (tmp_path / "figures").glob("*.png")) == [
-        "mc_envelopes.png", "mc_histograms.png", "mc_tipover_map.png"]
+        "mc_envelopes.png", "mc_histograms.png"]
 
 
 def test_a_stabilised_method_at_a_larger_step_agrees(quarter_run):

@@ -71,7 +71,7 @@ def cmd_montecarlo(args) -> int:
     if jax.process_index() != 0:
         return 0
     s = result.summary
-    if s["tip_over"]["n"] == 0:
+    if s["n_succeeded"] == 0:
         _no_successful_landing(s)
     result.save(out, plots=not args.no_plots)
     tip, bot = s["tip_over"], s["bottoming"]
@@ -88,8 +88,12 @@ def cmd_montecarlo(args) -> int:
     if s["n_unfinished"]:
         print(f"  unfinished          {s['n_unfinished']} (t_end_s came during an impact or "
               "before the tip-over was decided: counted apart; raise t_end_s)")
-    print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
-          f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
+    if tip["modelled"]:
+        print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI "
+              f"[{tip['ci95_wilson'][0]:.4g}, {tip['ci95_wilson'][1]:.4g}]  "
+              f"({tip['count']}/{tip['n']})")
+    else:  # no probability to print: a 0 would read as computed
+        print(f"  P(tip-over)         not modelled: {tip['reason']}")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
           f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']})")
     for name, env in s["envelopes"].items():
@@ -104,8 +108,9 @@ def cmd_montecarlo(args) -> int:
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
     else:
-        print(f"  drivers of {s['sensitivity']['target']}: not estimated ({tip['n']} successful "
-              "landings; the regression needs more than one per dispersed input and leg)")
+        print(f"  drivers of {s['sensitivity']['target']}: not estimated ({s['n_succeeded']} "
+              "successful landings; the regression needs more than one per dispersed input "
+              "and leg)")
     print(f"wrote {out}/samples.csv, samples.npz, summary.json, vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
