@@ -398,6 +398,34 @@ def test_a_switch_takes_only_true_or_false(tmp_path, capsys, key, value):
     assert Choice((True, False))("x", True) is True
 
 
+def test_a_spec_file_that_disperses_nothing_is_refused(tmp_path, capsys):
+    """No [dispersion] table, an empty one, or only constants: n copies of one landing, not a
+    Monte Carlo; refused by name before any work (exit 2, one line, nothing written)."""
+    from jaxland.cli import main
+
+    path = tmp_path / "spec.toml"
+    head = "[montecarlo]\nn = 4\nt_end_s = 0.3\n[fixed]\ndrop_height_m = 0.0\n"
+    const = "[dispersion.sink_speed_mps]\ndist = 'constant'\nvalue = 2.0\n"
+    rule = ("disperses nothing{}; a Monte Carlo needs at least one dispersed input (use "
+            "jaxland simulate for one landing)")
+    for text, shown, why in (
+            (head, {}, ""), (head + "[dispersion]\n", {}, ""),
+            (head + const, {"sink_speed_mps": {"dist": "constant", "value": 2.0}},
+             ' (every entry is dist = "constant")')):
+        path.write_text(text)
+        with pytest.raises(jl.ConfigError) as err:
+            load_montecarlo_spec(path)
+        assert str(err.value) == f"dispersion = {shown!r}: {rule.format(why)}"
+        assert main(["montecarlo", str(path), "--out", str(tmp_path / "mc")]) == 2
+        assert capsys.readouterr().err.strip().splitlines() == [
+            f"jaxland: error: dispersion = {shown!r}: {rule.format(why)}"]
+        assert not (tmp_path / "mc").exists()
+    # one input dispersed beside a constant is a Monte Carlo
+    path.write_text(head + const + "[dispersion.mass_scale]\ndist = 'normal'\nmean = 1.0\n"
+                    "std = 0.03\n")
+    assert set(load_montecarlo_spec(path).dispersion) == {"sink_speed_mps", "mass_scale"}
+
+
 def test_samples_outside_the_envelope_are_recorded_not_fatal():
     """An unbounded distribution can draw outside the envelope: those samples are failures with
     their reason (code 4), the batch goes on, and padding beyond n is never judged."""

@@ -274,12 +274,28 @@ def montecarlo_spec_from_dict(data: dict, *, keys_excluded=(), **overrides) -> M
                           **{**kwargs, **overrides})
 
 
+def check_disperses_something(spec: MonteCarloSpec) -> None:
+    """Refuse a spec that disperses no input (no ``[dispersion]`` entry, or only constants):
+    its n landings would all be one landing, presented as a Monte Carlo. Checked on a spec
+    file (``load_montecarlo_spec``), not in ``MonteCarloSpec``: a design spec's tables and
+    Python callers may fix every input on purpose (a design over fixed scenes, one landing
+    run through the Monte Carlo's outcomes)."""
+    if all(d.kind == "constant" for d in spec.dispersion.values()):
+        shown = {k: d.table() for k, d in spec.dispersion.items()}
+        why = ' (every entry is dist = "constant")' if shown else ""
+        raise ConfigError("dispersion", shown, f"disperses nothing{why}; a Monte Carlo needs "
+                          "at least one dispersed input (use jaxland simulate for one landing)")
+
+
 def load_montecarlo_spec(path) -> MonteCarloSpec:
     """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model, method),
-    ``[dispersion.<input>]`` tables and an optional ``[fixed]`` table (docs/formats.md)."""
+    ``[dispersion.<input>]`` tables (at least one input not constant) and an optional
+    ``[fixed]`` table (docs/formats.md)."""
     data = read_toml(path, "spec")
     unknown = set(data) - {"montecarlo", "dispersion", "fixed"}
     if unknown:
         raise ConfigError(sorted(unknown)[0], "<table>",
                           "unknown section; known: montecarlo, dispersion, fixed")
-    return montecarlo_spec_from_dict(data)
+    spec = montecarlo_spec_from_dict(data)
+    check_disperses_something(spec)
+    return spec
