@@ -209,6 +209,7 @@ def test_the_cli_can_skip_the_figures_and_the_progress_line(tmp_path, capsys):
         "samples.csv", "samples.npz", "summary.json", "vehicle.toml"]
     assert "montecarlo:" not in printed.err and "figures" not in printed.out
     assert "not estimated (3 successful landings" in printed.out
+    assert "retried" not in printed.out  # none was: no line
 
 
 def test_a_quarter_run_presents_no_tip_over_probability(quarter_run, tmp_path, capsys):
@@ -319,6 +320,31 @@ def test_failed_samples_are_retried_with_implicit_damping():
     assert one.outcomes["retried_from_dt_s"] == spec.dt
     np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one.outcomes["max_stroke_m"],
                                rtol=1e-3)
+
+
+def test_the_cli_names_the_retried_samples_and_what_a_retry_is(tmp_path, capsys):
+    """The touchdowns above as a spec file: the command prints how many samples failed
+    numerically and ran again, how (implicit strut damping, at the step their forces allow,
+    then smaller), the smallest step and how many still failed, as summary.json counts."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "hard.toml"
+    spec.write_text("[montecarlo]\nn = 8\nseed = 1\nt_end_s = 0.1\n[fixed]\n"
+                    "drop_height_m = 0.0\n[dispersion.sink_speed_mps]\ndist = 'uniform'\n"
+                    "low = 2.0\nhigh = 18.0\n")
+    out = tmp_path / "mc"
+    assert main(["montecarlo", str(spec), "--no-plots", "--quiet", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    k = summary["n_retried"]
+    assert 0 < k < 8 and summary["n_failed"] == 0
+    smallest = np.loadtxt(out / "samples.csv", delimiter=",", skiprows=1, usecols=[
+        (out / "samples.csv").read_text().splitlines()[0].split(",").index("dt_s")]).min()
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if "retried samples" in x]
+    assert line == (f"  retried samples     {k} (failed numerically at dt_s = 1e-05 s; rerun "
+                    "with the strut damping implicit (euler_implicit) at the step their forces "
+                    "allow (at most dt_s), then at a quarter of that step while failing, up to 3 "
+                    f"tries; smallest step {smallest:.3g} s, per sample in samples.csv; 0 still "
+                    "failed)")
 
 
 def test_bad_specs_are_refused_by_name(tmp_path):

@@ -35,6 +35,26 @@ def _no_successful_landing(s: dict) -> None:
                           f"below {s['dt_s']:g} s{again}")
 
 
+def _retried_text(result) -> str:
+    """What the retries did (``_montecarlo._run._retry``): how many samples failed
+    numerically and ran again, how, down to which step, and how many still failed."""
+    import numpy as np
+
+    from .._montecarlo._run import RETRY_STEPS
+    from .._solvers import FAILED_CODES
+
+    s, o = result.summary, result.outputs
+    retried = o["retried"]
+    how = ("with the strut damping implicit (euler_implicit) at the step their forces allow "
+           "(at most dt_s)" if s["method"] == "euler" else
+           f"with {s['retry_method']} at the smaller step their forces allow")
+    still = int(np.isin(result.failure[retried], FAILED_CODES).sum())
+    return (f"{s['n_retried']} (failed numerically at dt_s = {s['dt_s']:g} s; rerun {how}, "
+            f"then at a quarter of that step while failing, up to {RETRY_STEPS} tries; "
+            f"smallest step {float(o['dt_s'][retried].min()):.3g} s, per sample in "
+            f"samples.csv; {still} still failed)")
+
+
 def cmd_montecarlo(args) -> int:
     from .._config import load_vehicle, paper_vehicle
     from .._errors import ConfigError
@@ -79,6 +99,8 @@ def cmd_montecarlo(args) -> int:
           f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
     failures = f"  {s['failures']}" if s["failures"] else ""
     print(f"  failed samples      {s['n_failed']}{failures}")
+    if s["n_retried"]:
+        print(f"  retried samples     {_retried_text(result)}")
     if s["early_stop"]:
         settled = s["settled_time_s"]
         print(f"  settled before t_end {s['n_settled']}"
