@@ -52,15 +52,31 @@ FRACTION = Number(lo=0.0, hi=1.0, hi_open=True)  # [0, 1)
 
 @dataclass(frozen=True)
 class Choice:
-    """One of a fixed set of strings."""
+    """One of a fixed set of values. A boolean matches only a boolean: in Python 1 == True, so
+    ``in`` alone would take a TOML 1 or 0 for true or false."""
 
     choices: tuple
 
     def __call__(self, name: str, val):
-        if val not in self.choices:
+        if not any(isinstance(val, bool) == isinstance(c, bool) and val == c
+                   for c in self.choices):
             raise ConfigError(name, val, "must be one of " + ", ".join(
                 str(c).lower() if isinstance(c, bool) else str(c) for c in self.choices))
         return val
+
+
+@dataclass(frozen=True)
+class Flag:
+    """A boolean, TOML's true or false; 1 and 0 are refused (Python takes them as equal to
+    True and False, so an integer would pass as a switch)."""
+
+    def __call__(self, name: str, val):
+        if not isinstance(val, bool):
+            raise ConfigError(name, val, "must be true or false")
+        return val
+
+
+FLAG = Flag()
 
 
 @dataclass(frozen=True)

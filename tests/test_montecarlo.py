@@ -209,6 +209,42 @@ def test_the_cli_can_skip_the_figures_and_the_progress_line(tmp_path, capsys):
         "samples.csv", "samples.npz", "summary.json", "vehicle.toml"]
     assert "montecarlo:" not in printed.err and "figures" not in printed.out
     assert "not estimated (3 successful landings" in printed.out
+    assert "retried" not in printed.out  # none was: no line
+
+
+def test_a_quarter_run_presents_no_tip_over_probability(quarter_run, tmp_path, capsys):
+    """The quarter model is one leg of a symmetric drop and cannot tip over: the command says
+    so instead of printing P(tip-over) 0 with an interval, summary.json holds no count,
+    probability or interval (null, modelled false, the reason), and the tip-over map is not
+    drawn; n_succeeded counts the landings."""
+    from jaxland._montecarlo import probability_text, proportion
+    from jaxland.cli import main
+
+    s = quarter_run.summary
+    assert s["n_succeeded"] == int(np.sum(quarter_run.failure == 0)) > 0
+    assert s["tip_over"] == dict(modelled=False, reason=s["tip_over"]["reason"], count=None,
+                                 n=s["n_succeeded"], probability=None, ci95_wilson=None)
+    assert "cannot tip over" in s["tip_over"]["reason"]
+    assert probability_text(s["tip_over"]).startswith("not modelled: the quarter model")
+    # the map is drawn for a model that tips (here the same samples, marked as tippable)
+    tippable = jl.MonteCarloResult(quarter_run.inputs, quarter_run.outputs, quarter_run.failure,
+                                   {**s, "tip_over": {**proportion(
+                                       quarter_run.outputs["tipped_over"]), "modelled": True}})
+    maps = [p.name for r, d in ((tippable, "a"), (quarter_run, "b"))
+            for p in jl.plot_montecarlo(r, tmp_path / d) if p.name == "mc_tipover_map.png"]
+    assert maps == ["mc_tipover_map.png"]  # the tippable one's only
+    spec = tmp_path / "quarter.toml"
+    spec.write_text(QUARTER_TOML.replace("n = 12", "n = 3"))
+    out = tmp_path / "mc"
+    assert main(["montecarlo", str(spec), "--no-plots", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "P(tip-over)         not modelled: the quarter model is one leg of a symmetric " \
+        "vertical drop, which cannot tip over" in printed
+    assert "95% CI [0" not in printed.split("P(tip-over)")[1].splitlines()[0]
+    saved = json.loads((out / "summary.json").read_text())
+    assert saved["tip_over"]["modelled"] is False and saved["n_succeeded"] == 3
+    assert saved["tip_over"]["probability"] is None and saved["tip_over"]["count"] is None
+    assert saved["tip_over"]["ci95_wilson"] is None
 
 
 TIP_BASE = dict(fixed={"drop_height_m": 0.0, "sink_speed_mps": 1.0, "heading_deg": 45.0,
@@ -225,6 +261,7 @@ def test_tip_over_probability_is_one_beyond_and_zero_inside_the_boundary(low, hi
     res = run_montecarlo(spec, progress=False)
     tip = res.summary["tip_over"]
     assert res.summary["model"] == "full" and res.summary["n_failed"] == 0
+    assert tip["modelled"] is True and tip["n"] == res.summary["n_succeeded"]
     assert tip["probability"] == expected
     lo, hi = tip["ci95_wilson"]
     assert lo <= expected <= hi
@@ -285,6 +322,31 @@ def test_failed_samples_are_retried_with_implicit_damping():
                                rtol=1e-3)
 
 
+def test_the_cli_names_the_retried_samples_and_what_a_retry_is(tmp_path, capsys):
+    """The touchdowns above as a spec file: the command prints how many samples failed
+    numerically and ran again, how (implicit strut damping, at the step their forces allow,
+    then smaller), the smallest step and how many still failed, as summary.json counts."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "hard.toml"
+    spec.write_text("[montecarlo]\nn = 8\nseed = 1\nt_end_s = 0.1\n[fixed]\n"
+                    "drop_height_m = 0.0\n[dispersion.sink_speed_mps]\ndist = 'uniform'\n"
+                    "low = 2.0\nhigh = 18.0\n")
+    out = tmp_path / "mc"
+    assert main(["montecarlo", str(spec), "--no-plots", "--quiet", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    k = summary["n_retried"]
+    assert 0 < k < 8 and summary["n_failed"] == 0
+    smallest = np.loadtxt(out / "samples.csv", delimiter=",", skiprows=1, usecols=[
+        (out / "samples.csv").read_text().splitlines()[0].split(",").index("dt_s")]).min()
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if "retried samples" in x]
+    assert line == (f"  retried samples     {k} (failed numerically at dt_s = 1e-05 s; rerun "
+                    "with the strut damping implicit (euler_implicit) at the step their forces "
+                    "allow (at most dt_s), then at a quarter of that step while failing, up to 3 "
+                    f"tries; smallest step {smallest:.3g} s, per sample in samples.csv; 0 still "
+                    "failed)")
+
+
 def test_bad_specs_are_refused_by_name(tmp_path):
     path = tmp_path / "spec.toml"
     cases = [
@@ -337,6 +399,59 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         assert str(err.value).startswith(field), str(err.value)
 
 
+@pytest.mark.parametrize("key", ["retry", "early_stop"])
+@pytest.mark.parametrize("value", ["1", "0", "1.0"])
+def test_a_switch_takes_only_true_or_false(tmp_path, capsys, key, value):
+    """retry = 1 or early_stop = 0 is no TOML boolean (Python's 1 == True let it pass as
+    one): refused by name before any work, exit 2 and one line."""
+    from jaxland._checks import Choice
+    from jaxland.cli import main
+
+    path = tmp_path / "spec.toml"
+    path.write_text(QUARTER_TOML.replace("t_end_s = 0.3", f"t_end_s = 0.3\n{key} = {value}"))
+    with pytest.raises(jl.ConfigError) as err:
+        load_montecarlo_spec(path)
+    assert str(err.value) == f"montecarlo.{key} = {value}: must be true or false"
+    assert main(["montecarlo", str(path), "--out", str(tmp_path / "mc")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"jaxland: error: montecarlo.{key} = {value}: must be true or false"]
+    assert not (tmp_path / "mc").exists()
+    with pytest.raises(jl.ConfigError, match="must be true or false"):
+        MonteCarloSpec(**{**QUARTER_SPEC, key: int(float(value))})
+    # a choice that holds booleans takes only booleans
+    with pytest.raises(jl.ConfigError, match="must be one of true, false"):
+        Choice((True, False))("x", int(float(value)))
+    assert Choice((True, False))("x", True) is True
+
+
+def test_a_spec_file_that_disperses_nothing_is_refused(tmp_path, capsys):
+    """No [dispersion] table, an empty one, or only constants: n copies of one landing, not a
+    Monte Carlo; refused by name before any work (exit 2, one line, nothing written)."""
+    from jaxland.cli import main
+
+    path = tmp_path / "spec.toml"
+    head = "[montecarlo]\nn = 4\nt_end_s = 0.3\n[fixed]\ndrop_height_m = 0.0\n"
+    const = "[dispersion.sink_speed_mps]\ndist = 'constant'\nvalue = 2.0\n"
+    rule = ("disperses nothing{}; a Monte Carlo needs at least one dispersed input (use "
+            "jaxland simulate for one landing)")
+    for text, shown, why in (
+            (head, {}, ""), (head + "[dispersion]\n", {}, ""),
+            (head + const, {"sink_speed_mps": {"dist": "constant", "value": 2.0}},
+             ' (every entry is dist = "constant")')):
+        path.write_text(text)
+        with pytest.raises(jl.ConfigError) as err:
+            load_montecarlo_spec(path)
+        assert str(err.value) == f"dispersion = {shown!r}: {rule.format(why)}"
+        assert main(["montecarlo", str(path), "--out", str(tmp_path / "mc")]) == 2
+        assert capsys.readouterr().err.strip().splitlines() == [
+            f"jaxland: error: dispersion = {shown!r}: {rule.format(why)}"]
+        assert not (tmp_path / "mc").exists()
+    # one input dispersed beside a constant is a Monte Carlo
+    path.write_text(head + const + "[dispersion.mass_scale]\ndist = 'normal'\nmean = 1.0\n"
+                    "std = 0.03\n")
+    assert set(load_montecarlo_spec(path).dispersion) == {"sink_speed_mps", "mass_scale"}
+
+
 def test_samples_outside_the_envelope_are_recorded_not_fatal():
     """An unbounded distribution can draw outside the envelope: those samples are failures with
     their reason (code 4), the batch goes on, and padding beyond n is never judged."""
@@ -356,8 +471,9 @@ def test_results_are_saved_with_inputs(quarter_run, tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["n"] == 12 and summary["sensitivity"]["ranking"][0]["input"] in (
         "sink_speed_mps", "mass_scale")
+    # the quarter model cannot tip over: no tip-over map (every sample would read "stable")
     assert sorted(p.name for p in (tmp_path / "figures").glob("*.png")) == [
-        "mc_envelopes.png", "mc_histograms.png", "mc_tipover_map.png"]
+        "mc_envelopes.png", "mc_histograms.png"]
 
 
 def test_a_stabilised_method_at_a_larger_step_agrees(quarter_run):

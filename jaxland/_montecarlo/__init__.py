@@ -1,6 +1,7 @@
 """Monte Carlo over touchdown dispersions: sampled scenes, the smallest adequate model, chunked
 ``vmap`` sharded over every local device, failed samples recorded (never a crash of the batch),
-tip-over and bottoming probabilities with Wilson intervals, envelopes and sensitivities.
+tip-over (3-D model: the quarter model cannot tip) and bottoming probabilities with Wilson
+intervals, envelopes and sensitivities.
 
 Reproducibility: sample i's inputs depend only on (seed, i, input name), via
 ``fold_in(fold_in(key(seed), i), crc32(name))``, so the same seed gives the same samples for any

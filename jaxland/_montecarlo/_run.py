@@ -28,7 +28,13 @@ from .._simulate import landings
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec
-from ._stats import percentiles, proportion, sensitivity
+from ._stats import (
+    TIP_OVER_NOT_MODELLED,
+    not_modelled,
+    percentiles,
+    proportion,
+    sensitivity,
+)
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
 # kept): per model, the quarter's and the 3-D model's attitude peaks
@@ -383,8 +389,11 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
             np.isfinite(outputs["settled_time_s"])]) if "settled_time_s" in outputs else None),
         retry_method=("euler_implicit" if spec.method == "euler" else spec.method)
         if outputs["retried"].any() else None,
-        # over the successful landings; None where there is none (0/0 is no probability)
-        tip_over=proportion(outputs["tipped_over"][ok]),
+        n_succeeded=int(ok.sum()),
+        # over the successful landings; None where there is none (0/0 is no probability).
+        # The quarter model cannot tip: no probability, not a computed-looking 0
+        tip_over=(dict(modelled=True, **proportion(outputs["tipped_over"][ok]))
+                  if model == "full" else not_modelled(ok.sum(), TIP_OVER_NOT_MODELLED)),
         bottoming=proportion(outputs["bottomed_out"][ok]),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),

@@ -10,7 +10,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._checks import NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
+from .._checks import FLAG, NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
 from .._errors import ConfigError
 from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS
 from .._solvers import FIXED_STEP_METHODS, check_whole_steps
@@ -193,11 +193,11 @@ class MonteCarloSpec:
     # fixed-step methods batch without waiting for the slowest sample
     method: str = spec_field("euler", toml="method", check=Choice(FIXED_STEP_METHODS))
     # rerun samples that fail numerically once (with implicit strut damping; run._retry)
-    retry: bool = spec_field(True, toml="retry", check=Choice((True, False)))
+    retry: bool = spec_field(True, toml="retry", check=FLAG)
     # stop each landing once no outcome can change any more (Solver.early_stop; docs/
     # montecarlo.md): pays with a t_end_s beyond the settle time (quarter ~2-3 s); off by
     # default, as 1 s landings do not settle provably and the check costs compile time
-    early_stop: bool = spec_field(False, toml="early_stop", check=Choice((True, False)))
+    early_stop: bool = spec_field(False, toml="early_stop", check=FLAG)
     # the energy ledger and the finiteness of the state are checked every this many seconds
     # (0: every step; None: the model's LEDGER_CHECK_S): a failure is found within it, and
     # energy_closure_rel is the worst over the checks (docs/montecarlo.md). Peaks are maxima
@@ -274,12 +274,28 @@ def montecarlo_spec_from_dict(data: dict, *, keys_excluded=(), **overrides) -> M
                           **{**kwargs, **overrides})
 
 
+def check_disperses_something(spec: MonteCarloSpec) -> None:
+    """Refuse a spec that disperses no input (no ``[dispersion]`` entry, or only constants):
+    its n landings would all be one landing, presented as a Monte Carlo. Checked on a spec
+    file (``load_montecarlo_spec``), not in ``MonteCarloSpec``: a design spec's tables and
+    Python callers may fix every input on purpose (a design over fixed scenes, one landing
+    run through the Monte Carlo's outcomes)."""
+    if all(d.kind == "constant" for d in spec.dispersion.values()):
+        shown = {k: d.table() for k, d in spec.dispersion.items()}
+        why = ' (every entry is dist = "constant")' if shown else ""
+        raise ConfigError("dispersion", shown, f"disperses nothing{why}; a Monte Carlo needs "
+                          "at least one dispersed input (use jaxland simulate for one landing)")
+
+
 def load_montecarlo_spec(path) -> MonteCarloSpec:
     """Read a Monte Carlo spec TOML: ``[montecarlo]`` (n, seed, dt_s, t_end_s, model, method),
-    ``[dispersion.<input>]`` tables and an optional ``[fixed]`` table (docs/formats.md)."""
+    ``[dispersion.<input>]`` tables (at least one input not constant) and an optional
+    ``[fixed]`` table (docs/formats.md)."""
     data = read_toml(path, "spec")
     unknown = set(data) - {"montecarlo", "dispersion", "fixed"}
     if unknown:
         raise ConfigError(sorted(unknown)[0], "<table>",
                           "unknown section; known: montecarlo, dispersion, fixed")
-    return montecarlo_spec_from_dict(data)
+    spec = montecarlo_spec_from_dict(data)
+    check_disperses_something(spec)
+    return spec

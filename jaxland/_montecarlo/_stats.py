@@ -29,9 +29,25 @@ def proportion(flags) -> dict:
     return dict(count=k, n=n, probability=k / n if n else None, ci95_wilson=wilson_interval(k, n))
 
 
+# why the quarter model has no tip-over probability (a summary's tip_over["reason"])
+TIP_OVER_NOT_MODELLED = ("the quarter model is one leg of a symmetric vertical drop, which "
+                         "cannot tip over; model = \"full\" computes it")
+
+
+def not_modelled(n: int, reason: str) -> dict:
+    """``proportion``'s fields for an outcome the model cannot produce: no count, probability
+    or interval (null in summary.json, never a 0 that reads as computed), ``n`` the landings it
+    would be taken over, ``modelled`` false and the ``reason``."""
+    return dict(modelled=False, reason=reason, count=None, n=int(n), probability=None,
+                ci95_wilson=None)
+
+
 def probability_text(p: dict, nd: int = 3) -> str:
     """A probability with its 95 % interval for a report line (``p``: the summary's
-    count/n/probability/ci95_wilson); a probability over no landing is none."""
+    count/n/probability/ci95_wilson); a probability over no landing is none, one the model
+    cannot produce (``modelled`` false) says so."""
+    if p.get("modelled") is False:
+        return f"not modelled: {p['reason']}"
     if p["probability"] is None:
         return "undefined (no successful landing)"
     lo, hi = p["ci95_wilson"]

@@ -33,8 +33,8 @@ def _input_column(result, name):
 
 
 def plot_montecarlo(result, out_dir) -> list[Path]:
-    """Write mc_histograms.png, mc_envelopes.png and (when there are two or more dispersed
-    inputs) mc_tipover_map.png into ``out_dir``."""
+    """Write mc_histograms.png, mc_envelopes.png and (when the model can tip over and there
+    are two or more dispersed inputs) mc_tipover_map.png into ``out_dir``."""
     from matplotlib.figure import Figure
 
     out_dir = Path(out_dir)
@@ -42,8 +42,10 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
     ok = result.failure == 0  # Result.SUCCESSFUL
     rows = _outcomes(result)
     s = result.summary
-    title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; "
-             f"P(tip-over) = {probability_text(s['tip_over'])}, "
+    tippable = s["tip_over"].get("modelled", True)  # the quarter model cannot tip
+    tip = (f"P(tip-over) = {probability_text(s['tip_over'])}" if tippable
+           else "tip-over not modelled")
+    title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; {tip}, "
              f"P(bottoming) = {probability_text(s['bottoming'])}")
     paths = []
 
@@ -71,7 +73,7 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
     paths.append(_save(fig, out_dir / "mc_envelopes.png"))
 
     ranking = s["sensitivity"]["ranking"]
-    if len(ranking) >= 2:
+    if len(ranking) >= 2 and tippable:
         a, b = ranking[0]["input"], ranking[1]["input"]
         xa, xb = _input_column(result, a), _input_column(result, b)
         fig = Figure(figsize=(6.5, 5), layout="constrained")

@@ -35,6 +35,26 @@ def _no_successful_landing(s: dict) -> None:
                           f"below {s['dt_s']:g} s{again}")
 
 
+def _retried_text(result) -> str:
+    """What the retries did (``_montecarlo._run._retry``): how many samples failed
+    numerically and ran again, how, down to which step, and how many still failed."""
+    import numpy as np
+
+    from .._montecarlo._run import RETRY_STEPS
+    from .._solvers import FAILED_CODES
+
+    s, o = result.summary, result.outputs
+    retried = o["retried"]
+    how = ("with the strut damping implicit (euler_implicit) at the step their forces allow "
+           "(at most dt_s)" if s["method"] == "euler" else
+           f"with {s['retry_method']} at the smaller step their forces allow")
+    still = int(np.isin(result.failure[retried], FAILED_CODES).sum())
+    return (f"{s['n_retried']} (failed numerically at dt_s = {s['dt_s']:g} s; rerun {how}, "
+            f"then at a quarter of that step while failing, up to {RETRY_STEPS} tries; "
+            f"smallest step {float(o['dt_s'][retried].min()):.3g} s, per sample in "
+            f"samples.csv; {still} still failed)")
+
+
 def cmd_montecarlo(args) -> int:
     from .._config import load_vehicle, paper_vehicle
     from .._errors import ConfigError
@@ -71,7 +91,7 @@ def cmd_montecarlo(args) -> int:
     if jax.process_index() != 0:
         return 0
     s = result.summary
-    if s["tip_over"]["n"] == 0:
+    if s["n_succeeded"] == 0:
         _no_successful_landing(s)
     result.save(out, plots=not args.no_plots)
     tip, bot = s["tip_over"], s["bottoming"]
@@ -79,6 +99,8 @@ def cmd_montecarlo(args) -> int:
           f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
     failures = f"  {s['failures']}" if s["failures"] else ""
     print(f"  failed samples      {s['n_failed']}{failures}")
+    if s["n_retried"]:
+        print(f"  retried samples     {_retried_text(result)}")
     if s["early_stop"]:
         settled = s["settled_time_s"]
         print(f"  settled before t_end {s['n_settled']}"
@@ -88,8 +110,12 @@ def cmd_montecarlo(args) -> int:
     if s["n_unfinished"]:
         print(f"  unfinished          {s['n_unfinished']} (t_end_s came during an impact or "
               "before the tip-over was decided: counted apart; raise t_end_s)")
-    print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI [{tip['ci95_wilson'][0]:.4g}, "
-          f"{tip['ci95_wilson'][1]:.4g}]  ({tip['count']}/{tip['n']})")
+    if tip["modelled"]:
+        print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI "
+              f"[{tip['ci95_wilson'][0]:.4g}, {tip['ci95_wilson'][1]:.4g}]  "
+              f"({tip['count']}/{tip['n']})")
+    else:  # no probability to print: a 0 would read as computed
+        print(f"  P(tip-over)         not modelled: {tip['reason']}")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
           f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']})")
     for name, env in s["envelopes"].items():
@@ -104,8 +130,9 @@ def cmd_montecarlo(args) -> int:
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
     else:
-        print(f"  drivers of {s['sensitivity']['target']}: not estimated ({tip['n']} successful "
-              "landings; the regression needs more than one per dispersed input and leg)")
+        print(f"  drivers of {s['sensitivity']['target']}: not estimated ({s['n_succeeded']} "
+              "successful landings; the regression needs more than one per dispersed input "
+              "and leg)")
     print(f"wrote {out}/samples.csv, samples.npz, summary.json, vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
