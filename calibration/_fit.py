@@ -68,7 +68,6 @@ benchmarks/results/bench_fit.json):
 
 from __future__ import annotations
 
-import json
 import math
 import time
 import warnings
@@ -81,6 +80,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
+from jaxland._files import json_text
 
 from ._data import CHANNELS, DropTest, base_channel
 from ._optim import lbfgs, levenberg_marquardt
@@ -203,6 +203,7 @@ class FitResult:
     problem: CalibrationProblem = field(default=None, repr=False)
     theta: np.ndarray = field(default=None, repr=False)
     settings: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)  # what a caller ran it from (the CLI's files)
 
     def value(self, name: str) -> float:
         return float(self.values[self.names.index(name)])
@@ -246,6 +247,8 @@ class FitResult:
             identifiability_warnings=self.warnings,
             method=self.method, stages=self.stages, wall_s=self.wall_s,
             settings=self.settings,
+            **({"inputs": self.inputs} if self.inputs else {}),
+            environment=dict(jaxland=jl.__version__, jax=jax.__version__),
             drops=[d.summary() for d in self.drops],
             history=[dict(stage=h["stage"], iteration=h["iteration"], loss=h["loss"],
                           wall_s=h["wall_s"], values=dict(zip(self.names, h["values"])))
@@ -268,7 +271,7 @@ class FitResult:
     def to_json(self, path) -> Path:
         from ._report import atomic_write_text
 
-        return atomic_write_text(Path(path), json.dumps(self.report(), indent=2) + "\n")
+        return atomic_write_text(Path(path), json_text(self.report()))
 
     @property
     def converged(self) -> bool:

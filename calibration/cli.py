@@ -49,6 +49,32 @@ def _out_dir(path: str, inputs=()) -> Path:
     return jl.check_output_folder(path, inputs)
 
 
+def _file_record(path) -> dict:
+    """A file an output was made from: its path as given, its absolute path and its SHA-256
+    (which tells whether the file at that path is still the one used)."""
+    import hashlib
+
+    path = Path(path)
+    return dict(path=str(path), absolute=str(path.resolve()),
+                sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+
+
+def fit_inputs(args, drops) -> dict:
+    """``fit_report.json``'s ``inputs``: the drop tests as given with the files their metadata
+    named, the ``--config`` file, and every argument of the command as parsed (defaults
+    filled in), so that the fit can be run again as it was (the versions it ran on are the
+    report's ``environment``)."""
+    def named(files) -> dict:  # the metadata, its traces, its vehicle_config (or None)
+        meta, data, *cfg = files
+        return dict(metadata=_file_record(meta), data_file=_file_record(data),
+                    vehicle_config=_file_record(cfg[0]) if cfg else None)
+
+    return dict(
+        data=[dict(given=given, **named(d.files)) for given, d in zip(args.data, drops)],
+        config=_file_record(args.config) if args.config else None,
+        arguments={k: v for k, v in vars(args).items() if k not in ("func", "command")})
+
+
 def stopped_at_cap(result) -> bool:
     """The fit's last stage ended at its iteration cap, not at a minimum."""
     from ._fit import stopped_at_cap as capped
@@ -189,6 +215,7 @@ def _cmd_fit(args) -> int:
             result = _fit.fit(drops, names, **fit_kw)
     for w in caught:
         print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
+    result.inputs = fit_inputs(args, drops)
     with staged(out, "fit") as staging:  # replaces out as a whole, only if all succeed
         (staging / "fitted_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "fit_report.json")

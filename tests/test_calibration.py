@@ -391,6 +391,33 @@ def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
     assert not list(cli_fit.glob(".staging-*"))
 
 
+def test_the_fit_report_records_its_inputs_and_versions(cli_fit):
+    """fit_report.json names what it was made from: the drop test as given, the files its
+    metadata named (absolute, with their SHA-256), the --config, every argument of the
+    command, and the jaxland and jax versions; strict JSON."""
+    import hashlib
+
+    def refuse(name):
+        raise AssertionError(f"not strict JSON: {name}")
+
+    rep = json.loads((cli_fit / "fit_report.json").read_text(), parse_constant=refuse)
+    meta = DATA / "drop_h0.20m.toml"
+    (drop,) = rep["inputs"]["data"]
+    assert drop["given"] == str(meta)
+    for key, path in (("metadata", meta), ("data_file", DATA / "drop_h0.20m.csv"),
+                      ("vehicle_config", DATA / "nominal_vehicle.toml")):
+        assert drop[key]["absolute"] == str(path.resolve())
+        assert drop[key]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert rep["inputs"]["config"] is None
+    args = rep["inputs"]["arguments"]
+    assert args["data"] == [str(meta)] and args["out"] == str(cli_fit) and args["quiet"]
+    assert args["windows"] == ",".join(f"{w:g}" for w in cal.WINDOWS_S)
+    assert args["refine_window_s"] == cal.REFINE_WINDOW_S and args["method"] == "lm"
+    assert args["params"] == ",".join(NAMES) and args["start"] is None
+    assert args["robust"] > 0 and args["max_iter"] == 60 and args["dt"] == 1e-5
+    assert rep["environment"] == dict(jaxland=jl.__version__, jax=jax.__version__)
+
+
 def test_crush_peak_and_offset_data_still_fit_close_to_the_truth(cli_fit):
     """The model has no crush peak; the robust (Huber) fit keeps it from biasing the fit.
     Measured: k 0.3 %, gamma 0.6 %, D_b, F1, F2 < 0.1 %, k_b1 4.4 % (the crush peak sits on
