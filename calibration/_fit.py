@@ -1205,6 +1205,12 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
                              f"{integrator} for the start vehicle)")
     start_values = get_values(start_vehicle, names)
+    for d in drops:  # the fit's problem refuses it too (as window_s), but after the banner
+        if d.duration_after_touchdown_s < windows[-1] - 0.5 / d.sample_rate_Hz:
+            raise jl.ConfigError("windows", list(windows), f"the last window "
+                                 f"({windows[-1]:g} s) is longer than the record {d.name} "
+                                 f"after touchdown ({d.duration_after_touchdown_s:.4g} s); "
+                                 "give windows that end within the record")
     shortest = min(d.duration_after_touchdown_s for d in drops)
     stages_w = list(windows)
     if refine_window_s:

@@ -184,8 +184,13 @@ def _cmd_fit(args) -> int:
                              "in the honeycomb; fit with --peak-site forces on its own")
     # every argument refused before the banner; --compare-models fits the peak model
     # (peak_form's) beside the model without the peak
-    checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models else names,
-                             peak_form=peak_form, **fit_kw)
+    try:
+        checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models
+                                 else names, peak_form=peak_form, **fit_kw)
+    except jl.ConfigError as err:
+        if err.field == "windows":  # the API's argument; the user sets it with the flag
+            raise jl.ConfigError("--windows", err.value, err.rule) from None
+        raise
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
           f"parameters {', '.join(names)}, method {args.method}, integrator "
           f"{checked.integrator} (dt {args.dt:g} s, smoothing {checked.smoothing_m:g} m / "

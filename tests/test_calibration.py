@@ -467,6 +467,27 @@ def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
     assert not out.exists()
 
 
+def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_argument_in_python(
+        tmp_path, capsys):
+    """The default windows end 0.1 s after touchdown; a record that ends before is refused
+    before the fit's banner: on the command line as --windows (the flag that changes it), in
+    one line with the value and the rule; in Python as ``windows``, fit's own argument."""
+    from jaxland.cli import main
+
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=1, duration_s=0.15)  # touchdown at 0.05 s
+    vr.write_nominal(tmp_path)
+    out = tmp_path / "out"
+    assert main(["fit", str(toml), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert ("--windows = [0.01, 0.03, 0.1]: the last window (0.1 s) is longer than the record "
+            "drop_h0.20m after touchdown") in err[0], err
+    assert not out.exists()
+    with pytest.raises(jl.ConfigError, match="longer than the record") as caught:
+        cal.fit(cal.load_drop_test(toml))
+    assert caught.value.field == "windows"
+
+
 def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,
                                                                             monkeypatch,
                                                                             tmp_path):
