@@ -165,6 +165,16 @@ class MisfitWarning(UserWarning):
     (``FitResult.std_errors_total``)."""
 
 
+# fitted_vehicle.toml's header lines (FitResult.to_toml), which predict reads back
+# (``_predict.read_fit_status``)
+HEADER_FIT = "# Calibrated by `jaxland fit` (calibration package) against: "
+HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): "
+HEADER_MISFIT = "# MISFIT: "
+HEADER_NOT_CONVERGED = "# NOT CONVERGED: "
+AT_BOUND = "AT A BOUND OF THE VEHICLE'S RULES"
+NOT_IDENTIFIED = "NOT IDENTIFIED by these records"
+
+
 def stopped_at_cap(stages: list[dict]) -> bool:
     """A fit's last stage ended at its iteration cap, not at a minimum."""
     return bool(stages) and stages[-1].get("status") == "max_iter"
@@ -291,20 +301,19 @@ class FitResult:
         residuals' misfit where there is one."""
         interval, errors = self.reported_errors()
         misfit = self.diagnostics.get("misfit") or []
-        head = ["# Calibrated by `jaxland fit` (calibration package) against: "
-                + ", ".join(d.source for d in self.drops),
-                f"# fitted (+/- {interval}, the standard error the fit reports): " + ", ".join(
+        head = [HEADER_FIT + ", ".join(d.source for d in self.drops),
+                HEADER_VALUES.format(interval=interval) + ", ".join(
                     f"{n} = {v:.6g} +/- {s:.2g} {PARAMS[n][1]}" if ok else
-                    f"{n} = {v:.6g} {PARAMS[n][1]} (AT A BOUND OF THE VEHICLE'S RULES)"
+                    f"{n} = {v:.6g} {PARAMS[n][1]} ({AT_BOUND})"
                     if n in self.diagnostics.get("at_bound", ()) else
-                    f"{n} = {v:.6g} {PARAMS[n][1]} (NOT IDENTIFIED by these records; "
-                    f"started at {v0:.6g})"
+                    f"{n} = {v:.6g} {PARAMS[n][1]} ({NOT_IDENTIFIED}; started at {v0:.6g})"
                     for n, v, s, ok, v0 in zip(self.names, self.values, errors,
                                                self.identified, self.start_values)),
-                *([f"# MISFIT: {'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
+                *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
-                *([] if self.converged else ["# NOT CONVERGED: the last stage stopped at its "
-                                             "iteration cap; these values are not a minimum"]),
+                *([] if self.converged else [HEADER_NOT_CONVERGED + "the last stage stopped at "
+                                             "its iteration cap; these values are not a "
+                                             "minimum"]),
                 ""]
         return "\n".join(head) + jl.vehicle_to_toml(self.vehicle)
 

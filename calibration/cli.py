@@ -150,12 +150,12 @@ def peak_site_line(check: dict | None) -> str:
 
 def _cmd_fit(args) -> int:
     from . import _fit
-    from ._data import load_drop_tests
+    from ._data import load_drop_tests, load_vehicle_file
     from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
 
     out = _out_dir(args.out, (args.config, *args.data))
     names = check_names(args.params)
-    vehicle = jl.load_vehicle(args.config) if args.config else None
+    vehicle = load_vehicle_file(args.config, "--config") if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
@@ -319,18 +319,23 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_predict(args) -> int:
-    from ._data import load_drop_tests
-    from ._predict import predict
+    from ._data import load_drop_tests, load_vehicle_file
+    from ._predict import predict, read_fit_status
 
     out = _out_dir(args.out, (args.config, *args.data))
-    vehicle = jl.load_vehicle(args.config)
+    vehicle = load_vehicle_file(args.config, "--config")
+    status = read_fit_status(args.config)  # what the fit said of the vehicle, if it is one
     drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
+    lines = fit_status_lines(args.config, status)
+    if status["from_fit"] and not status["sound"]:
+        print(f"jaxland predict: warning: {lines[0]}", file=sys.stderr)
     preds = [predict(vehicle, d) for d in drops]
     for p, path in zip(preds, args.data):  # each prediction names what it was run from
         p.inputs = dict(vehicle_config=str(Path(args.config).resolve()),
                         vehicle_as_run="vehicle.toml", data=str(Path(path).resolve()),
                         jaxland_version=jl.__version__)
+        p.fit_status = status
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
         (staging / "vehicle.toml").write_text(f"# the vehicle predicted with (--config "
                                               f"{args.config})\n" + jl.vehicle_to_toml(vehicle))
@@ -338,6 +343,8 @@ def _cmd_predict(args) -> int:
             p.to_json(staging / f"prediction_{p.drop.name}.json")
             if not args.no_plots:
                 p.plot(staging / "figures" / f"prediction_{p.drop.name}.png")
+    for line in lines:
+        print(line)
     for p in preds:
         print(f"jaxland predict: {p.drop.name} with {args.config}")
         for k, v in p.metrics.items():
@@ -346,6 +353,36 @@ def _cmd_predict(args) -> int:
     print(f"wrote {out}/" + ", ".join(f"prediction_{p.drop.name}.json" for p in preds)
           + ", vehicle.toml" + ("" if args.no_plots else ", figures/*.png"))
     return 0
+
+
+def fit_status_lines(config: str, status: dict) -> list[str]:
+    """predict's lines on the vehicle's fit (``read_fit_status``): none for a vehicle not
+    written by ``jaxland fit``; else whether the fit is sound or which flags it carries, the
+    MISFIT and NOT CONVERGED lines' text, and each fitted value's standard error, which the
+    predictions do not carry."""
+    if not status["from_fit"]:
+        return []
+    if status["sound"]:
+        head = (f"{config}: fitted vehicle, fit sound (converged, no misfit, every value "
+                "identified)")
+    else:
+        head = (f"{config}: fitted vehicle whose fit is flagged {', '.join(status['flags'])}"
+                ": these predictions are not those of a sound fit")
+    lines = [head]
+    for flag, key in (("MISFIT", "misfit"), ("NOT CONVERGED", "not_converged")):
+        if status[key] is not None:
+            lines.append(f"  {flag}: {status[key]}")
+    params = status["parameters"]
+    if params:
+        lines.append(f"  fitted values (+/- {status['interval']}): " + ", ".join(
+            f"{n} {p['value']:.6g} +/- {p['std_error']:.2g} {p['unit']} "
+            f"({p['rel_std_error']:.1%})" if p["rel_std_error"] is not None else
+            f"{n} {p['value'] if p['value'] is None else format(p['value'], '.6g')} "
+            f"{p['unit']} ({p['note'] or 'no standard error'})"
+            for n, p in params.items()))
+    lines.append("  the predictions below carry no uncertainty band: they are for the fitted "
+                 "values alone")
+    return lines
 
 
 def add_subcommands(subparsers) -> None:

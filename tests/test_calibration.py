@@ -451,6 +451,94 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
 
 
+def test_predict_says_what_the_fit_said_of_its_vehicle_and_its_errors(cli_fit, tmp_path,
+                                                                     capsys):
+    """predict reads fitted_vehicle.toml's header: the fit's flags (this fit's MISFIT) on
+    stderr, stdout and in each prediction's fit_status, with every fitted value's standard
+    error beside the prediction (which carries no band)."""
+    fit_rep = json.loads((cli_fit / "fit_report.json").read_text())
+    assert fit_rep["misfit"]["misfit"] and fit_rep["converged"]  # the crush peak's misfit
+    config = str(cli_fit / "fitted_vehicle.toml")
+    out = tmp_path / "pred"
+    assert _run(["predict", "--config", config, str(DATA / "drop_h0.30m.toml"), "--out",
+                 str(out), "--no-plots"]) == 0
+    cap = capsys.readouterr()
+    head = f"{config}: fitted vehicle whose fit is flagged MISFIT: these predictions are not"
+    assert f"warning: {head}" in cap.err and head in cap.out
+    assert "  MISFIT: " + "; ".join(fit_rep["misfit"]["misfit"]) in cap.out
+    assert "carry no uncertainty band" in cap.out
+    status = json.loads((out / "prediction_drop_h0.30m.json").read_text())["fit_status"]
+    assert status["from_fit"] and not status["sound"] and status["flags"] == ["MISFIT"]
+    assert status["interval"] == fit_rep["interval_reported"] == "std_error_total"
+    assert status["not_converged"] is None and "not propagated" in status["uncertainty"]
+    for n, p in fit_rep["parameters"].items():
+        got = status["parameters"][n]
+        assert got["value"] == pytest.approx(p["value"], rel=1e-5)
+        assert got["std_error"] == pytest.approx(p["std_error_total"], rel=0.05)
+        assert f"{n} {got['value']:.6g} +/- {got['std_error']:.2g} {p['unit']}" in cap.out
+
+
+def test_the_fit_status_reads_every_flag_of_the_header(tmp_path):
+    """read_fit_status on FitResult.to_toml's header: MISFIT, NOT CONVERGED, a value not
+    identified and one at a bound; a sound fit has none; a plain vehicle is no fit's."""
+    from types import SimpleNamespace
+
+    from calibration._predict import read_fit_status
+
+    def header(misfit, status, identified, at_bound):
+        res = cal.FitResult(
+            names=("k", "gamma", "F1"), values=np.array([2e6, 0.4, 5000.0]),
+            std_errors=np.array([3e4, 0.01, 20.0]), correlation=np.eye(3),
+            covariance=np.eye(3), identified=np.array(identified),
+            start_values=np.array([1.9e6, 0.3, 4800.0]), vehicle=TRUTH,
+            diagnostics=dict(interval="std_error", misfit=misfit, at_bound=at_bound),
+            stages=[dict(status=status)], drops=[SimpleNamespace(source="d.csv")])
+        path = tmp_path / "v.toml"
+        path.write_text(res.to_toml())
+        return read_fit_status(path)
+
+    bad = header(["lag-1 residual autocorrelation 0.8 > 0.1"], "max_iter",
+                 [True, False, False], ["F1"])
+    assert bad["flags"] == ["MISFIT", "NOT CONVERGED", "NOT IDENTIFIED: gamma",
+                            "AT A BOUND: F1"] and not bad["sound"]
+    assert bad["misfit"].startswith("lag-1 residual autocorrelation 0.8 > 0.1")
+    assert "iteration cap" in bad["not_converged"] and bad["fitted_against"] == "d.csv"
+    assert bad["parameters"]["k"] == dict(value=2e6, std_error=3e4, unit="N/m", note=None,
+                                          rel_std_error=pytest.approx(0.015))
+    assert bad["parameters"]["gamma"]["std_error"] is None
+    good = header([], "converged", [True, True, True], [])
+    assert good["sound"] and good["flags"] == [] and good["interval"] == "std_error"
+    assert good["parameters"]["F1"]["std_error"] == 20.0
+    assert read_fit_status(DATA / "truth_vehicle.toml") == {"from_fit": False}
+
+
+@pytest.mark.parametrize("text", ["", "# only a comment\n", "[body]\n[honeycomb]\n"])
+def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_vehicle(
+        tmp_path, capsys, text):
+    """jaxland gives every key a vehicle file leaves out the paper's value; predict and fit
+    refuse an empty (or parameter-free) --config, and a drop test whose vehicle_config is
+    one, in one line naming the file, rather than run the paper vehicle."""
+    from jaxland.cli import main
+
+    empty = tmp_path / "empty.toml"
+    empty.write_text(text)
+    data = str(DATA / "drop_h0.30m.toml")
+    out = tmp_path / "out"
+    for argv in (["predict", "--config", str(empty), data], ["fit", data, "--config",
+                                                              str(empty)]):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--config = {str(empty)!r}: sets no vehicle parameter" in \
+            err[0], err
+        assert not out.exists()
+    meta = tmp_path / "d.toml"
+    meta.write_text((DATA / "drop_h0.30m.toml").read_text().replace(
+        'data_file = "drop_h0.30m.csv"', f'data_file = {json.dumps(data[:-4] + "csv")}')
+        .replace('vehicle_config = "nominal_vehicle.toml"', 'vehicle_config = "empty.toml"'))
+    with pytest.raises(jl.ConfigError, match="empty.toml.*sets no vehicle parameter"):
+        cal.load_drop_test(meta)
+
+
 @pytest.mark.parametrize("argv,needle", [
     (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "unknown parameter"),
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
