@@ -68,7 +68,6 @@ benchmarks/results/bench_fit.json):
 
 from __future__ import annotations
 
-import json
 import math
 import time
 import warnings
@@ -81,6 +80,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
+from jaxland._files import json_text
 
 from ._data import CHANNELS, DropTest, base_channel
 from ._optim import lbfgs, levenberg_marquardt
@@ -165,6 +165,16 @@ class MisfitWarning(UserWarning):
     (``FitResult.std_errors_total``)."""
 
 
+# fitted_vehicle.toml's header lines (FitResult.to_toml), which predict reads back
+# (``_predict.read_fit_status``)
+HEADER_FIT = "# Calibrated by `jaxland fit` (calibration package) against: "
+HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): "
+HEADER_MISFIT = "# MISFIT: "
+HEADER_NOT_CONVERGED = "# NOT CONVERGED: "
+AT_BOUND = "AT A BOUND OF THE VEHICLE'S RULES"
+NOT_IDENTIFIED = "NOT IDENTIFIED by these records"
+
+
 def stopped_at_cap(stages: list[dict]) -> bool:
     """A fit's last stage ended at its iteration cap, not at a minimum."""
     return bool(stages) and stages[-1].get("status") == "max_iter"
@@ -203,6 +213,7 @@ class FitResult:
     problem: CalibrationProblem = field(default=None, repr=False)
     theta: np.ndarray = field(default=None, repr=False)
     settings: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)  # what a caller ran it from (the CLI's files)
 
     def value(self, name: str) -> float:
         return float(self.values[self.names.index(name)])
@@ -246,6 +257,8 @@ class FitResult:
             identifiability_warnings=self.warnings,
             method=self.method, stages=self.stages, wall_s=self.wall_s,
             settings=self.settings,
+            **({"inputs": self.inputs} if self.inputs else {}),
+            environment=dict(jaxland=jl.__version__, jax=jax.__version__),
             drops=[d.summary() for d in self.drops],
             history=[dict(stage=h["stage"], iteration=h["iteration"], loss=h["loss"],
                           wall_s=h["wall_s"], values=dict(zip(self.names, h["values"])))
@@ -268,7 +281,7 @@ class FitResult:
     def to_json(self, path) -> Path:
         from ._report import atomic_write_text
 
-        return atomic_write_text(Path(path), json.dumps(self.report(), indent=2) + "\n")
+        return atomic_write_text(Path(path), json_text(self.report()))
 
     @property
     def converged(self) -> bool:
@@ -288,20 +301,19 @@ class FitResult:
         residuals' misfit where there is one."""
         interval, errors = self.reported_errors()
         misfit = self.diagnostics.get("misfit") or []
-        head = ["# Calibrated by `jaxland fit` (calibration package) against: "
-                + ", ".join(d.source for d in self.drops),
-                f"# fitted (+/- {interval}, the standard error the fit reports): " + ", ".join(
+        head = [HEADER_FIT + ", ".join(d.source for d in self.drops),
+                HEADER_VALUES.format(interval=interval) + ", ".join(
                     f"{n} = {v:.6g} +/- {s:.2g} {PARAMS[n][1]}" if ok else
-                    f"{n} = {v:.6g} {PARAMS[n][1]} (AT A BOUND OF THE VEHICLE'S RULES)"
+                    f"{n} = {v:.6g} {PARAMS[n][1]} ({AT_BOUND})"
                     if n in self.diagnostics.get("at_bound", ()) else
-                    f"{n} = {v:.6g} {PARAMS[n][1]} (NOT IDENTIFIED by these records; "
-                    f"started at {v0:.6g})"
+                    f"{n} = {v:.6g} {PARAMS[n][1]} ({NOT_IDENTIFIED}; started at {v0:.6g})"
                     for n, v, s, ok, v0 in zip(self.names, self.values, errors,
                                                self.identified, self.start_values)),
-                *([f"# MISFIT: {'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
+                *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
-                *([] if self.converged else ["# NOT CONVERGED: the last stage stopped at its "
-                                             "iteration cap; these values are not a minimum"]),
+                *([] if self.converged else [HEADER_NOT_CONVERGED + "the last stage stopped at "
+                                             "its iteration cap; these values are not a "
+                                             "minimum"]),
                 ""]
         return "\n".join(head) + jl.vehicle_to_toml(self.vehicle)
 
@@ -1202,6 +1214,12 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
                              f"{integrator} for the start vehicle)")
     start_values = get_values(start_vehicle, names)
+    for d in drops:  # the fit's problem refuses it too (as window_s), but after the banner
+        if d.duration_after_touchdown_s < windows[-1] - 0.5 / d.sample_rate_Hz:
+            raise jl.ConfigError("windows", list(windows), f"the last window "
+                                 f"({windows[-1]:g} s) is longer than the record {d.name} "
+                                 f"after touchdown ({d.duration_after_touchdown_s:.4g} s); "
+                                 "give windows that end within the record")
     shortest = min(d.duration_after_touchdown_s for d in drops)
     stages_w = list(windows)
     if refine_window_s:

@@ -20,18 +20,19 @@ noise standard deviations) and any artefact the model does not have (a crush pea
 
 from __future__ import annotations
 
-import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 import jaxland as jl
+from jaxland._files import json_text
 
 from ._data import CHANNELS, DropTest, base_channel
 from ._filter import filtfilt_np
 
-__all__ = ["Prediction", "predict", "PAPER_ERRORS"]
+__all__ = ["Prediction", "predict", "PAPER_ERRORS", "read_fit_status"]
 
 FINAL_SPAN_S = 0.02
 MODEL_SAVE_DT = 1e-5
@@ -58,10 +59,12 @@ class Prediction:
     model: dict = field(repr=False)
     touchdown_time_s: float = 0.0
     inputs: dict = field(default_factory=dict)  # what a caller ran it from (the CLI's files)
+    fit_status: dict | None = None  # read_fit_status of the vehicle file (the CLI's)
 
     def to_dict(self) -> dict:
         return dict(drop=self.drop.summary(), touchdown_time_s=self.touchdown_time_s,
                     **({"inputs": self.inputs} if self.inputs else {}),
+                    **({"fit_status": self.fit_status} if self.fit_status else {}),
                     metrics=self.metrics, paper_errors=PAPER_ERRORS,
                     note="relative error = (model - data) / |data|; data peaks include noise "
                          "and any artefact the model lacks (e.g. a honeycomb crush peak)")
@@ -69,7 +72,7 @@ class Prediction:
     def to_json(self, path) -> Path:
         from ._report import atomic_write_text
 
-        return atomic_write_text(Path(path), json.dumps(self.to_dict(), indent=2) + "\n")
+        return atomic_write_text(Path(path), json_text(self.to_dict()))
 
     def max_abs_error(self, kind: str = "all") -> float:
         keys = [k for k in self.metrics if kind == "all" or kind in k]
@@ -118,3 +121,67 @@ def predict(vehicle: jl.Vehicle, drop: DropTest, *, touchdown_time_s: float | No
             key = (col[: -len(chan)] if col != chan else "") + name  # leg2_max_stroke_m
             metrics[key] = dict(data=dv, model=mv, rel_error=(mv - dv) / abs(dv))
     return Prediction(drop, metrics, tm, model, t0)
+
+
+NO_BAND = ("not propagated: the model's traces and metrics are for the fitted values alone, "
+           "with no uncertainty band; parameters holds each value's standard error as the fit "
+           "reported it (its fit_report.json holds their correlation)")
+_ENTRY = re.compile(r"(?P<name>[A-Za-z_]\w*) = (?P<value>[^\s,]+)(?: \+/- (?P<se>[^\s,]+))? "
+                    r"(?P<unit>[^\s,(]+)(?: \((?P<note>[^)]*)\))?")
+
+
+def _number(text: str | None) -> float | None:
+    try:
+        x = float(text)
+    except (TypeError, ValueError):
+        return None
+    return x if np.isfinite(x) else None
+
+
+def read_fit_status(path) -> dict:
+    """What the header of a vehicle file written by ``jaxland fit`` (``fitted_vehicle.toml``,
+    ``FitResult.to_toml``) says of its fit: ``{"from_fit": False}`` for a file without that
+    header; else ``from_fit``, ``fitted_against`` (the records), ``sound`` (no flag),
+    ``flags`` (``MISFIT``, ``NOT CONVERGED``, and a parameter ``NOT IDENTIFIED`` or ``AT A
+    BOUND``), the ``misfit`` and ``not_converged`` lines' text (None where absent), the
+    ``interval`` the errors are, ``parameters`` (``{name: {value, std_error,
+    rel_std_error, unit, note}}``, the header's rounded numbers; std_error None where the
+    fit gave none) and ``uncertainty`` (how far the prediction carries it: not at all)."""
+    from ._fit import (
+        AT_BOUND,
+        HEADER_FIT,
+        HEADER_MISFIT,
+        HEADER_NOT_CONVERGED,
+        HEADER_VALUES,
+        NOT_IDENTIFIED,
+    )
+
+    head = []
+    for line in jl.read_text(path, "config").splitlines():
+        if line.strip() and not line.startswith("#"):
+            break  # the header is the comment block before the first TOML line
+        head.append(line.rstrip())
+    against = next((x[len(HEADER_FIT):] for x in head if x.startswith(HEADER_FIT)), None)
+    if against is None:
+        return {"from_fit": False}
+    values_head = HEADER_VALUES.split("{interval}")
+    values = next((x for x in head if x.startswith(values_head[0])), None)
+    interval, params = None, {}
+    if values is not None:
+        interval, _, entries = values[len(values_head[0]):].partition(values_head[1])
+        for m in _ENTRY.finditer(entries):
+            v, se = _number(m["value"]), _number(m["se"])
+            params[m["name"]] = dict(
+                value=v, std_error=se, unit=m["unit"], note=m["note"],
+                rel_std_error=None if se is None or not v else se / abs(v))
+    misfit = next((x[len(HEADER_MISFIT):] for x in head if x.startswith(HEADER_MISFIT)), None)
+    capped = next((x[len(HEADER_NOT_CONVERGED):] for x in head
+                   if x.startswith(HEADER_NOT_CONVERGED)), None)
+    flags = (["MISFIT"] if misfit is not None else []) + (
+        ["NOT CONVERGED"] if capped is not None else []) + [
+        f"{'NOT IDENTIFIED' if NOT_IDENTIFIED in p['note'] else 'AT A BOUND'}: {n}"
+        for n, p in params.items() if p["note"] and (NOT_IDENTIFIED in p["note"]
+                                                      or AT_BOUND in p["note"])]
+    return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
+                misfit=misfit, not_converged=capped, interval=interval or None,
+                parameters=params, uncertainty=NO_BAND)

@@ -49,6 +49,32 @@ def _out_dir(path: str, inputs=()) -> Path:
     return jl.check_output_folder(path, inputs)
 
 
+def _file_record(path) -> dict:
+    """A file an output was made from: its path as given, its absolute path and its SHA-256
+    (which tells whether the file at that path is still the one used)."""
+    import hashlib
+
+    path = Path(path)
+    return dict(path=str(path), absolute=str(path.resolve()),
+                sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+
+
+def fit_inputs(args, drops) -> dict:
+    """``fit_report.json``'s ``inputs``: the drop tests as given with the files their metadata
+    named, the ``--config`` file, and every argument of the command as parsed (defaults
+    filled in), so that the fit can be run again as it was (the versions it ran on are the
+    report's ``environment``)."""
+    def named(files) -> dict:  # the metadata, its traces, its vehicle_config (or None)
+        meta, data, *cfg = files
+        return dict(metadata=_file_record(meta), data_file=_file_record(data),
+                    vehicle_config=_file_record(cfg[0]) if cfg else None)
+
+    return dict(
+        data=[dict(given=given, **named(d.files)) for given, d in zip(args.data, drops)],
+        config=_file_record(args.config) if args.config else None,
+        arguments={k: v for k, v in vars(args).items() if k not in ("func", "command")})
+
+
 def stopped_at_cap(result) -> bool:
     """The fit's last stage ended at its iteration cap, not at a minimum."""
     from ._fit import stopped_at_cap as capped
@@ -124,12 +150,12 @@ def peak_site_line(check: dict | None) -> str:
 
 def _cmd_fit(args) -> int:
     from . import _fit
-    from ._data import load_drop_tests
+    from ._data import load_drop_tests, load_vehicle_file
     from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
 
     out = _out_dir(args.out, (args.config, *args.data))
     names = check_names(args.params)
-    vehicle = jl.load_vehicle(args.config) if args.config else None
+    vehicle = load_vehicle_file(args.config, "--config") if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
@@ -158,8 +184,13 @@ def _cmd_fit(args) -> int:
                              "in the honeycomb; fit with --peak-site forces on its own")
     # every argument refused before the banner; --compare-models fits the peak model
     # (peak_form's) beside the model without the peak
-    checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models else names,
-                             peak_form=peak_form, **fit_kw)
+    try:
+        checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models
+                                 else names, peak_form=peak_form, **fit_kw)
+    except jl.ConfigError as err:
+        if err.field == "windows":  # the API's argument; the user sets it with the flag
+            raise jl.ConfigError("--windows", err.value, err.rule) from None
+        raise
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
           f"parameters {', '.join(names)}, method {args.method}, integrator "
           f"{checked.integrator} (dt {args.dt:g} s, smoothing {checked.smoothing_m:g} m / "
@@ -189,6 +220,7 @@ def _cmd_fit(args) -> int:
             result = _fit.fit(drops, names, **fit_kw)
     for w in caught:
         print(f"jaxland fit: warning: {w.message}", file=sys.stderr)
+    result.inputs = fit_inputs(args, drops)
     with staged(out, "fit") as staging:  # replaces out as a whole, only if all succeed
         (staging / "fitted_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "fit_report.json")
@@ -287,18 +319,23 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_predict(args) -> int:
-    from ._data import load_drop_tests
-    from ._predict import predict
+    from ._data import load_drop_tests, load_vehicle_file
+    from ._predict import predict, read_fit_status
 
     out = _out_dir(args.out, (args.config, *args.data))
-    vehicle = jl.load_vehicle(args.config)
+    vehicle = load_vehicle_file(args.config, "--config")
+    status = read_fit_status(args.config)  # what the fit said of the vehicle, if it is one
     drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
+    lines = fit_status_lines(args.config, status)
+    if status["from_fit"] and not status["sound"]:
+        print(f"jaxland predict: warning: {lines[0]}", file=sys.stderr)
     preds = [predict(vehicle, d) for d in drops]
     for p, path in zip(preds, args.data):  # each prediction names what it was run from
         p.inputs = dict(vehicle_config=str(Path(args.config).resolve()),
                         vehicle_as_run="vehicle.toml", data=str(Path(path).resolve()),
                         jaxland_version=jl.__version__)
+        p.fit_status = status
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
         (staging / "vehicle.toml").write_text(f"# the vehicle predicted with (--config "
                                               f"{args.config})\n" + jl.vehicle_to_toml(vehicle))
@@ -306,6 +343,8 @@ def _cmd_predict(args) -> int:
             p.to_json(staging / f"prediction_{p.drop.name}.json")
             if not args.no_plots:
                 p.plot(staging / "figures" / f"prediction_{p.drop.name}.png")
+    for line in lines:
+        print(line)
     for p in preds:
         print(f"jaxland predict: {p.drop.name} with {args.config}")
         for k, v in p.metrics.items():
@@ -314,6 +353,36 @@ def _cmd_predict(args) -> int:
     print(f"wrote {out}/" + ", ".join(f"prediction_{p.drop.name}.json" for p in preds)
           + ", vehicle.toml" + ("" if args.no_plots else ", figures/*.png"))
     return 0
+
+
+def fit_status_lines(config: str, status: dict) -> list[str]:
+    """predict's lines on the vehicle's fit (``read_fit_status``): none for a vehicle not
+    written by ``jaxland fit``; else whether the fit is sound or which flags it carries, the
+    MISFIT and NOT CONVERGED lines' text, and each fitted value's standard error, which the
+    predictions do not carry."""
+    if not status["from_fit"]:
+        return []
+    if status["sound"]:
+        head = (f"{config}: fitted vehicle, fit sound (converged, no misfit, every value "
+                "identified)")
+    else:
+        head = (f"{config}: fitted vehicle whose fit is flagged {', '.join(status['flags'])}"
+                ": these predictions are not those of a sound fit")
+    lines = [head]
+    for flag, key in (("MISFIT", "misfit"), ("NOT CONVERGED", "not_converged")):
+        if status[key] is not None:
+            lines.append(f"  {flag}: {status[key]}")
+    params = status["parameters"]
+    if params:
+        lines.append(f"  fitted values (+/- {status['interval']}): " + ", ".join(
+            f"{n} {p['value']:.6g} +/- {p['std_error']:.2g} {p['unit']} "
+            f"({p['rel_std_error']:.1%})" if p["rel_std_error"] is not None else
+            f"{n} {p['value'] if p['value'] is None else format(p['value'], '.6g')} "
+            f"{p['unit']} ({p['note'] or 'no standard error'})"
+            for n, p in params.items()))
+    lines.append("  the predictions below carry no uncertainty band: they are for the fitted "
+                 "values alone")
+    return lines
 
 
 def add_subcommands(subparsers) -> None:

@@ -391,6 +391,33 @@ def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
     assert not list(cli_fit.glob(".staging-*"))
 
 
+def test_the_fit_report_records_its_inputs_and_versions(cli_fit):
+    """fit_report.json names what it was made from: the drop test as given, the files its
+    metadata named (absolute, with their SHA-256), the --config, every argument of the
+    command, and the jaxland and jax versions; strict JSON."""
+    import hashlib
+
+    def refuse(name):
+        raise AssertionError(f"not strict JSON: {name}")
+
+    rep = json.loads((cli_fit / "fit_report.json").read_text(), parse_constant=refuse)
+    meta = DATA / "drop_h0.20m.toml"
+    (drop,) = rep["inputs"]["data"]
+    assert drop["given"] == str(meta)
+    for key, path in (("metadata", meta), ("data_file", DATA / "drop_h0.20m.csv"),
+                      ("vehicle_config", DATA / "nominal_vehicle.toml")):
+        assert drop[key]["absolute"] == str(path.resolve())
+        assert drop[key]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert rep["inputs"]["config"] is None
+    args = rep["inputs"]["arguments"]
+    assert args["data"] == [str(meta)] and args["out"] == str(cli_fit) and args["quiet"]
+    assert args["windows"] == ",".join(f"{w:g}" for w in cal.WINDOWS_S)
+    assert args["refine_window_s"] == cal.REFINE_WINDOW_S and args["method"] == "lm"
+    assert args["params"] == ",".join(NAMES) and args["start"] is None
+    assert args["robust"] > 0 and args["max_iter"] == 60 and args["dt"] == 1e-5
+    assert rep["environment"] == dict(jaxland=jl.__version__, jax=jax.__version__)
+
+
 def test_crush_peak_and_offset_data_still_fit_close_to_the_truth(cli_fit):
     """The model has no crush peak; the robust (Huber) fit keeps it from biasing the fit.
     Measured: k 0.3 %, gamma 0.6 %, D_b, F1, F2 < 0.1 %, k_b1 4.4 % (the crush peak sits on
@@ -424,6 +451,94 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
 
 
+def test_predict_says_what_the_fit_said_of_its_vehicle_and_its_errors(cli_fit, tmp_path,
+                                                                     capsys):
+    """predict reads fitted_vehicle.toml's header: the fit's flags (this fit's MISFIT) on
+    stderr, stdout and in each prediction's fit_status, with every fitted value's standard
+    error beside the prediction (which carries no band)."""
+    fit_rep = json.loads((cli_fit / "fit_report.json").read_text())
+    assert fit_rep["misfit"]["misfit"] and fit_rep["converged"]  # the crush peak's misfit
+    config = str(cli_fit / "fitted_vehicle.toml")
+    out = tmp_path / "pred"
+    assert _run(["predict", "--config", config, str(DATA / "drop_h0.30m.toml"), "--out",
+                 str(out), "--no-plots"]) == 0
+    cap = capsys.readouterr()
+    head = f"{config}: fitted vehicle whose fit is flagged MISFIT: these predictions are not"
+    assert f"warning: {head}" in cap.err and head in cap.out
+    assert "  MISFIT: " + "; ".join(fit_rep["misfit"]["misfit"]) in cap.out
+    assert "carry no uncertainty band" in cap.out
+    status = json.loads((out / "prediction_drop_h0.30m.json").read_text())["fit_status"]
+    assert status["from_fit"] and not status["sound"] and status["flags"] == ["MISFIT"]
+    assert status["interval"] == fit_rep["interval_reported"] == "std_error_total"
+    assert status["not_converged"] is None and "not propagated" in status["uncertainty"]
+    for n, p in fit_rep["parameters"].items():
+        got = status["parameters"][n]
+        assert got["value"] == pytest.approx(p["value"], rel=1e-5)
+        assert got["std_error"] == pytest.approx(p["std_error_total"], rel=0.05)
+        assert f"{n} {got['value']:.6g} +/- {got['std_error']:.2g} {p['unit']}" in cap.out
+
+
+def test_the_fit_status_reads_every_flag_of_the_header(tmp_path):
+    """read_fit_status on FitResult.to_toml's header: MISFIT, NOT CONVERGED, a value not
+    identified and one at a bound; a sound fit has none; a plain vehicle is no fit's."""
+    from types import SimpleNamespace
+
+    from calibration._predict import read_fit_status
+
+    def header(misfit, status, identified, at_bound):
+        res = cal.FitResult(
+            names=("k", "gamma", "F1"), values=np.array([2e6, 0.4, 5000.0]),
+            std_errors=np.array([3e4, 0.01, 20.0]), correlation=np.eye(3),
+            covariance=np.eye(3), identified=np.array(identified),
+            start_values=np.array([1.9e6, 0.3, 4800.0]), vehicle=TRUTH,
+            diagnostics=dict(interval="std_error", misfit=misfit, at_bound=at_bound),
+            stages=[dict(status=status)], drops=[SimpleNamespace(source="d.csv")])
+        path = tmp_path / "v.toml"
+        path.write_text(res.to_toml())
+        return read_fit_status(path)
+
+    bad = header(["lag-1 residual autocorrelation 0.8 > 0.1"], "max_iter",
+                 [True, False, False], ["F1"])
+    assert bad["flags"] == ["MISFIT", "NOT CONVERGED", "NOT IDENTIFIED: gamma",
+                            "AT A BOUND: F1"] and not bad["sound"]
+    assert bad["misfit"].startswith("lag-1 residual autocorrelation 0.8 > 0.1")
+    assert "iteration cap" in bad["not_converged"] and bad["fitted_against"] == "d.csv"
+    assert bad["parameters"]["k"] == dict(value=2e6, std_error=3e4, unit="N/m", note=None,
+                                          rel_std_error=pytest.approx(0.015))
+    assert bad["parameters"]["gamma"]["std_error"] is None
+    good = header([], "converged", [True, True, True], [])
+    assert good["sound"] and good["flags"] == [] and good["interval"] == "std_error"
+    assert good["parameters"]["F1"]["std_error"] == 20.0
+    assert read_fit_status(DATA / "truth_vehicle.toml") == {"from_fit": False}
+
+
+@pytest.mark.parametrize("text", ["", "# only a comment\n", "[body]\n[honeycomb]\n"])
+def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_vehicle(
+        tmp_path, capsys, text):
+    """jaxland gives every key a vehicle file leaves out the paper's value; predict and fit
+    refuse an empty (or parameter-free) --config, and a drop test whose vehicle_config is
+    one, in one line naming the file, rather than run the paper vehicle."""
+    from jaxland.cli import main
+
+    empty = tmp_path / "empty.toml"
+    empty.write_text(text)
+    data = str(DATA / "drop_h0.30m.toml")
+    out = tmp_path / "out"
+    for argv in (["predict", "--config", str(empty), data], ["fit", data, "--config",
+                                                              str(empty)]):
+        assert main([*argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--config = {str(empty)!r}: sets no vehicle parameter" in \
+            err[0], err
+        assert not out.exists()
+    meta = tmp_path / "d.toml"
+    meta.write_text((DATA / "drop_h0.30m.toml").read_text().replace(
+        'data_file = "drop_h0.30m.csv"', f'data_file = {json.dumps(data[:-4] + "csv")}')
+        .replace('vehicle_config = "nominal_vehicle.toml"', 'vehicle_config = "empty.toml"'))
+    with pytest.raises(jl.ConfigError, match="empty.toml.*sets no vehicle parameter"):
+        cal.load_drop_test(meta)
+
+
 @pytest.mark.parametrize("argv,needle", [
     (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "unknown parameter"),
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
@@ -438,6 +553,27 @@ def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
     with pytest.raises(jl.ConfigError, match=needle):
         _run(argv)
     assert not out.exists()
+
+
+def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_argument_in_python(
+        tmp_path, capsys):
+    """The default windows end 0.1 s after touchdown; a record that ends before is refused
+    before the fit's banner: on the command line as --windows (the flag that changes it), in
+    one line with the value and the rule; in Python as ``windows``, fit's own argument."""
+    from jaxland.cli import main
+
+    toml, _ = vr.write_drop_test(tmp_path, 0.2, seed=1, duration_s=0.15)  # touchdown at 0.05 s
+    vr.write_nominal(tmp_path)
+    out = tmp_path / "out"
+    assert main(["fit", str(toml), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert ("--windows = [0.01, 0.03, 0.1]: the last window (0.1 s) is longer than the record "
+            "drop_h0.20m after touchdown") in err[0], err
+    assert not out.exists()
+    with pytest.raises(jl.ConfigError, match="longer than the record") as caught:
+        cal.fit(cal.load_drop_test(toml))
+    assert caught.value.field == "windows"
 
 
 def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,
