@@ -415,9 +415,14 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     spec.write_text(TINY)
     out = tmp_path / "out"
     assert main(["design", str(spec), "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert err.count("design iter") == 3  # one progress line per iteration (0, 1, 2)
+    said = capsys.readouterr()
+    assert said.err.count("design iter") == 3  # one progress line per iteration (0, 1, 2)
     report = json.loads((out / "design_report.json").read_text())
+    # the quarter model cannot tip over: no probability that reads as computed
+    for tag in ("before", "after"):
+        assert report["verification"][tag]["tip_over"]["modelled"] is False
+        assert report["verification"][tag]["tip_over"]["probability"] is None
+    assert "P(tip)" not in said.out and "tip-over not modelled" in said.out
     assert report["status"] == "feasible" and len(report["history"]) == 3
     assert report["verification"]["after"]["n"] == 3
     veh = jl.load_vehicle(out / "design_vehicle.toml")

@@ -15,6 +15,7 @@ from .._errors import ConfigError
 from .._montecarlo import MonteCarloSpec, percentiles, proportion, run_montecarlo
 from .._montecarlo._run import _per_sample, mc_solver
 from .._montecarlo._sample import sample_scenes
+from .._montecarlo._stats import TIP_OVER_NOT_MODELLED, not_modelled
 from .._params import Vehicle
 from .._solvers import Result
 from ._optimise import DesignResult, _summaries, optimise_design
@@ -96,7 +97,8 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
                                                          spec.objective.level)) if n else None,
                max_stroke_m=percentiles(stroke),
                slip_distance_m=percentiles(o["slip_distance_m"].max(axis=1)[ok]),
-               tip_over=proportion(o["tipped_over"][ok]),
+               tip_over=(proportion(o["tipped_over"][ok]) if res.summary["model"] == "full"
+                         else not_modelled(n, TIP_OVER_NOT_MODELLED)),
                bottoming=proportion(o["bottomed_out"][ok]),
                wall_s=res.summary["wall_s"])
     if "min_stability_margin_m" in o:

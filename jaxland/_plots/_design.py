@@ -129,6 +129,8 @@ def _outcomes(result, path: Path) -> Path:
         ax.legend()
     v = result.verification
     tb, ta = v["before"]["tip_over"], v["after"]["tip_over"]
+    tip = ("tip-over not modelled (quarter model)" if ta.get("modelled") is False else
+           f"P(tip-over) before {probability_text(tb)}, after {probability_text(ta)}")
     fig.suptitle(f"verification Monte Carlo, fresh samples (n = {v['n']}, seed {v['seed']}): "
-                 f"P(tip-over) before {probability_text(tb)}, after {probability_text(ta)}")
+                 + tip)
     return _save(fig, path)

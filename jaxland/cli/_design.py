@@ -110,8 +110,10 @@ def _cmd_design(args) -> int:
                 continue
             print(f"    {label:<17} peak accel p50 {r['peak_body_accel_mps2']['p50']:.4g} p99 "
                   f"{r['peak_body_accel_mps2']['p99']:.4g} m/s^2; max stroke p99 "
-                  f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; P(tip) "
-                  f"{probability_text(r['tip_over'])}; P(bottom) "
+                  f"{r['max_stroke_m']['p99'] * 1e3:.4g} mm; "
+                  + ("tip-over not modelled (quarter model)"
+                     if r["tip_over"].get("modelled") is False
+                     else f"P(tip) {probability_text(r['tip_over'])}") + "; P(bottom) "
                   f"{probability_text(r['bottoming'])}")
         continued = v["after"]["continued"]
         if continued:
