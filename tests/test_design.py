@@ -361,6 +361,11 @@ BAD = [
     (("design", "patience"), -3, "design.patience", ">= 0"),
     (("constraints", "stroke"), {"margin_mm": 20.0, "measure": "normal", "level": 0.0},
      "constraints.stroke.level", "(0, 1)"),
+    # Monte Carlo settings the verification sets itself: refused, not silently ignored
+    (("montecarlo", "model"), "quarter", "montecarlo.model", "design.model"),
+    (("montecarlo", "retry"), False, "montecarlo.retry", "always reruns"),
+    (("montecarlo", "early_stop"), True, "montecarlo.early_stop", "is not taken here"),
+    (("montecarlo", "ledger_check_s"), 0.0, "montecarlo.ledger_check_s", "is not taken here"),
 ]
 
 

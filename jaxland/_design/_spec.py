@@ -256,6 +256,18 @@ def _constraint(name: str, t) -> Constraint:
     return Constraint(name, float(thr) * info.to_si, measure, level, float(scale))
 
 
+# [montecarlo] keys of a Monte Carlo spec that the verification sets itself, and why
+VERIFICATION_FIXED = {
+    "method": "the verification integrates with euler (design.method sets the design "
+              "landings' integrator)",
+    "model": "the verification runs the design's model (design.model)",
+    "retry": "the verification always reruns its numerical failures",
+    "early_stop": "the verification runs each landing to t_end_s and continues those it cuts "
+                  "off",
+    "ledger_check_s": "the verification checks the ledger at its model's default interval",
+}
+
+
 def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpec:
     """Build and validate a ``DesignSpec`` from a TOML-shaped dict (docs/design.md)."""
     known_keys("spec", data, ("design", "objective", "variables", "constraints", "cells",
@@ -291,7 +303,7 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
     ctabs = known_keys("constraints", data.get("constraints", {}), list(CONSTRAINTS))
     constraints = [_constraint(name, t) for name, t in ctabs.items()]
 
-    mc_spec = montecarlo_spec_from_dict(data, keys_excluded=("method",))
+    mc_spec = montecarlo_spec_from_dict(data, keys_excluded=VERIFICATION_FIXED)
     spec = DesignSpec(variables=variables, objective=objective, constraints=constraints,
                       montecarlo=mc_spec, cells=cells, **kw)
     if spec.scene_seed == spec.montecarlo.seed:
