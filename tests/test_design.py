@@ -439,6 +439,12 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     spec.write_text(TINY.replace("margin_mm = 20.0", "margin_mm = -1.0"))
     assert main(["design", str(spec), "--out", str(out)]) == 2
     assert "constraints.stroke.margin_mm = -1.0" in capsys.readouterr().err
+    # a verification step above euler's stability limit is refused before the optimisation,
+    # in one line (no banner, no iteration)
+    spec.write_text(TINY.replace("seed = 1\nt_end_s = 0.1", "seed = 1\nt_end_s = 0.1\ndt_s = 1e-3"))
+    assert main(["design", str(spec), "--out", str(tmp_path / "coarse")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxland: error: montecarlo.dt_s = 0.001") and err.count("\n") == 1
     # verification landings cut off in their impact are named, not passed over
     spec.write_text(TINY.replace("seed = 1\nt_end_s = 0.1", "seed = 1\nt_end_s = 0.04"))
     assert main(["design", str(spec), "--out", str(tmp_path / "short")]) in (0, 5)

@@ -75,4 +75,8 @@ from ._spec import (
     design_spec_from_dict as design_spec_from_dict,
     load_design_spec as load_design_spec,
 )
-from ._verify import design_verified as design_verified, verify_design as verify_design
+from ._verify import (
+    check_verification as check_verification,
+    design_verified as design_verified,
+    verify_design as verify_design,
+)

@@ -11,9 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._config import paper_vehicle
 from .._errors import ConfigError
 from .._montecarlo import MonteCarloSpec, percentiles, proportion, run_montecarlo
-from .._montecarlo._run import _per_sample, mc_solver
+from .._montecarlo._run import _per_sample, check_run, mc_solver
 from .._montecarlo._sample import sample_scenes
 from .._montecarlo._stats import TIP_OVER_NOT_MODELLED, not_modelled
 from .._params import Vehicle
@@ -164,6 +165,16 @@ def _verification_spec(result: DesignResult, n, seed) -> MonteCarloSpec:
                           model=result.problem.model)
 
 
+def check_verification(spec: DesignSpec, vehicle: Vehicle, n: int | None = None) -> None:
+    """Refuse, before the optimisation, a verification Monte Carlo that could not run on the
+    baseline ``vehicle`` (its ``dt_s`` above euler's stability limit, an ``n`` beyond this
+    machine's memory): found after the optimisation, it would cost the whole design."""
+    mc = spec.montecarlo
+    check_run(MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed,
+                             n=mc.n if n is None else int(n), seed=mc.seed, dt=mc.dt,
+                             t_end=mc.t_end, model=spec.resolved_model()), vehicle)
+
+
 def verify_design(result: DesignResult, *, n: int | None = None, seed: int | None = None,
                   progress: bool = False, before: bool = True, say=None) -> dict:
     """Re-check the baseline and the design with an independent Monte Carlo: fresh samples
@@ -240,6 +251,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         raise ConfigError("verify_rounds", rounds, "must be >= 0")
     say = say or (lambda msg: None)
     t0 = time.perf_counter()
+    check_verification(spec, paper_vehicle() if vehicle is None else vehicle, n)
     result = optimise_design(spec, vehicle, progress=progress)
     for rec in result.history:
         rec["round"] = 0

@@ -207,6 +207,21 @@ def _check_host_memory(n: int) -> None:
                           f"{total / 2**30:.3g} GiB: run fewer samples")
 
 
+def check_run(spec: MonteCarloSpec, vehicle: Vehicle) -> str:
+    """Refuse, before any work, a run this machine cannot hold, a step above the method's
+    a-priori stability limit for ``vehicle`` or a fixed per-leg input of the wrong length;
+    returns the model the run takes."""
+    _check_host_memory(spec.n)
+    model = spec.resolved_model()
+    limit = float(stable_step(vehicle, method=spec.method, model=MODELS[model]))
+    if spec.dt > limit:
+        raise ConfigError("montecarlo.dt_s", spec.dt,
+                          f"exceeds the a-priori stability limit {limit:.3g} s of "
+                          f"{spec.method}")
+    check_fixed(spec, vehicle.n_legs)
+    return model
+
+
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
                    chunk: int | None = None, devices=None, progress: bool | str = True,
                    share_program: bool = False) -> MonteCarloResult:
@@ -218,8 +233,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     with this flag, so that one compilation serves several vehicles (a design's verification);
     otherwise the vehicle is a constant of the program, which steps faster than the shared one."""
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
-    _check_host_memory(spec.n)
-    model = spec.resolved_model()
+    model = check_run(spec, vehicle)
     solver = mc_solver(spec, model, spec.dt, spec.method)
     devices = list(jax.local_devices() if devices is None else devices)
     n_dev = len(devices)
@@ -230,17 +244,11 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     chunk = int(math.ceil(min(chunk, spec.n) / n_dev) * n_dev)
     mesh = Mesh(np.array(devices), ("batch",))
     batch_sharding = NamedSharding(mesh, PartitionSpec("batch"))
-    limit = float(stable_step(vehicle, method=spec.method, model=MODELS[model]))
-    if spec.dt > limit:
-        raise ConfigError("montecarlo.dt_s", spec.dt,
-                          f"exceeds the a-priori stability limit {limit:.3g} s of "
-                          f"{spec.method}")
 
     # Several processes (jax.distributed): process p runs chunks p, p + P, ...; every sample's
     # inputs depend only on (seed, index), so the gathered result is the one-process result.
     n_proc, rank = jax.process_count(), jax.process_index()
     starts = list(range(0, spec.n, chunk))[rank::n_proc]
-    check_fixed(spec, vehicle.n_legs)
     def inputs_of(start):  # a padded chunk's drawn inputs, on the devices (no wait)
         return jax.device_put(draw(spec, jnp.arange(start, start + chunk), vehicle.n_legs),
                               batch_sharding)

@@ -42,7 +42,13 @@ def _progress(quiet: bool, total: int):
 def _cmd_design(args) -> int:
     import jaxland as jl
 
-    from .._design import check_bounds, design_verified, load_design_spec, optimise_design
+    from .._design import (
+        check_bounds,
+        check_verification,
+        design_verified,
+        load_design_spec,
+        optimise_design,
+    )
 
     out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
@@ -61,6 +67,8 @@ def _cmd_design(args) -> int:
     vehicle = (jl.load_vehicle(args.config) if args.config else
                jl.load_vehicle(spec.vehicle) if spec.vehicle else jl.paper_vehicle())
     check_bounds(spec, jl.validate_vehicle(vehicle))  # before the banner: one line if bad
+    if args.verify_n != 0:
+        check_verification(spec, vehicle)
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
