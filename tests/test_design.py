@@ -5,6 +5,7 @@ refused by name, and the CLI writing its files."""
 import copy
 import json
 import math
+import tomllib
 
 import equinox as eqx
 import jax
@@ -430,6 +431,14 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     assert "P(tip)" not in said.out and "tip-over not modelled" in said.out
     assert report["status"] == "feasible" and len(report["history"]) == 3
     assert report["verification"]["after"]["n"] == 3
+    # the report records what it was given and ran with
+    assert report["inputs"]["spec"] == str(spec.resolve())
+    assert report["inputs"]["baseline_vehicle"] == "the paper's vehicle"
+    assert report["inputs"]["arguments"]["out"] == str(out)
+    assert report["environment"]["jaxland"] == jl.__version__
+    assert report["scenes"]["method"] == "euler"
+    baseline = jl.vehicle_from_dict(tomllib.loads(report["baseline_vehicle_toml"]))
+    assert jl.vehicle_to_toml(baseline) == jl.vehicle_to_toml(jl.paper_vehicle())
     veh = jl.load_vehicle(out / "design_vehicle.toml")
     assert float(veh.honeycomb.F1) == pytest.approx(report["variables"][0]["design"], rel=1e-9)
     for name in ("design_history", "design_force_stroke", "design_outcomes"):

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .. import __version__
 from .._config import validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
 from .._files import atomic_write_text, json_text
@@ -101,8 +102,8 @@ class DesignResult:
             constraints=[dict(name=c.name, rule=CONSTRAINTS[c.name].rule,
                               threshold_si=c.threshold, measure=c.measure, level=c.level,
                               scale_si=c.scale) for c in spec.constraints],
-            scenes=dict(n=spec.n_scenes, seed=spec.scene_seed, dt_s=spec.dt,
-                        t_end_s=spec.t_end, devices=prob.devices,
+            scenes=dict(n=spec.n_scenes, seed=spec.scene_seed, method=spec.method,
+                        dt_s=spec.dt, t_end_s=spec.t_end, devices=prob.devices,
                         dispersion={k: vars(v) for k, v in spec.montecarlo.dispersion.items()},
                         fixed=spec.montecarlo.fixed),
             iterations=len(self.history) - 1,
@@ -114,10 +115,17 @@ class DesignResult:
             at_design=self.at_design,
             verification=self.verification,
             history=self.history,
+            # the gear the design started from, loadable as written (jaxland simulate --config)
+            baseline_vehicle_toml=vehicle_to_toml(self.baseline),
+            environment=dict(jaxland=__version__, jax=jax.__version__,
+                             optax=optax.__version__, backend=jax.default_backend()),
         )
 
-    def to_json(self, path) -> Path:
-        return atomic_write_text(path, json_text(self.report()))
+    def to_json(self, path, inputs: dict | None = None) -> Path:
+        """Write ``report()`` as strict JSON, with ``inputs`` (what the run was given: the
+        spec's path, the command's arguments) first where given."""
+        report = self.report() if inputs is None else {"inputs": inputs, **self.report()}
+        return atomic_write_text(path, json_text(report))
 
     def plot(self, out_dir) -> list[Path]:
         from .._plots import plot_design

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 from .. import use_batch_fusion
 from .._files import staged
@@ -83,7 +84,11 @@ def _cmd_design(args) -> int:
     with staged(out, "design") as staging:  # replaces out as a whole, only if all succeed
         if result.status == "feasible":
             (staging / "design_vehicle.toml").write_text(result.to_toml())
-        result.to_json(staging / "design_report.json")
+        result.to_json(staging / "design_report.json", inputs=dict(
+            spec=str(Path(args.spec).resolve()),
+            baseline_vehicle=(str(Path(args.config or spec.vehicle).resolve())
+                              if args.config or spec.vehicle else "the paper's vehicle"),
+            arguments={k: v for k, v in vars(args).items() if k not in ("func", "command")}))
         if not args.no_plots:
             result.plot(staging / "figures")
     total = time.perf_counter() - t0
