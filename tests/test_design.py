@@ -402,7 +402,7 @@ high = 8000.0
 [constraints.stroke]
 margin_mm = 20.0
 [montecarlo]
-n = 3
+n = 20
 seed = 1
 t_end_s = 0.1
 [fixed]
@@ -430,7 +430,7 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
         assert report["verification"][tag]["tip_over"]["probability"] is None
     assert "P(tip)" not in said.out and "tip-over not modelled" in said.out
     assert report["status"] == "feasible" and len(report["history"]) == 3
-    assert report["verification"]["after"]["n"] == 3
+    assert report["verification"]["after"]["n"] == 20
     # the report records what it was given and ran with
     assert report["inputs"]["spec"] == str(spec.resolve())
     assert report["inputs"]["baseline_vehicle"] == "the paper's vehicle"
@@ -458,8 +458,8 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     spec.write_text(TINY.replace("seed = 1\nt_end_s = 0.1", "seed = 1\nt_end_s = 0.04"))
     assert main(["design", str(spec), "--out", str(tmp_path / "short")]) in (0, 5)
     err = capsys.readouterr().err
-    assert ("3 of the 3 verification landings still in their impact or able to tip over at "
-            "t_end_s = 0.04 s were run on to 0.12 s (3 left), then 0.36 s (0 left)") in err
+    assert ("20 of the 20 verification landings still in their impact or able to tip over at "
+            "t_end_s = 0.04 s were run on to 0.12 s (20 left), then 0.36 s (0 left)") in err
     short = json.loads((tmp_path / "short" / "design_report.json").read_text())
     assert short["verification"]["after"]["n_unfinished"] == 0
     # the baseline vehicle the spec names is an input: its folder is not replaced

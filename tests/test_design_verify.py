@@ -170,3 +170,30 @@ def test_a_landing_no_continuation_finishes_fails_the_verification(monkeypatch):
     assert v["after"]["n_unfinished"] == 4 and v["after"]["n_ok"] == 0
     assert not v["after"]["met"] and not v["verified"]
     assert "not final" in v["reason"]
+
+
+@pytest.mark.parametrize("measure", ["max", "mean", "cvar", "normal"])
+def test_too_few_verification_landings_meet_no_constraint(measure):
+    """A bootstrap of a handful of landings is no 95 % interval (at one landing, the landing
+    itself): below MIN_JUDGED no constraint is met, however far inside its limit, and the
+    loop says why instead of re-optimising."""
+    from jaxland._design._spec import Constraint
+    from jaxland._design._verify import MIN_JUDGED
+
+    c = Constraint("stroke", 0.02, measure=measure, level=0.9, scale=1.0)
+    well_inside = -5.0 + 0.1 * np.random.default_rng(1).standard_normal(MIN_JUDGED)
+    few = _check(c, well_inside[:MIN_JUDGED - 1], np.arange(MIN_JUDGED - 1), 3)
+    assert not few["met"] and few["ci95"] == [None, None] and few["g"] < 0
+    enough = _check(c, well_inside, np.arange(MIN_JUDGED), 3)
+    assert enough["met"] and enough["ci95"][1] < 0
+
+
+def test_a_verification_of_one_landing_is_not_verified_and_says_so():
+    spec = copy.deepcopy(SPEC)
+    spec["design"].update(iterations=0, verify_rounds=2)
+    spec["montecarlo"].update(n=1)
+    spec["constraints"]["stroke"]["margin_mm"] = 10.0
+    res = jl.design_verified(jl.design_spec_from_dict(spec))
+    v = res.verification
+    assert not v["verified"] and "at least 20" in v["reason"]
+    assert len(v["rounds"]) == 1 and v["added_landings"] == []

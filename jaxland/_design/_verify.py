@@ -121,6 +121,9 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
 
 
 BOOTSTRAP = 2000  # resamples of the verification landings for the measures' 95 % intervals
+# Fewest judged landings for a 95 % bootstrap interval: below, the resamples are a handful of
+# values (at 1 landing the "interval" is that landing), and no constraint is called met.
+MIN_JUDGED = 20
 
 
 def _risk_rows(values: np.ndarray, measure: str, level: float) -> np.ndarray:
@@ -145,9 +148,11 @@ def _check(c, bad: np.ndarray, index: np.ndarray, seed: int) -> dict:
     interval's upper end is <= 0: the fresh landings show it holds, not only that they do not
     show it fails."""
     g = bad / c.scale
-    if g.size == 0:
-        return dict(measure=c.measure, level=c.level, g=None, ci95=[None, None], met=False,
-                    violators=[])
+    if g.size < MIN_JUDGED:  # no interval to judge it by (MIN_JUDGED)
+        est = float(_risk_rows(g[None, :], c.measure, c.level)[0]) if g.size else None
+        return dict(measure=c.measure, level=c.level, g=est,
+                    value_si=None if est is None else est * c.scale, ci95=[None, None],
+                    met=False, violators=[int(index[i]) for i in np.argsort(-g) if g[i] > 0])
     rng = np.random.default_rng([int(seed), 0x5EED])
     boot = _risk_rows(g[rng.integers(0, g.size, (BOOTSTRAP, g.size))], c.measure, c.level)
     lo, hi = (float(x) for x in np.quantile(boot, [0.025, 0.975]))
@@ -206,8 +211,8 @@ def verify_design(result: DesignResult, *, n: int | None = None, seed: int | Non
 
 
 def _unmet_text(name: str, ch: dict) -> str:
-    if ch["g"] is None:
-        return f"{name} (no landing to judge it on)"
+    if ch["ci95"][1] is None:
+        return f"{name} (too few landings to judge it on)"
     return f"{name} g = {ch['g']:+.3g} (95 % up to {ch['ci95'][1]:+.3g})"
 
 
@@ -271,6 +276,10 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
                         ci95={k: ch["ci95"] for k, ch in after["constraints"].items()}))
         if after["n_unfinished"]:  # no outcome to judge them on: re-optimising cannot help
             reason = _unfinished_text(after, spec)
+            break
+        if after["n_ok"] < MIN_JUDGED:
+            reason = (f"{after['n_ok']} verification landing(s) to judge the constraints on: "
+                      f"a 95 % interval needs at least {MIN_JUDGED}; raise montecarlo.n")
             break
         if not unmet:
             break

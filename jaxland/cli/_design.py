@@ -50,6 +50,7 @@ def _cmd_design(args) -> int:
         load_design_spec,
         optimise_design,
     )
+    from .._design._verify import MIN_JUDGED
 
     out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
@@ -112,6 +113,11 @@ def _cmd_design(args) -> int:
         print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples), "
               f"{len(v['rounds']) - 1} re-optimisation round(s)")
         for name, ch in v["after"]["constraints"].items():
+            if ch["ci95"][1] is None:
+                print(f"    constraint {name:<10} {ch['measure']} on the verification landings: "
+                      f"not judged ({v['after']['n_ok']} landings; a 95 % interval needs "
+                      f"{MIN_JUDGED})")
+                continue
             print(f"    constraint {name:<10} {ch['measure']} on the verification landings: g "
                   f"{ch['g']:+.4f}, 95 % [{ch['ci95'][0]:+.4f}, {ch['ci95'][1]:+.4f}]: "
                   f"{'met' if ch['met'] else 'NOT MET'}")
