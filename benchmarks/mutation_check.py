@@ -261,6 +261,24 @@ MUTATIONS = [
       ("tests/test_contracts.py::"
        "test_fit_and_predict_refuse_an_output_folder_holding_a_file_the_metadata_names",),
       ("calibration",)),
+    M("unfinished_verification_judged", "verification landings cut off at t_end are judged "
+      "on their numbers", "    ok = res.failure == int(Result.SUCCESSFUL)\n",
+      "    ok = np.isin(res.failure, [int(Result.SUCCESSFUL), int(Result.UNFINISHED)])\n",
+      ("tests/test_design_verify.py::"
+       "test_a_landing_no_continuation_finishes_fails_the_verification",)),
+    M("verification_not_continued", "verification landings cut off at t_end are not run on",
+      "CONTINUE_FACTORS = (3.0, 9.0)", "CONTINUE_FACTORS = ()",
+      ("tests/test_design_verify.py::"
+       "test_cut_off_verification_landings_are_continued_to_their_final_outcomes",)),
+    M("bootstrap_of_one_landing", "a verification of one landing meets its constraints",
+      "MIN_JUDGED = 20", "MIN_JUDGED = 1",
+      ("tests/test_design_verify.py::test_too_few_verification_landings_meet_no_constraint",
+       "tests/test_design_verify.py::"
+       "test_a_verification_of_one_landing_is_not_verified_and_says_so")),
+    M("quarter_tip_probability", "a quarter-model Monte Carlo presents a tip-over probability",
+      'if model == "full" else not_modelled(ok.sum(), TIP_OVER_NOT_MODELLED)),',
+      "),",
+      ("tests/test_montecarlo.py::test_a_quarter_run_presents_no_tip_over_probability",)),
 ]
 
 
