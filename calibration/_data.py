@@ -702,20 +702,6 @@ def _meta_paths(path: Path) -> tuple[Path, dict]:
     return meta_path, meta
 
 
-def load_vehicle_file(path, what: str = "config") -> jl.Vehicle:
-    """``jaxland.load_vehicle``, refusing (``ConfigError`` naming ``what`` and the file) a
-    file that sets no parameter: jaxland gives every key a file leaves out the paper's value,
-    so an empty file, or one of comments or empty tables, would load as the paper vehicle."""
-    from jaxland._toml import read_toml
-
-    data = read_toml(path, what)
-    if all(isinstance(t, dict) and not t for t in data.values()):
-        raise _err(what, str(path), "sets no vehicle parameter, and would run as the paper "
-                   "vehicle (every key left out takes the paper's value); give the vehicle's "
-                   "values (`jaxland config` prints the paper vehicle's, to edit)")
-    return jl.load_vehicle(path)
-
-
 def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
     """Load one drop test from its metadata TOML (or its CSV, with the TOML beside it of the
     same name), validate everything and preprocess (touchdown, offsets, noise).
@@ -748,7 +734,7 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
             raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
         else:
             try:
-                vehicle = load_vehicle_file(meta_path.parent / cfg)
+                vehicle = jl.load_vehicle(meta_path.parent / cfg)
             except jl.ConfigError as err:  # name the file the value is in
                 raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {err.field}",
                            err.value, err.rule) from None

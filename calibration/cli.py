@@ -150,12 +150,12 @@ def peak_site_line(check: dict | None) -> str:
 
 def _cmd_fit(args) -> int:
     from . import _fit
-    from ._data import load_drop_tests, load_vehicle_file
+    from ._data import load_drop_tests
     from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
 
     out = _out_dir(args.out, (args.config, *args.data))
     names = check_names(args.params)
-    vehicle = load_vehicle_file(args.config, "--config") if args.config else None
+    vehicle = jl.load_vehicle(args.config, "--config") if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
@@ -319,11 +319,11 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_predict(args) -> int:
-    from ._data import load_drop_tests, load_vehicle_file
+    from ._data import load_drop_tests
     from ._predict import predict, read_fit_status
 
     out = _out_dir(args.out, (args.config, *args.data))
-    vehicle = load_vehicle_file(args.config, "--config")
+    vehicle = jl.load_vehicle(args.config, "--config")
     status = read_fit_status(args.config)  # what the fit said of the vehicle, if it is one
     drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named

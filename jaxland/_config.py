@@ -168,9 +168,18 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         raise
 
 
-def load_vehicle(path) -> Vehicle:
-    """Load and validate a vehicle TOML file."""
-    return vehicle_from_dict(read_toml(path, "config"))
+def load_vehicle(path, what: str = "config") -> Vehicle:
+    """Load and validate a vehicle TOML file (refusals name it as ``what``: the flag or key
+    that gave the path). A file that sets no parameter (empty, comments, empty tables) is
+    refused: every key a file leaves out takes the paper's value, so it would load, silently,
+    as the paper vehicle."""
+    data = read_toml(path, what)
+    if all(isinstance(t, dict) and not t for t in data.values()):
+        raise ConfigError(what, str(path), "sets no vehicle parameter, and would run as the "
+                          "paper vehicle (every key left out takes the paper's value); give "
+                          "the vehicle's values (`jaxland config` prints the paper vehicle's, "
+                          "to edit)")
+    return vehicle_from_dict(data)
 
 
 def paper_vehicle() -> Vehicle:

@@ -5,6 +5,7 @@ import json
 import subprocess
 import sys
 import tomllib
+from pathlib import Path
 
 import pytest
 
@@ -105,6 +106,30 @@ def test_simulate_refuses_bad_config_file(tmp_path, capsys):
     assert main(["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "ground.gamma = 1.5" in err and "[0, 1)" in err
+
+
+@pytest.mark.parametrize("text", ["", "# the paper's gear\n", "[ground]\n[body]\n"])
+def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(tmp_path, capsys,
+                                                                              text):
+    """Every key a vehicle file leaves out takes the paper's value: an empty one would run,
+    silently, as the paper vehicle."""
+    cfg = tmp_path / "empty.toml"
+    cfg.write_text(text)
+    for argv in (["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")],
+                 ["montecarlo", "--config", str(cfg),
+                  str(Path(__file__).parents[1] / "examples" / "montecarlo_dispersed.toml"),
+                  "--out", str(tmp_path / "m")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"--config = {str(cfg)!r}: sets no vehicle" in err
+    spec = tmp_path / "design.toml"
+    spec.write_text('[design]\nvehicle = "nope.toml"\nscene_seed = 5\n'
+                    '[variables.F1_N]\nlow = 2000.0\nhigh = 8000.0\n'
+                    '[constraints.stroke]\nmargin_mm = 20.0\n'
+                    '[dispersion.sink_speed_mps]\ndist = "uniform"\nlow = 1.5\nhigh = 2.5\n')
+    assert main(["design", str(spec), "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("jaxland: error: design.vehicle = "), err
 
 
 def test_bench_is_not_a_subcommand(capsys):

@@ -66,8 +66,9 @@ def _cmd_design(args) -> int:
         if args.verify_n < 0:
             raise jl.ConfigError("--verify-n", args.verify_n, "must be >= 0")
         spec.montecarlo.n = max(args.verify_n, 1)
-    vehicle = (jl.load_vehicle(args.config) if args.config else
-               jl.load_vehicle(spec.vehicle) if spec.vehicle else jl.paper_vehicle())
+    vehicle = (jl.load_vehicle(args.config, "--config") if args.config else
+               jl.load_vehicle(spec.vehicle, "design.vehicle") if spec.vehicle
+               else jl.paper_vehicle())
     check_bounds(spec, jl.validate_vehicle(vehicle))  # before the banner: one line if bad
     if args.verify_n != 0:
         check_verification(spec, vehicle)

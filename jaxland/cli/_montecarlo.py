@@ -84,7 +84,7 @@ def cmd_montecarlo(args) -> int:
     if args.seed is not None:
         spec.seed = args.seed
     spec.__post_init__()  # re-check n and seed after the overrides
-    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
     result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
     import jax
 

@@ -103,7 +103,7 @@ def cmd_simulate(args) -> int:
     from .._simulate import effective_vehicle, simulate
 
     out = out_dir(args.out, (args.config, args.scene))
-    vehicle = load_vehicle(args.config) if args.config else paper_vehicle()
+    vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
     scene = _scene_from_args(args)
     options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
                if getattr(args, k) is not None}
