@@ -414,6 +414,39 @@ high = 2.5
 """
 
 
+@pytest.mark.parametrize("old,new,line", [
+    ("low = 2000.0\nhigh = 8000.0", "low = 1000.0\nhigh = 4000.0",
+     "jaxland: error: variables.F1_N = 5024.4: the start (baseline) value must lie strictly"),
+    ("t_end_s = 0.1\n[objective]", "t_end_s = 0.1\ndt_s = 1e-3\n[objective]",
+     "jaxland: error: design.dt_s = 0.001: exceeds the stability limit"),
+    ('dist = "uniform"\nlow = 1.5\nhigh = 2.5', 'dist = "normal"\nmean = 100.0\nstd = 1.0',
+     "jaxland: error: dispersion.sink_speed_mps = "),
+])
+def test_cli_refuses_design_inputs_before_the_banner(tmp_path, capsys, old, new, line):
+    """The design's input checks (the baseline inside the bounds, the step, the drawn scenes
+    inside the envelope) answer in one line, before the banner and any landing."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "spec.toml"
+    assert old in TINY
+    spec.write_text(TINY.replace(old, new))
+    assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(line) and err.count("\n") == 1, err
+
+
+def test_design_scenes_that_never_touch_down_are_named_not_called_numerical(tmp_path, capsys):
+    from jaxland.cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(TINY.replace("drop_height_m = 0.0", "drop_height_m = 0.3"))
+    assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots",
+                 "--verify-n", "0"]) == 2
+    err = capsys.readouterr().err
+    assert ("design.t_end_s = 0.1: 2 of 2 design scenes do not touch down within it" in err
+            and "numerical" not in err)
+
+
 def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     from jaxland.cli import main
 

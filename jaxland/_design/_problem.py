@@ -21,7 +21,7 @@ from .._montecarlo._sample import check_fixed, draw, scene_fields
 from .._params import Vehicle
 from .._scene import Scene
 from .._simulate import landings
-from .._solvers import Result, Solver
+from .._solvers import Result, Solver, stable_step
 from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
 from ._spec import (
     _DEG,
@@ -202,13 +202,28 @@ class DesignProblem:
         self.scene_inputs = {k: np.concatenate([np.asarray(d[k]) for d in draws])
                              for k in draws[0]}
         self.count = spec.n_scenes + sum(len(idx) for _, idx in self.added)
-        self.scenes = Scene.batch(**scene_fields(scene_spec, self.scene_inputs, self.count,
-                                                 n_legs))
-        self.scenes.validate(self.vehicle.n_legs)
+        try:
+            self.scenes = Scene.batch(**scene_fields(scene_spec, self.scene_inputs, self.count,
+                                                     n_legs))
+            self.scenes.validate(self.vehicle.n_legs)
+        except ConfigError as err:  # a drawn scene outside the envelope: name the dispersion
+            key = err.field.removeprefix("scene.")
+            if key not in mc.dispersion:
+                raise
+            raise ConfigError(f"dispersion.{key}", mc.dispersion[key].table(),
+                              f"draws design scenes outside the scene envelope (one at "
+                              f"{err.value}; {err.rule}): a design scene must be a landing; "
+                              "keep the dispersion inside the envelope (truncnormal, uniform)"
+                              ) from None
         check_bounds(spec, self.vehicle)
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
                                       baseline_value(self.vehicle, v.name, self.cells))
                              for v in self.variables}, check=True)
+        limit = float(stable_step(self.vehicle_at(jnp.asarray(self.z0)), method=spec.method,
+                                  model=MODELS[self.model]))
+        if spec.dt > limit:
+            raise ConfigError("design.dt_s", spec.dt, f"exceeds the stability limit {limit:.3g} "
+                              f"s of {spec.method} for the start design")
         self._fn = jax.jit(self._measures)
         self._jac = jax.jit(self._measures_and_jac)
         # the scenes' devices: the optimiser's path depends on their count through rounding
@@ -305,6 +320,7 @@ class DesignProblem:
                    failed=((s["result"] != int(Result.SUCCESSFUL))
                            & (s["result"] != int(Result.UNFINISHED))),
                    unfinished=s["result"] == int(Result.UNFINISHED),
+                   no_touchdown=s["result"] == int(Result.NO_TOUCHDOWN),
                    tipped=s["tipped"])
         if "peak_margin_deficit_m" in s:
             out["min_stability_margin_m"] = -s["peak_margin_deficit_m"]

@@ -241,7 +241,7 @@ def _fresh_seed(spec: DesignSpec, round_: int) -> int:
 
 def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int | None = None,
                     rounds: int | None = None, progress=None, mc_progress: bool = False,
-                    say=None) -> DesignResult:
+                    say=None, problem: DesignProblem | None = None) -> DesignResult:
     """Optimise, verify on fresh landings, and while a constraint is not met (the upper end of
     its 95 % interval on the verification landings is above its limit) add the violating
     landings to the design scenes and re-optimise from the last design, at most ``rounds``
@@ -249,7 +249,8 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
 
     The result's ``verification`` gains ``verified`` (every constraint met, no failed sample),
     ``rounds`` (what each round added and found) and, when not verified, ``reason``: why the
-    loop stopped. ``say(str)`` receives one line per round."""
+    loop stopped. ``say(str)`` receives one line per round. ``problem``: the design problem of
+    ``spec`` and ``vehicle``, where already built (its construction checks the inputs)."""
 
     rounds = spec.verify_rounds if rounds is None else int(rounds)
     if rounds < 0:
@@ -257,7 +258,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
     say = say or (lambda msg: None)
     t0 = time.perf_counter()
     check_verification(spec, paper_vehicle() if vehicle is None else vehicle, n)
-    result = optimise_design(spec, vehicle, progress=progress)
+    result = optimise_design(spec, vehicle, progress=progress, problem=problem)
     for rec in result.history:
         rec["round"] = 0
     history, log = list(result.history), []

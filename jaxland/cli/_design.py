@@ -44,7 +44,7 @@ def _cmd_design(args) -> int:
     import jaxland as jl
 
     from .._design import (
-        check_bounds,
+        DesignProblem,
         check_verification,
         design_verified,
         load_design_spec,
@@ -69,7 +69,8 @@ def _cmd_design(args) -> int:
     vehicle = (jl.load_vehicle(args.config, "--config") if args.config else
                jl.load_vehicle(spec.vehicle, "design.vehicle") if spec.vehicle
                else jl.paper_vehicle())
-    check_bounds(spec, jl.validate_vehicle(vehicle))  # before the banner: one line if bad
+    # every input check (bounds, scenes, steps) before the banner: one line if bad
+    problem = DesignProblem(spec, jl.validate_vehicle(vehicle))
     if args.verify_n != 0:
         check_verification(spec, vehicle)
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
@@ -77,9 +78,11 @@ def _cmd_design(args) -> int:
           file=sys.stderr)
     t0 = time.perf_counter()
     if args.verify_n == 0:
-        result = optimise_design(spec, vehicle, progress=_progress(args.quiet, spec.iterations))
+        result = optimise_design(spec, vehicle, progress=_progress(args.quiet, spec.iterations),
+                                 problem=problem)
     else:
         result = design_verified(spec, vehicle, progress=_progress(args.quiet, spec.iterations),
+                                 problem=problem,
                                  mc_progress=not args.quiet,
                                  say=lambda msg: print(f"jaxland design: {msg}",
                                                        file=sys.stderr))
