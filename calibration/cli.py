@@ -15,6 +15,7 @@ from pathlib import Path
 
 import jaxland as jl
 from jaxland import staged
+from jaxland.cli._common import named_by_flags
 
 __all__ = ["add_subcommands"]
 
@@ -154,7 +155,16 @@ def _cmd_fit(args) -> int:
     from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
 
     out = _out_dir(args.out, (args.config, *args.data))
-    names = check_names(args.params)
+    # the fit's arguments refused under the flags that set them
+    flags = {field: (flag, getattr(args, dest)) for field, flag, dest in (
+        ("params", "--params", "params"), ("start", "--start", "start"),
+        ("windows", "--windows", "windows"), ("dt", "--dt", "dt"),
+        ("integrator", "--integrator", "integrator"),
+        ("smoothing_m", "--smoothing-m", "smoothing_m"),
+        ("smoothing_N", "--smoothing-n", "smoothing_n"),
+        ("peak_form", "--peak-form", "peak_form"), ("peak_site", "--peak-site", "peak_site"))}
+    with named_by_flags(flags):
+        names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config, "--config") if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle)
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
@@ -168,7 +178,8 @@ def _cmd_fit(args) -> int:
         raise jl.ConfigError("--dt", args.dt, "must be a finite step > 0 [s]")
     refine = args.refine_window_s if args.refine_window_s > 0 else None
     robust = args.robust if args.robust > 0 else None
-    start = _start(args.start)
+    with named_by_flags(flags):
+        start = _start(args.start)
     peak_form = None if args.peak_form == "law" else args.peak_form
     from ._compare import peak_model_names
 
@@ -184,13 +195,9 @@ def _cmd_fit(args) -> int:
                              "in the honeycomb; fit with --peak-site forces on its own")
     # every argument refused before the banner; --compare-models fits the peak model
     # (peak_form's) beside the model without the peak
-    try:
+    with named_by_flags(flags):
         checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models
                                  else names, peak_form=peak_form, **fit_kw)
-    except jl.ConfigError as err:
-        if err.field == "windows":  # the API's argument; the user sets it with the flag
-            raise jl.ConfigError("--windows", err.value, err.rule) from None
-        raise
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "
           f"parameters {', '.join(names)}, method {args.method}, integrator "
           f"{checked.integrator} (dt {args.dt:g} s, smoothing {checked.smoothing_m:g} m / "

@@ -540,11 +540,14 @@ def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_v
 
 
 @pytest.mark.parametrize("argv,needle", [
-    (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "unknown parameter"),
+    # refused under the flag the user typed, with the value as typed
+    (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "--params = 'k,zeta': unknown"),
+    (["fit", "DATA/drop_h0.20m.toml", "--start", "k=nan"], "--start = 'k=nan': must be"),
+    (["fit", "DATA/drop_h0.20m.toml", "--dt", "1"], "--dt = 1.0: must be in"),
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
     (["fit", "DATA/missing.toml"], "does not exist"),
-    (["fit", "DATA/drop_h0.20m.toml", "--integrator", "rk4"], "integrator"),
-    (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "-5"], "smoothing_N"),
+    (["fit", "DATA/drop_h0.20m.toml", "--integrator", "rk4"], "--integrator = 'rk4'"),
+    (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "-5"], "--smoothing-n = -5.0"),
     (["predict", "--config", "DATA/missing.toml", "DATA/drop_h0.20m.toml"], "does not exist"),
 ])
 def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
@@ -568,7 +571,7 @@ def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_arg
     assert main(["fit", str(toml), "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
-    assert ("--windows = [0.01, 0.03, 0.1]: the last window (0.1 s) is longer than the record "
+    assert ("--windows = '0.01,0.03,0.1': the last window (0.1 s) is longer than the record "
             "drop_h0.20m after touchdown") in err[0], err
     assert not out.exists()
     with pytest.raises(jl.ConfigError, match="longer than the record") as caught:

@@ -51,18 +51,26 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["--drop-height", "-1"], "scene.drop_height_m = -1.0"),
+    # a refusal names the flag the user typed and the value as typed, not the field it set
+    (["--drop-height", "-1"], "--drop-height = -1.0: must be finite and in"),
     (["--touchdown-speed", "2", "--drop-height", "0.1"], "give either"),
     (["--dt", "1e-3"], "stability limit"),
     (["--touchdown-speed", "-1"], "--touchdown-speed = -1.0: must be finite and in [0, 30]"),
     # a negative value in scientific notation reaches its rule (argparse took it for an option)
-    (["--dt", "-1e-5"], "solver.dt = -1e-05: must be a finite number > 0 s"),
-    (["--dt=-1E-5"], "solver.dt = -1e-05: must be a finite number > 0 s"),
+    (["--dt", "-1e-5"], "--dt = -1e-05: must be a finite number > 0 s"),
+    (["--dt=-1E-5"], "--dt = -1e-05: must be a finite number > 0 s"),
+    (["--t-end", "1e400"], "--t-end = inf: must be a finite number > 0 s"),
+    (["--friction", "3"], "--friction = 3.0: must be finite and in [0, 2]"),
+    (["--roll-rate-degps", "1000"], "--roll-rate-degps = 1000.0: must be finite and in"),
+    (["--model", "quarter", "--roll-deg", "5"], "--model = 'quarter': the quarter model"),
+    (["--plateau-scale", "1", "1"], "--plateau-scale = [1.0, 1.0]: must have one entry per leg"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"
-    assert main(["simulate", "--out", str(out), "--t-end", "0.05", *args]) == 2
-    assert needle in capsys.readouterr().err
+    t_end = [] if "--t-end" in args else ["--t-end", "0.05"]
+    assert main(["simulate", "--out", str(out), *t_end, *args]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1, err
     assert not out.exists() or not any(out.iterdir())
 
 
@@ -130,6 +138,15 @@ def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(t
     assert main(["design", str(spec), "--out", str(tmp_path / "d")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("jaxland: error: design.vehicle = "), err
+
+
+@pytest.mark.parametrize("text", ["scene = 3\n", 'scene = "ab"\n', "scene = [1, 2]\n"])
+def test_a_scene_key_that_is_no_table_is_refused_in_one_line(tmp_path, capsys, text):
+    scene = tmp_path / "scene.toml"
+    scene.write_text(text)
+    assert main(["simulate", "--scene", str(scene), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and ": scene = " in err and "must be a table" in err, err
 
 
 def test_bench_is_not_a_subcommand(capsys):

@@ -165,8 +165,11 @@ def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
     for flags, needle in ((["--num-processes", "2"], "--num-processes = 2: needs --coordinator"),
                           (["--coordinator", "localhost:1234"],
                            "--coordinator = 'localhost:1234': needs --num-processes too"),
-                          (["--n", "1000000000000"], "montecarlo.n = 1000000000000: its "
-                                                     "per-sample results take up to")):
+                          (["--n", "1000000000000"], "--n = 1000000000000: its "
+                                                     "per-sample results take up to"),
+                          (["--n", "0"], "--n = 0: must be >= 1"),
+                          (["--seed", "-1"], "--seed = -1: must be >= 0"),
+                          (["--chunk", "0"], "--chunk = 0: must be >= 1")):
         bad = subprocess.run([*cli, *flags, "--out", str(tmp_path / "bad")], env=env,
                              capture_output=True, text=True, timeout=120)
         err = bad.stderr.strip().splitlines()

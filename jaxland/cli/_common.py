@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 from .._errors import ConfigError
@@ -76,3 +77,17 @@ def fmt(v, scale=1.0, unit="", nd=4):
     if isinstance(v, list):
         return (" / ".join(f"{x * scale:.{nd}g}" for x in v) + f" {unit}  (per leg)").strip()
     return f"{v * scale:.{nd}g} {unit}".strip()
+
+
+@contextmanager
+def named_by_flags(flags: dict):
+    """Refusals of the fields in ``flags`` (field -> (flag, the value as typed)) name the flag
+    the user typed and its value, not the field it set: ``solver.dt`` from ``--dt`` is refused
+    as ``--dt``. A field a flag did not set (``flags`` leaves it out) keeps its name."""
+    try:
+        yield
+    except ConfigError as err:
+        for field, (flag, given) in flags.items():
+            if err.field == field or err.field.startswith(field + "."):
+                raise ConfigError(flag, given, err.rule) from None
+        raise

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .. import use_batch_fusion
-from ._common import out_dir, use_cpu_cores
+from ._common import named_by_flags, out_dir, use_cpu_cores
 
 # envelopes whose low tail is the danger (the others: the high tail)
 LOW_SIDE = ("min_stability_margin_m",)
@@ -76,16 +76,22 @@ def cmd_montecarlo(args) -> int:
     out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
-    if args.coordinator is not None:  # one of several processes; process 0 writes the outputs
-        init_distributed(args.coordinator, args.num_processes, args.process_id)
-    spec = load_montecarlo_spec(args.spec)
-    if args.n is not None:
-        spec.n = args.n
-    if args.seed is not None:
-        spec.seed = args.seed
-    spec.__post_init__()  # re-check n and seed after the overrides
-    vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
-    result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
+    flags = {field: (flag, v) for field, flag, v in (
+        ("montecarlo.n", "--n", args.n), ("montecarlo.seed", "--seed", args.seed),
+        ("chunk", "--chunk", args.chunk), ("num_processes", "--num-processes",
+                                           args.num_processes),
+        ("process_id", "--process-id", args.process_id)) if v is not None}
+    with named_by_flags(flags):
+        if args.coordinator is not None:  # one of several processes; process 0 writes outputs
+            init_distributed(args.coordinator, args.num_processes, args.process_id)
+        spec = load_montecarlo_spec(args.spec)
+        if args.n is not None:
+            spec.n = args.n
+        if args.seed is not None:
+            spec.seed = args.seed
+        spec.__post_init__()  # re-check n and seed after the overrides
+        vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
+        result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
     import jax
 
     if jax.process_index() != 0:

@@ -7,7 +7,7 @@ import sys
 from .._errors import ConfigError
 from .._files import staged
 from .._solvers import CLOSURE_LIMIT
-from ._common import fmt as _fmt, out_dir
+from ._common import fmt as _fmt, named_by_flags, out_dir
 
 
 def cmd_config(args) -> int:
@@ -78,7 +78,11 @@ def _scene_from_args(args):
             raise ConfigError(f"--scene {args.scene}: {extra}", "<table>",
                               "a scene file holds the [scene] table only (vehicle parameters "
                               "belong in --config; friction = ... inside [scene] overrides mu)")
-        table = dict(data.get("scene", data))
+        table = data.get("scene", data)
+        if not isinstance(table, dict):
+            raise ConfigError(f"--scene {args.scene}: scene", table,
+                              "must be a table ([scene] with its keys)")
+        table = dict(table)
     for flag, key in _SCENE_FLAGS:
         val = getattr(args, flag)
         if val is not None:
@@ -97,6 +101,17 @@ def _scene_from_args(args):
     return scene_from_dict(table)
 
 
+def _given_flags(args) -> dict:
+    """The fields the command line set -> (flag, value as typed), for named_by_flags."""
+    flags = {f"scene.{key}": (f"--{flag.replace('_', '-')}", getattr(args, flag))
+             for flag, key in _SCENE_FLAGS if getattr(args, flag) is not None}
+    for name in ("dt", "t_end", "save_dt", "impulse", "rtol", "atol", "max_steps"):
+        if getattr(args, name) is not None:
+            flags[f"solver.{name}"] = (f"--{name.replace('_', '-')}", getattr(args, name))
+    flags["model"] = ("--model", args.model)
+    return flags
+
+
 def cmd_simulate(args) -> int:
     from .._config import load_vehicle, paper_vehicle, vehicle_to_toml
     from .._scene import scene_to_toml
@@ -104,11 +119,12 @@ def cmd_simulate(args) -> int:
 
     out = out_dir(args.out, (args.config, args.scene))
     vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
-    scene = _scene_from_args(args)
     options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
                if getattr(args, k) is not None}
-    result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
-                      model=args.model, method=args.method, **options)
+    with named_by_flags(_given_flags(args)):
+        scene = _scene_from_args(args)
+        result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
+                          model=args.model, method=args.method, **options)
     model = result.outcomes["model"]
     effective, note = effective_vehicle(vehicle, scene)
     with staged(out, "simulate") as staging:  # replaces out as a whole, only if all succeed
