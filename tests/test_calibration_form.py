@@ -352,7 +352,7 @@ def test_the_cli_fits_the_built_up_exponential_form_and_refuses_it_without_the_r
     assert main(["fit", str(toml), "--params", ",".join(PARAMS), "--peak-form", form,
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"peak_form = '{form}': needs L_rise1" in err[0], err
+    assert len(err) == 1 and f"--peak-form = '{form}': needs L_rise1" in err[0], err
 
 
 def test_a_peak_in_the_force_channels_only_is_told_from_the_honeycombs(form_fits):
@@ -418,7 +418,7 @@ def test_compare_models_checks_the_peak_form_against_its_peak_model(tmp_path, ca
     assert main(["fit", str(toml), "--compare-models", "--peak-form", "rise_exp",
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "peak_form = 'rise_exp': needs L_rise1" in err[0], err
+    assert len(err) == 1 and "--peak-form = 'rise_exp': needs L_rise1" in err[0], err
 
 
 def test_the_shared_table_lands_as_each_forms_own_vehicle():

@@ -373,8 +373,8 @@ def test_the_cli_refuses_a_drop_given_twice_a_folder_and_bad_fit_flags(tmp_path,
         (["fit", a, "--start", "k=abc"], "--start k = 'abc'"),
         # refused inside the fit's own checks (check_fit), still before its banner
         (["fit", a, "--dt", "1e-3"], "dt = 0.001: must be in (0, "),
-        (["fit", a, "--windows", "0.03,0.01"], "windows = [0.03, 0.01]: must be increasing"),
-        (["fit", a, "--peak-form", "exp"], "peak_form"),
+        (["fit", a, "--windows", "0.03,0.01"], "--windows = '0.03,0.01': must be increasing"),
+        (["fit", a, "--peak-form", "exp"], "--peak-form = 'exp': needs peak1"),
     ]
     for argv, needle in cases:
         out = tmp_path / "out"
