@@ -267,7 +267,8 @@ def table(report: dict) -> dict:
                    max_stroke_p99_m=r["max_stroke_m"]["p99"],
                    max_stroke_max_m=r["max_stroke_m"]["max"],
                    tip_over=r["tip_over"], bottoming=r["bottoming"],
-                   constraint_violations=r["constraint_violations"], n_failed=r["n_failed"])
+                   constraint_violations=r["constraint_violations"], n_failed=r["n_failed"],
+                   n_unfinished=r.get("n_unfinished"), continued=r.get("continued"))
         if "min_stability_margin_m" in r:
             out["min_stability_margin_p01_m"] = r["min_stability_margin_m"]["p01"]
         return out
@@ -292,8 +293,9 @@ def table(report: dict) -> dict:
 def wall_times(report: dict) -> dict:
     """Where a design run's wall time went [s]: the first evaluation (tracing and compilation
     included), the optimiser's iterations, the verification Monte Carlos (compilation
-    included), the rest (building the problem, checking the step, judging the verification)
-    and the whole run (``total_wall_s``; the command's printed total adds the figures)."""
+    included), the rest (building the problem, checking the step, running on the verification
+    landings cut off at t_end, judging the verification) and the whole run (``total_wall_s``;
+    the command's printed total adds the figures)."""
     v = report["verification"]
     total = v.get("total_wall_s")
     ver_wall = v["before"]["wall_s"] + v["after"]["wall_s"]

@@ -947,8 +947,29 @@ def calibration_sample_rate() -> str:
 # --- design (design.json) -----------------------------------------------------------------------
 
 def _p(c) -> str:
+    if c.get("modelled") is False:
+        return "not modelled"
+    if c["probability"] is None:
+        return "undefined (no landing)"
     lo, hi = c["ci95_wilson"]
     return f"{c['count']}/{c['n']} = {c['probability']:.3g} [{lo:.3g}, {hi:.3g}]"
+
+
+def _constraint_g(c) -> str:
+    if c["ci95"][1] is None:
+        return f"{'-' if c['g'] is None else format(c['g'], '+.3f')} not judged (too few landings)"
+    return (f"{c['g']:+.3f} [{c['ci95'][0]:+.3f}, {c['ci95'][1]:+.3f}] "
+            f"{'met' if c['met'] else 'NOT met'}")
+
+
+def _continued(x) -> str:
+    runs = x.get("continued")
+    if runs is None:  # a report from before the continuation
+        return ""
+    if not runs:
+        return "none cut off"
+    return (f"{runs[0]['n']} cut off; run on to "
+            + ", then ".join(f"{c['t_end_s']:g} s ({c['n_unfinished_after']} left)" for c in runs))
 
 
 def design_verification() -> str:
@@ -975,13 +996,13 @@ def design_verification() -> str:
         ["min stability margin, p01 [m]", f"{b['min_stability_margin_p01_m']:.4g}",
          f"{a['min_stability_margin_p01_m']:.4g}"],
         ["failed samples", str(b["n_failed"]), str(a["n_failed"])],
+        *([[f"landings cut off at t_end_s = {v['t_end_s']:g} s", _continued(b), _continued(a)]]
+          if "continued" in a else []),
     ]
     ca, cb = v.get("constraints_after") or {}, v.get("constraints_before") or {}
     for name, c in ca.items():  # the constraint's own measure on the fresh landings
         rows.append([f"{name} constraint g ({c['measure']}; <= 0 met), 95 % bootstrap",
-                     *(f"{x[name]['g']:+.3f} [{x[name]['ci95'][0]:+.3f}, "
-                       f"{x[name]['ci95'][1]:+.3f}] {'met' if x[name]['met'] else 'NOT met'}"
-                       if name in x else "" for x in (cb, ca))])
+                     *(_constraint_g(x[name]) if name in x else "" for x in (cb, ca))])
     if v.get("verified") is not None:
         rounds = len(v.get("rounds") or [1]) - 1
         rows.append(["verified (re-optimisation rounds; landings added)", "",

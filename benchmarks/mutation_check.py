@@ -276,8 +276,8 @@ MUTATIONS = [
        "tests/test_design_verify.py::"
        "test_a_verification_of_one_landing_is_not_verified_and_says_so")),
     M("quarter_tip_probability", "a quarter-model Monte Carlo presents a tip-over probability",
-      'if model == "full" else not_modelled(ok.sum(), TIP_OVER_NOT_MODELLED)),',
-      "),",
+      "    return not_modelled(np.size(tipped), TIP_OVER_NOT_MODELLED)",
+      "    return dict(modelled=True, **proportion(tipped))",
       ("tests/test_montecarlo.py::test_a_quarter_run_presents_no_tip_over_probability",)),
 ]
 

@@ -382,8 +382,9 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
     params = status["parameters"]
     if params:
         lines.append(f"  fitted values (+/- {status['interval']}): " + ", ".join(
-            f"{n} {p['value']:.6g} +/- {p['std_error']:.2g} {p['unit']} "
-            f"({p['rel_std_error']:.1%})" if p["rel_std_error"] is not None else
+            f"{n} {p['value']:.6g} +/- {p['std_error']:.2g} {p['unit']}"
+            + (f" ({p['rel_std_error']:.1%})" if p["rel_std_error"] is not None else "")
+            if p["std_error"] is not None and p["value"] is not None else
             f"{n} {p['value'] if p['value'] is None else format(p['value'], '.6g')} "
             f"{p['unit']} ({p['note'] or 'no standard error'})"
             for n, p in params.items()))

@@ -197,3 +197,32 @@ def test_a_verification_of_one_landing_is_not_verified_and_says_so():
     v = res.verification
     assert not v["verified"] and "at least 20" in v["reason"]
     assert len(v["rounds"]) == 1 and v["added_landings"] == []
+
+
+def test_one_unfinished_landing_among_enough_judged_ones_fails_the_verification():
+    """25 landings well inside the stroke limit meet it; one more landing still unfinished
+    after the continuations leaves the verification not met (its outcome is unknown)."""
+    from types import SimpleNamespace
+
+    from jaxland._design._verify import _judge
+    from jaxland._solvers import Result
+
+    spec = jl.design_spec_from_dict(copy.deepcopy(SPEC))
+    veh = jl.paper_vehicle()
+    n = 26
+    outputs = dict(max_stroke_m=np.full((n, 1), 0.05), peak_body_accel_mps2=np.full(n, 20.0),
+                   slip_distance_m=np.zeros((n, 1)), tipped_over=np.zeros(n, bool),
+                   bottomed_out=np.zeros(n, bool))
+
+    def judged(last_code):
+        failure = np.zeros(n, int)
+        failure[-1] = last_code
+        res = SimpleNamespace(failure=failure, outputs=outputs, summary=dict(
+            n_unfinished=int((failure == int(Result.UNFINISHED)).sum()), seed=1,
+            model="quarter", wall_s=0.0, continued=[]))
+        return _judge(res, veh, spec)
+
+    assert judged(int(Result.SUCCESSFUL))["met"]
+    cut = judged(int(Result.UNFINISHED))
+    assert cut["constraints"]["stroke"]["met"] and cut["n_unfinished"] == 1
+    assert not cut["met"]

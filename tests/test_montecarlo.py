@@ -169,8 +169,16 @@ def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
                                                      "per-sample results take up to"),
                           (["--n", "0"], "--n = 0: must be >= 1"),
                           (["--seed", "-1"], "--seed = -1: must be >= 0"),
-                          (["--chunk", "0"], "--chunk = 0: must be >= 1")):
-        bad = subprocess.run([*cli, *flags, "--out", str(tmp_path / "bad")], env=env,
+                          (["--chunk", "0"], "--chunk = 0: must be >= 1"),
+                          # the spec's own bad value is its key's, whatever the flags
+                          (["--n", "10", "--spec-n", "0"], "montecarlo.n = 0: must be >= 1")):
+        cmd = cli
+        if "--spec-n" in flags:
+            bad_spec = tmp_path / "bad_n.toml"
+            bad_spec.write_text(QUARTER_TOML.replace("n = 12", "n = 0"))
+            flags = ["--n", "10"]
+            cmd = [str(bad_spec) if a == str(spec) else a for a in cli]
+        bad = subprocess.run([*cmd, *flags, "--out", str(tmp_path / "bad")], env=env,
                              capture_output=True, text=True, timeout=120)
         err = bad.stderr.strip().splitlines()
         assert bad.returncode == 2 and len(err) == 1 and needle in err[0], (flags, err)

@@ -29,11 +29,10 @@ from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec
 from ._stats import (
-    TIP_OVER_NOT_MODELLED,
-    not_modelled,
     percentiles,
     proportion,
     sensitivity,
+    tip_over_of,
 )
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
@@ -304,7 +303,7 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     outputs["retried"] = np.zeros(spec.n, bool)
     if spec.retry:
         _retry(spec, vehicle, model, outputs, line)
-    bottomed = outputs["max_stroke_m"].max(axis=1) > float(vehicle.honeycomb.x_L4)
+    bottomed = bottomed_out(outputs, vehicle)
     failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
@@ -358,6 +357,11 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
     line.close()
 
 
+def bottomed_out(outputs: dict, vehicle: Vehicle) -> np.ndarray:
+    """Per landing: a leg's max stroke went past the end of the honeycomb's stroke (x_L4)."""
+    return np.asarray(outputs["max_stroke_m"]).max(axis=1) > float(vehicle.honeycomb.x_L4)
+
+
 def _of_processes(n_proc: int) -> str:
     return f" in each of {n_proc} processes" if n_proc > 1 else ""
 
@@ -400,8 +404,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         n_succeeded=int(ok.sum()),
         # over the successful landings; None where there is none (0/0 is no probability).
         # The quarter model cannot tip: no probability, not a computed-looking 0
-        tip_over=(dict(modelled=True, **proportion(outputs["tipped_over"][ok]))
-                  if model == "full" else not_modelled(ok.sum(), TIP_OVER_NOT_MODELLED)),
+        tip_over=tip_over_of(model, outputs["tipped_over"][ok]),
         bottoming=proportion(outputs["bottomed_out"][ok]),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),

@@ -42,6 +42,15 @@ def not_modelled(n: int, reason: str) -> dict:
                 ci95_wilson=None)
 
 
+def tip_over_of(model: str, tipped) -> dict:
+    """The tip-over proportion of some landings (``tipped``: their flags) as a summary gives
+    it: ``proportion``'s fields with ``modelled`` true for the full 3-D model; for the quarter
+    model, which cannot tip, ``not_modelled``."""
+    if model == "full":
+        return dict(modelled=True, **proportion(tipped))
+    return not_modelled(np.size(tipped), TIP_OVER_NOT_MODELLED)
+
+
 def probability_text(p: dict, nd: int = 3) -> str:
     """A probability with its 95 % interval for a report line (``p``: the summary's
     count/n/probability/ci95_wilson); a probability over no landing is none, one the model

@@ -145,7 +145,9 @@ def _cmd_design(args) -> int:
                   f"{spec.montecarlo.t_end:g} s were run on to "
                   + ", then ".join(f"{c['t_end_s']:g} s ({c['n_unfinished_after']} left)"
                                    for c in continued)
-                  + ": judged on their final outcomes", file=sys.stderr)
+                  + (": judged on their final outcomes" if not continued[-1]["n_unfinished_after"]
+                     else ": those left have no final outcome, and the verification is not met"),
+                  file=sys.stderr)
     if result.status != "feasible":
         for name, c in result.violated.items():
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "

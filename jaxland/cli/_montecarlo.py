@@ -84,7 +84,8 @@ def cmd_montecarlo(args) -> int:
     with named_by_flags(flags):
         if args.coordinator is not None:  # one of several processes; process 0 writes outputs
             init_distributed(args.coordinator, args.num_processes, args.process_id)
-        spec = load_montecarlo_spec(args.spec)
+    spec = load_montecarlo_spec(args.spec)  # its own values are refused by their keys
+    with named_by_flags(flags):
         if args.n is not None:
             spec.n = args.n
         if args.seed is not None:
