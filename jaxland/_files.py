@@ -61,6 +61,18 @@ def json_text(obj) -> str:
     return json.dumps(clean(obj), indent=2, allow_nan=False) + "\n"
 
 
+def run_environment() -> dict:
+    """What an output records of the software it ran on: the jaxland, JAX and optax versions,
+    JAX's backend and the XLA flags (call it after the run: it starts JAX's backend)."""
+    import jax
+    import optax
+
+    from . import __version__
+
+    return dict(jaxland=__version__, jax=jax.__version__, optax=optax.__version__,
+                backend=jax.default_backend(), xla_flags=os.environ.get("XLA_FLAGS", ""))
+
+
 def atomic_write_text(path, text: str) -> Path:
     def write(tmp):
         with open(tmp, "w", newline="") as fh:

@@ -218,8 +218,8 @@ def test_one_unfinished_landing_among_enough_judged_ones_fails_the_verification(
         failure = np.zeros(n, int)
         failure[-1] = last_code
         res = SimpleNamespace(failure=failure, outputs=outputs, summary=dict(
-            n_unfinished=int((failure == int(Result.UNFINISHED)).sum()), seed=1,
-            model="quarter", wall_s=0.0, continued=[]))
+            n_unfinished=int((failure == int(Result.UNFINISHED)).sum()), n_failed=0,
+            failures={}, seed=1, model="quarter", wall_s=0.0, continued=[]))
         return _judge(res, veh, spec)
 
     assert judged(int(Result.SUCCESSFUL))["met"]

@@ -12,10 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .. import __version__
 from .._config import validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
-from .._files import atomic_write_text, json_text
+from .._files import atomic_write_text, json_text, run_environment
 from .._params import Vehicle
 from ._problem import DesignProblem
 from ._spec import CELL_VARS, CONSTRAINTS, VARIABLES, DesignSpec
@@ -115,8 +114,7 @@ class DesignResult:
             history=self.history,
             # the gear the design started from, loadable as written (jaxland simulate --config)
             baseline_vehicle_toml=vehicle_to_toml(self.baseline),
-            environment=dict(jaxland=__version__, jax=jax.__version__,
-                             optax=optax.__version__, backend=jax.default_backend()),
+            environment=run_environment(),
         )
 
     def to_json(self, path, inputs: dict | None = None) -> Path:

@@ -14,7 +14,14 @@ import numpy as np
 from .._config import paper_vehicle, validate_vehicle
 from .._errors import ConfigError
 from .._montecarlo import MonteCarloSpec, percentiles, proportion, run_montecarlo
-from .._montecarlo._run import _per_sample, _summarise, bottomed_out, check_run, mc_solver
+from .._montecarlo._run import (
+    _per_sample,
+    _summarise,
+    bottomed_out,
+    check_run,
+    mc_solver,
+    retry_method,
+)
 from .._montecarlo._sample import sample_scenes
 from .._montecarlo._stats import tip_over_of
 from .._params import Vehicle
@@ -46,7 +53,6 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
     vehicle, model = res.vehicle, res.summary["model"]
     n = res.failure.size
     res.outputs["t_end_s"] = np.full(n, float(vspec.t_end))
-    retry_method = "euler_implicit" if vspec.method == "euler" else vspec.method
     log = []
     for factor in CONTINUE_FACTORS:
         todo = np.flatnonzero(res.failure == int(Result.UNFINISHED))
@@ -54,7 +60,8 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
             break
         t_end = float(vspec.t_end) * factor
         t0 = time.perf_counter()
-        methods = np.where(res.outputs["retried"][todo], retry_method, vspec.method)
+        methods = np.where(res.outputs["retried"][todo], retry_method(vspec.method),
+                           vspec.method)
         steps = res.outputs["dt_s"][todo]
         for method, dt in sorted(set(zip(methods.tolist(), steps.tolist()))):
             idx = todo[(methods == method) & (steps == dt)]
@@ -93,10 +100,8 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
     n = int(ok.sum())
     stroke = o["max_stroke_m"].max(axis=1)[ok]
     accel = o["peak_body_accel_mps2"][ok]
-    failures = {r.message: int((res.failure == int(r)).sum()) for r in Result
-                if r.failed and (res.failure == int(r)).any()}
-    out = dict(n=int(res.failure.size), n_ok=n, n_failed=int(sum(failures.values())),
-               failures=failures,
+    out = dict(n=int(res.failure.size), n_ok=n, n_failed=res.summary["n_failed"],
+               failures=res.summary["failures"],
                n_unfinished=res.summary["n_unfinished"],
                continued=res.summary.get("continued", []),
                seed=res.summary["seed"], model=res.summary["model"],

@@ -16,10 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .. import __version__
 from .._config import paper_vehicle, validate_vehicle, vehicle_to_toml
 from .._errors import ConfigError
-from .._files import atomic_write_csv, flat_columns, json_text, staged
+from .._files import atomic_write_csv, flat_columns, json_text, run_environment, staged
 from .._models import MODELS
 from .._params import Vehicle
 from .._progress import ProgressLine
@@ -317,6 +316,13 @@ RETRIED = (Result.NONFINITE, Result.LEDGER, Result.CLOSURE, Result.STEP_ABOVE_LI
 RETRY_STEPS = 3  # tries after the first: the retry step, then a quarter of it, then a 16th
 
 
+def retry_method(method: str) -> str:
+    """The method a numerical failure of ``method`` is rerun with: explicit Euler's failures
+    come from its explicit strut damping, so euler is rerun as euler_implicit; a method that
+    already takes it implicitly reruns as itself (at a smaller step)."""
+    return "euler_implicit" if method == "euler" else method
+
+
 def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, line) -> None:
     """Run the samples that failed numerically again and keep the new outcomes with the step
     used (``dt_s``; ``retried``). Explicit Euler's failures on hard landings come from its
@@ -327,7 +333,7 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
     to ``RETRY_STEPS`` tries. Every process runs the same retries (same results)."""
     from .._simulate import retry_step
 
-    method = "euler_implicit" if spec.method == "euler" else spec.method
+    method = retry_method(spec.method)
     dt = None
     for attempt in range(RETRY_STEPS):
         failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]))
@@ -399,8 +405,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
                    if "settled_time_s" in outputs else None),
         settled_time_s=(percentiles(outputs["settled_time_s"][
             np.isfinite(outputs["settled_time_s"])]) if "settled_time_s" in outputs else None),
-        retry_method=("euler_implicit" if spec.method == "euler" else spec.method)
-        if outputs["retried"].any() else None,
+        retry_method=retry_method(spec.method) if outputs["retried"].any() else None,
         n_succeeded=int(ok.sum()),
         # over the successful landings; None where there is none (0/0 is no probability).
         # The quarter model cannot tip: no probability, not a computed-looking 0
@@ -422,7 +427,5 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
             ranking=sensitivity(inputs, target, ok)),
         dispersion={k: vars(v) for k, v in spec.dispersion.items()},
         fixed=spec.fixed,
-        environment=dict(jaxland=__version__, jax=jax.__version__,
-                         backend=jax.default_backend(),
-                         xla_flags=os.environ.get("XLA_FLAGS", "")),
+        environment=run_environment(),
     )

@@ -253,19 +253,18 @@ class MonteCarloSpec:
         return model
 
 
-def montecarlo_spec_from_dict(data: dict, *, keys_excluded=(), **overrides) -> MonteCarloSpec:
+def montecarlo_spec_from_dict(data: dict, *, keys_excluded: dict | None = None,
+                              **overrides) -> MonteCarloSpec:
     """A ``MonteCarloSpec`` from the ``montecarlo``, ``dispersion`` and ``fixed`` tables of a
     TOML-shaped dict (other tables are the caller's); ``keys_excluded`` are ``[montecarlo]``
-    keys the caller does not take (a dict: key -> why, which the refusal gives)."""
+    keys the caller does not take, each with why (the refusal gives it)."""
     for section in ("montecarlo", "dispersion", "fixed"):
         if not isinstance(data.get(section, {}), dict):
             raise ConfigError(section, data[section], f"must be a table ([{section}])")
     mc = dict(data.get("montecarlo", {}))
-    why = keys_excluded if isinstance(keys_excluded, dict) else dict.fromkeys(keys_excluded, "")
-    for key, reason in why.items():
+    for key, reason in (keys_excluded or {}).items():
         if key in mc:
-            raise ConfigError(f"montecarlo.{key}", mc[key],
-                              "is not taken here" + (f": {reason}" if reason else ""))
+            raise ConfigError(f"montecarlo.{key}", mc[key], f"is not taken here: {reason}")
     kwargs = parse_table(MonteCarloSpec, "montecarlo", mc)
     disp = {}
     for name, table in data.get("dispersion", {}).items():
