@@ -435,6 +435,47 @@ def test_cli_refuses_design_inputs_before_the_banner(tmp_path, capsys, old, new,
     assert err.startswith(line) and err.count("\n") == 1, err
 
 
+STIFF_BOUNDS = ("high = 8000.0\n", "high = 8000.0\n[variables.k_a_N_per_m]\nlow = 1e6\n"
+                "high = 1e9\n")
+
+
+@pytest.mark.parametrize("key,old,new", [
+    ("design.dt_s", "t_end_s = 0.1\n[objective]", "t_end_s = 0.1\ndt_s = 1e-4\n[objective]"),
+    ("montecarlo.dt_s", "seed = 1\nt_end_s = 0.1", "seed = 1\nt_end_s = 0.1\ndt_s = 1e-4"),
+])
+def test_steps_are_checked_on_the_stiffest_design_the_bounds_allow(tmp_path, capsys, key, old,
+                                                                   new):
+    """A step stable for the start design but not for the stiffest design inside the bounds
+    (the auxiliary strut up to 1e9 N/m) is refused before the banner, naming that design:
+    the optimiser may go there, and the verification runs the design it returns."""
+    from jaxland._design import DesignProblem, design_spec_from_dict
+    from jaxland._design._spec import VARIABLES
+    from jaxland._models import MODELS
+    from jaxland._solvers import stable_step
+    from jaxland.cli import main
+
+    text = TINY.replace(*STIFF_BOUNDS)
+    prob = DesignProblem(design_spec_from_dict(tomllib.loads(text)))
+    method = prob.spec.method if key == "design.dt_s" else "euler"
+    at_start = float(stable_step(prob.vehicle_at(jnp.asarray(prob.z0)), method=method,
+                                 model=MODELS[prob.model]))
+    stiffest, at = prob.stiffest_step(method)
+    # independent: the step at the corner the check names, computed from its values
+    corner = prob.to_z({n: v * VARIABLES[n].to_si * (1 - 1e-9) for n, v in at.items()})
+    assert stiffest == pytest.approx(float(stable_step(
+        prob.vehicle_at(jnp.asarray(corner)), method=method, model=MODELS[prob.model])),
+        rel=1e-6)
+    assert stiffest < 1e-4 < at_start, (stiffest, at_start)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(text.replace(old, new))
+    assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"jaxland: error: {key} = 0.0001: exceeds the stability "
+                          f"limit {stiffest:.3g} s of {method} for the stiffest design inside "
+                          "the bounds (F1_N = 8000, k_a_N_per_m = 1e+09)"), err
+    assert err.count("\n") == 1
+
+
 def test_design_scenes_that_never_touch_down_are_named_not_called_numerical(tmp_path, capsys):
     from jaxland.cli import main
 

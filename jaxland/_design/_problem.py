@@ -4,6 +4,7 @@ scenes, and the measures with their Jacobian."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import statistics
 
@@ -34,6 +35,9 @@ from ._spec import (
     DesignSpec,
     DesignVariable,
 )
+
+# the unconstrained coordinate of a bound: sigmoid(30) is 1 to 1e-13
+BOX_Z = 30.0
 
 
 def risk_measure(values, measure: str, level: float = 0.9):
@@ -219,11 +223,7 @@ class DesignProblem:
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
                                       baseline_value(self.vehicle, v.name, self.cells))
                              for v in self.variables}, check=True)
-        limit = float(stable_step(self.vehicle_at(jnp.asarray(self.z0)), method=spec.method,
-                                  model=MODELS[self.model]))
-        if spec.dt > limit:
-            raise ConfigError("design.dt_s", spec.dt, f"exceeds the stability limit {limit:.3g} "
-                              f"s of {spec.method} for the start design")
+        self.check_step("design.dt_s", spec.dt, spec.method)
         self._fn = jax.jit(self._measures)
         self._jac = jax.jit(self._measures_and_jac)
         # the scenes' devices: the optimiser's path depends on their count through rounding
@@ -283,6 +283,31 @@ class DesignProblem:
 
     def vehicle_at(self, z) -> Vehicle:
         return apply_design(self.vehicle, self.from_z(z), self.cells)
+
+    def stiffest_step(self, method: str) -> tuple[float, dict]:
+        """The smallest a-priori stable step [s] of ``method`` over the designs the bounds
+        allow, and that design (TOML units). The stiffnesses and masses move monotonically
+        with each variable, so the least stable design is a corner of the bounds: each
+        corner's step is computed (2^variables of them)."""
+        k = len(self.variables)
+        corners = np.array(list(itertools.product((-BOX_Z, BOX_Z), repeat=k)))
+        steps = jax.jit(jax.vmap(lambda z: stable_step(self.vehicle_at(z), method=method,
+                                                       model=MODELS[self.model])))
+        lim = np.asarray(steps(jnp.asarray(corners)))
+        i = int(np.argmin(lim))
+        vals = self.from_z(jnp.asarray(corners[i]))
+        return float(lim[i]), {n: float(vals[n]) / VARIABLES[n].to_si for n in self.names}
+
+    def check_step(self, key: str, dt: float, method: str) -> None:
+        """Refuse a step ``dt`` [s] (the TOML ``key``) above ``method``'s stability limit
+        for any design inside the bounds: the optimiser may go anywhere inside them, and
+        the verification runs the design it returns."""
+        limit, at = self.stiffest_step(method)
+        if dt > limit:
+            where = ", ".join(f"{n} = {v:.4g}" for n, v in at.items())
+            raise ConfigError(key, dt, f"exceeds the stability limit {limit:.3g} s of "
+                              f"{method} for the stiffest design inside the bounds ({where}): "
+                              "lower it, or narrow the bounds")
 
     # --- outcomes
     @property

@@ -11,7 +11,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._config import paper_vehicle, validate_vehicle
 from .._errors import ConfigError
 from .._montecarlo import MonteCarloSpec, percentiles, proportion, run_montecarlo
 from .._montecarlo._run import (
@@ -185,11 +184,14 @@ def _verification_spec(spec: DesignSpec, n, seed) -> MonteCarloSpec:
                           model=spec.resolved_model())
 
 
-def check_verification(spec: DesignSpec, vehicle: Vehicle, n: int | None = None) -> None:
+def check_verification(problem: DesignProblem, n: int | None = None) -> None:
     """Refuse, before the optimisation, a verification Monte Carlo that could not run on the
-    baseline ``vehicle`` (its ``dt_s`` above euler's stability limit, an ``n`` beyond this
-    machine's memory): found after the optimisation, it would cost the whole design."""
-    check_run(_verification_spec(spec, n, spec.montecarlo.seed), validate_vehicle(vehicle))
+    baseline or on a design inside the bounds (its ``dt_s`` above the stability limit, an
+    ``n`` beyond this machine's memory): found after the optimisation, it would cost the
+    whole design."""
+    vspec = _verification_spec(problem.spec, n, problem.spec.montecarlo.seed)
+    check_run(vspec, problem.vehicle)
+    problem.check_step("montecarlo.dt_s", vspec.dt, vspec.method)
 
 
 def verify_design(result: DesignResult, *, n: int | None = None, seed: int | None = None,
@@ -269,7 +271,8 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         raise ConfigError("verify_rounds", rounds, "must be >= 0")
     say = say or (lambda msg: None)
     t0 = time.perf_counter()
-    check_verification(spec, paper_vehicle() if vehicle is None else vehicle, n)
+    problem = DesignProblem(spec, vehicle) if problem is None else problem
+    check_verification(problem, n)
     result = optimise_design(spec, vehicle, progress=progress, problem=problem)
     for rec in result.history:
         rec["round"] = 0

@@ -72,7 +72,7 @@ def _cmd_design(args) -> int:
     # every input check (bounds, scenes, steps) before the banner: one line if bad
     problem = DesignProblem(spec, jl.validate_vehicle(vehicle))
     if args.verify_n != 0:
-        check_verification(spec, vehicle)
+        check_verification(problem)
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
