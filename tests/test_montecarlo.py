@@ -2,6 +2,7 @@
 extremes, interval coverage, failed samples isolated, spec validation."""
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -204,6 +205,66 @@ def test_a_run_without_a_successful_landing_is_refused_and_writes_nothing(tmp_pa
     assert not (tmp_path / "mc").exists()
     r = run_montecarlo(load_montecarlo_spec(spec), progress=False)
     assert r.summary["tip_over"]["n"] == 0 and r.summary["tip_over"]["probability"] is None
+
+
+def test_the_earliest_touchdown_bounds_every_sample_and_is_reached_on_level_ground():
+    """``earliest_touchdown_s`` is a lower bound on every sample's touchdown (dispersed drop
+    heights, sink and horizontal speeds, slopes and attitudes; each sample's time from the
+    scene's own free-fall formula) and is the touchdown of the extreme sample on level ground
+    (simulated: no touchdown one step before it, a touchdown one step after it)."""
+    from jaxland._montecarlo._run import earliest_touchdown_s
+    from jaxland._solvers import Result
+
+    veh = jl.paper_vehicle()
+    g = float(veh.g)
+    spec = MonteCarloSpec(dispersion={
+        "drop_height_m": Distribution("uniform", low=0.3, high=0.6),
+        "sink_speed_mps": Distribution("uniform", low=0.5, high=1.5),
+        "horizontal_speed_mps": Distribution("uniform", low=0.0, high=2.5),
+        "heading_deg": Distribution("uniform", low=0.0, high=360.0),
+        "slope_deg": Distribution("uniform", low=0.0, high=6.0),
+        "slope_direction_deg": Distribution("uniform", low=0.0, high=360.0),
+        "roll_deg": Distribution("normal", 0.0, 2.0)}, n=4000, seed=3, t_end=1.0)
+    bound = earliest_touchdown_s(spec, veh)
+    scenes, _ = sample_scenes(spec, 0, spec.n)
+    t_td = (np.asarray(scenes.touchdown_speed(g)) - np.asarray(scenes.sink_speed)) / g
+    assert 0.0 < bound <= t_td.min() < 1.3 * bound, (bound, t_td.min())
+    # a turning body is not bounded: no refusal can come from a rate
+    turning = MonteCarloSpec(dispersion=dict(spec.dispersion, roll_rate_degps=Distribution(
+        "uniform", low=-1.0, high=1.0)), n=4, t_end=1.0)
+    assert earliest_touchdown_s(turning, veh) == 0.0
+
+    level = MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("constant", 1.5)},
+                           fixed={"drop_height_m": 0.6}, n=1, dt=1e-4, t_end=1.0)
+    bound = earliest_touchdown_s(level, veh)
+    assert bound == pytest.approx((math.sqrt(1.5**2 + 2 * g * 0.6) - 1.5) / g, rel=1e-12)
+    scene, _ = sample_scenes(level, 0, 1)
+    for steps, want in ((math.floor(bound / 1e-4), Result.NO_TOUCHDOWN),
+                        (math.ceil(bound / 1e-4) + 1, Result.UNFINISHED)):
+        _, s = jl.landings(veh, scene, jl.Solver(dt=1e-4, t_end=steps * 1e-4,
+                                                 method="euler"), "quarter")
+        assert int(s["result"][0]) == int(want), (steps, bound)
+
+
+def test_a_run_that_ends_before_any_touchdown_is_refused_before_it_starts(tmp_path, capsys):
+    from jaxland.cli import main
+
+    spec = tmp_path / "high.toml"
+    spec.write_text(QUARTER_TOML.replace("drop_height_m = 0.0", "drop_height_m = 2.0"))
+    assert main(["montecarlo", str(spec), "--out", str(tmp_path / "mc")]) == 2
+    err = capsys.readouterr().err
+    assert err == ("jaxland: error: montecarlo.t_end_s = 0.3: ends before the earliest "
+                   "touchdown the dispersion allows (0.402 s, from drop_height_m >= 2 at "
+                   "sink_speed_mps <= 3): no sample could land; raise it\n")
+    assert not (tmp_path / "mc").exists()
+    # where only some samples could touch down in time, the run goes ahead, and a run whose
+    # landings all end unfinished or untouched is refused after it by the same key
+    spec.write_text(QUARTER_TOML.replace("drop_height_m = 0.0", "drop_height_m = 1.0"))
+    assert main(["montecarlo", str(spec), "--out", str(tmp_path / "mc")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("montecarlo: 12/12 landings") and len(err) == 2, err
+    assert err[1].startswith("jaxland: error: montecarlo.t_end_s = 0.3: no landing succeeded "
+                             "(no foot touched the ground before t_end: ")
 
 
 def test_the_cli_can_skip_the_figures_and_the_progress_line(tmp_path, capsys):

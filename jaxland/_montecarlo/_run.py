@@ -217,7 +217,35 @@ def check_run(spec: MonteCarloSpec, vehicle: Vehicle) -> str:
                           f"exceeds the a-priori stability limit {limit:.3g} s of "
                           f"{spec.method}")
     check_fixed(spec, vehicle.n_legs)
+    _check_touchdown_possible(spec, vehicle)
     return model
+
+
+def earliest_touchdown_s(spec: MonteCarloSpec, vehicle: Vehicle) -> float:
+    """A lower bound [s] on the first touchdown of every sample: the lowest foot's clearance
+    (the least drop height) closes at most at the largest sink speed plus the largest
+    horizontal speed times the sine of the steepest slope (the ground rising under a body
+    that crosses it), and gravity. 0 where the body turns (a rate given): a turning body can
+    lower a foot faster."""
+    if any(spec.range_of(k) != (0.0, 0.0)
+           for k in ("roll_rate_degps", "pitch_rate_degps", "yaw_rate_degps")):
+        return 0.0
+    h = spec.range_of("drop_height_m")[0]
+    rate = (spec.range_of("sink_speed_mps")[1] + spec.range_of("horizontal_speed_mps")[1]
+            * math.sin(math.radians(spec.range_of("slope_deg")[1])))
+    g = float(vehicle.g)
+    return (math.sqrt(rate * rate + 2.0 * g * h) - rate) / g
+
+
+def _check_touchdown_possible(spec: MonteCarloSpec, vehicle: Vehicle) -> None:
+    """Refuse, before any landing, a run none of whose samples can touch down by t_end_s."""
+    t = earliest_touchdown_s(spec, vehicle)
+    if t > spec.t_end:
+        raise ConfigError("montecarlo.t_end_s", spec.t_end,
+                          f"ends before the earliest touchdown the dispersion allows ({t:.3g} s,"
+                          f" from drop_height_m >= {spec.range_of('drop_height_m')[0]:g} at "
+                          f"sink_speed_mps <= {spec.range_of('sink_speed_mps')[1]:g}): no "
+                          "sample could land; raise it")
 
 
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 
 from .._checks import FLAG, NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
 from .._errors import ConfigError
-from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS
+from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS, Scene
 from .._solvers import FIXED_STEP_METHODS, check_whole_steps
 from .._toml import read_toml
 
@@ -33,6 +33,7 @@ DISPERSIBLE = {
     "com_offset_y_m": Dispersible("com_offset", 1.0, 1),
     "com_offset_z_m": Dispersible("com_offset", 1.0, 2),
 }
+_SCENE_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Scene)}
 # their envelope in TOML units (the scene's own limits; com_offset per component)
 _EXTRA_LIMITS = {
     **{k: OPTIONAL_LIMITS[k] for k in ("friction", "mass_scale", "plateau_scale")},
@@ -236,6 +237,25 @@ class MonteCarloSpec:
             if "check" in f.metadata:
                 f.metadata["check"](f"montecarlo.{f.metadata['toml']}", getattr(self, f.name))
         check_whole_steps(self.dt, self.t_end, "montecarlo.dt_s", "montecarlo.t_end_s")
+
+    def range_of(self, key: str) -> tuple[float, float]:
+        """The values an input takes over the run, in its TOML units: a fixed value, a
+        dispersion's bounds (a normal's: the scene envelope, outside which a sample is no
+        landing), or the scene's default where the spec leaves it."""
+        if key in self.fixed:
+            vals = self.fixed[key] if isinstance(self.fixed[key], list) else [self.fixed[key]]
+            return float(min(vals)), float(max(vals))
+        dist = self.dispersion.get(key)
+        if dist is None:
+            f = DISPERSIBLE[key]
+            default = _SCENE_DEFAULTS[f.field]
+            return (math.nan, math.nan) if default is None else (default / f.to_si,) * 2
+        lo, hi = envelope(key)
+        if dist.kind == "constant":
+            return float(dist.mean), float(dist.mean)
+        if dist.kind == "normal":
+            return lo, hi
+        return max(lo, float(dist.low)), min(hi, float(dist.high))
 
     def smallest_model(self) -> str:
         """The quarter model if every dispersed or fixed input keeps the drop symmetric."""

@@ -22,6 +22,10 @@ def _no_successful_landing(s: dict) -> None:
         if s[key]:
             why[code.message] = s[key]
     text = ", ".join(f"{k}: {v}" for k, v in why.items())
+    if set(why) <= {Result.NO_TOUCHDOWN.message, Result.UNFINISHED.message}:
+        raise ConfigError("montecarlo.t_end_s", s["t_end_s"], f"no landing succeeded ({text}), "
+                          "so there is no probability or envelope to report: raise it so that "
+                          "the landings touch down and finish their impact")
     if set(why) <= {Result.OUTSIDE_ENVELOPE.message, Result.NO_TOUCHDOWN.message,
                     Result.UNFINISHED.message}:
         raise ConfigError("dispersion", f"{s['n']} samples", f"no landing succeeded ({text}), so "
