@@ -488,20 +488,6 @@ def test_design_scenes_that_never_touch_down_are_named_not_called_numerical(tmp_
             and "numerical" not in err)
 
 
-def test_design_scenes_cut_off_in_their_impact_are_refused(tmp_path, capsys):
-    """Design scenes that all end inside their impact would give an objective and constraints
-    of strokes and peaks that are not final: refused as design.t_end_s (at 0.1 s they end)."""
-    from jaxland.cli import main
-
-    spec = tmp_path / "spec.toml"
-    spec.write_text(TINY.replace("t_end_s = 0.1\n[objective]", "t_end_s = 0.02\n[objective]"))
-    assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots",
-                 "--verify-n", "0"]) == 2
-    err = capsys.readouterr().err
-    assert ("design.t_end_s = 0.02: 2 of 2 design scenes are still in their impact at its end"
-            in err and err.count("\n") == 2), err  # the banner, then the refusal
-
-
 def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     from jaxland.cli import main
 

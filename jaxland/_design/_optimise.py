@@ -182,12 +182,6 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
                           f"{int(np.sum(per['no_touchdown']))} of {prob.count} design scenes do "
                           "not touch down within it: raise it, or start the scenes nearer the "
                           "ground (drop_height_m)")
-    if 2 * np.sum(per["unfinished"]) > prob.count:
-        raise ConfigError("design.t_end_s", spec.t_end,
-                          f"{int(np.sum(per['unfinished']))} of {prob.count} design scenes are "
-                          "still in their impact at its end at the start design, so the "
-                          "objective and constraints would read strokes and peaks that are not "
-                          "final: raise it (at most half the scenes may be cut off)")
     if np.any(per["failed"]) or not np.all(np.isfinite(vec)):
         raise SimulationError(
             f"{int(np.sum(per['failed']))} of {spec.n_scenes} design scenes fail numerically at "
