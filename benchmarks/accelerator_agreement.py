@@ -29,6 +29,10 @@ args = ap.parse_args()
 out_path = Path(args.out).resolve()
 if not out_path.parent.is_dir():
     ap.error(f"out: {args.out}: its folder must exist")
+RESULTS = Path(__file__).resolve().parent / "results"
+if args.quick and (out_path.parent == RESULTS or RESULTS in out_path.parents):
+    ap.error(f"--quick writes smoke-test numbers; refusing {args.out} inside "
+             "benchmarks/results/ (give another folder)")
 CPU_DEVICES = 8  # the GPU machine's CPU side of the comparison, split like `jaxland montecarlo`
 
 import jax  # noqa: E402

@@ -33,7 +33,12 @@ BLOCK = re.compile(r"(<!-- table:([\w-]+) -->\n)(.*?)(<!-- /table -->)", re.S)
 
 
 def _load(name: str) -> dict:
-    return json.loads((RESULTS / name).read_text())
+    """A committed results summary; a smoke run's (``quick``) is no result to publish."""
+    data = json.loads((RESULTS / name).read_text())
+    if isinstance(data, dict) and data.get("quick"):
+        sys.exit(f"error: {RESULTS.relative_to(ROOT) / name} holds a --quick smoke run; "
+                 "rerun the full benchmark or restore the committed file (git checkout)")
+    return data
 
 
 def _g(x, nd=4) -> str:
@@ -451,10 +456,19 @@ def montecarlo_accelerator_targets() -> str:
     return _table(["on one " + b["runs"][0]["device_kind"], "measured", "target"], rows)
 
 
+def _gpu_run(name: str) -> dict:
+    """A results summary whose columns say GPU: refused unless a GPU ran it."""
+    data = _load(name)
+    if data.get("platform") != "gpu":
+        sys.exit(f"error: {RESULTS.relative_to(ROOT) / name} was run on "
+                 f"{data.get('platform')!r}, not a GPU; its tables are a GPU's")
+    return data
+
+
 def accelerator_agreement() -> str:
     """One landing per model on the GPU and on the same machine's CPU
     (accelerator_agreement.json, benchmarks/accelerator_agreement.py)."""
-    b = _load("accelerator_agreement.json")["single"]
+    b = _gpu_run("accelerator_agreement.json")["single"]
     rows = [[m, f"{r['gpu']['max_stroke_m']:.12g}", f"{r['cpu']['max_stroke_m']:.12g}",
              f"{r['rel_diff_max_stroke']:.1e}", f"{r['gpu']['run_s'] * 1e3:.0f}",
              f"{r['cpu']['run_s'] * 1e3:.1f}"] for m, r in b.items()]
@@ -467,7 +481,7 @@ def accelerator_samples() -> str:
     """The same Monte Carlo on the GPU and on the same machine's CPU, two chunk sizes each,
     sample by sample: per outcome the largest relative difference and the samples beyond
     1e-6 and 1e-3 (accelerator_agreement.json's ``samples``)."""
-    b = _load("accelerator_agreement.json")
+    b = _gpu_run("accelerator_agreement.json")
     rows = []
     for model, m in b["samples"].items():
         for p in m["pairs"]:

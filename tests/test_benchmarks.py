@@ -54,6 +54,35 @@ def test_scripts_refuse_quick_into_results_before_measuring(script):
     assert _results_status() == before
 
 
+def test_accelerator_agreement_refuses_quick_into_results():
+    target = "benchmarks/results/accelerator_agreement.json"
+    before = subprocess.run(["git", "status", "--porcelain", "--", target], cwd=ROOT,
+                            capture_output=True, text=True, check=True).stdout
+    run = subprocess.run([sys.executable, str(BENCH / "accelerator_agreement.py"), target,
+                          "--quick"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "refusing benchmarks/results/" in run.stderr, run.stderr
+    assert subprocess.run(["git", "status", "--porcelain", "--", target], cwd=ROOT,
+                          capture_output=True, text=True, check=True).stdout == before
+
+
+@pytest.mark.parametrize("change,what", [({"quick": True}, "--quick smoke run"),
+                                         ({"platform": "cpu"}, "not a GPU")])
+def test_docs_tables_refuse_smoke_and_cpu_runs_under_gpu_columns(tmp_path, monkeypatch,
+                                                                 change, what):
+    import docs_tables
+
+    name = "accelerator_agreement.json"
+    data = json.loads((_common.RESULTS / name).read_text())
+    monkeypatch.setattr(docs_tables, "RESULTS", tmp_path)
+    monkeypatch.setattr(docs_tables, "ROOT", tmp_path.parent)
+    (tmp_path / name).write_text(json.dumps(data))
+    assert docs_tables.accelerator_agreement()  # the committed run renders
+    (tmp_path / name).write_text(json.dumps({**data, **change}))
+    for table in (docs_tables.accelerator_agreement, docs_tables.accelerator_samples):
+        with pytest.raises(SystemExit, match=what):
+            table()
+
+
 def test_bench_landing_quick_writes_json_and_plot(tmp_path):
     before = _results_status()
     run = subprocess.run([sys.executable, str(BENCH / "bench_landing.py"), "--quick", "--out",
