@@ -203,6 +203,10 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         "impacts": [{"start_s": a, "end_s": b} for a, b in impacts],
         "n_impacts": len(impacts),
         "n_contact_changes": int(s["n_contact_changes"]),
+        # the log keeps the first changes only (Solver.event_log): the impacts are listed from
+        # these
+        "n_contact_changes_logged": int(min(s["n_contact_changes"],
+                                            s["event_times_s"].shape[-1])),
         "first_impact_stroke_m": _py(stroke_first),
         "secondary_honeycomb_engaged": bool(max_stroke > float(hc.x_L2)),
         "bottomed_out": bottomed,

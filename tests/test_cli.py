@@ -96,6 +96,24 @@ def test_a_t_end_between_save_points_is_recorded_as_the_time_reached(tmp_path, c
     assert summary["classification"] == "no_touchdown" and summary["energy_closure_rel"] is None
 
 
+def test_impacts_beyond_the_contact_log_are_said_to_be_missing(tmp_path, capsys):
+    """An 8 m/s landing chatters for 20 s: more contact changes than the log holds (256). The
+    impacts are listed from the logged ones, and the summary and the printout say that later
+    ones are missing; the trajectory shows the foot still in contact after the last listed."""
+    out = tmp_path / "long"
+    assert main(["simulate", "--touchdown-speed", "8", "--t-end", "20", "--method", "verlet",
+                 "--save-dt", "1e-3", "--no-plots", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    o = json.loads((out / "summary.json").read_text())
+    assert o["n_contact_changes"] > o["n_contact_changes_logged"] == jl.Solver().event_log
+    assert (f"(listed: {o['n_impacts']}, from the first 256 of {o['n_contact_changes']} "
+            "contact changes; later impacts are not listed)") in said
+    with (out / "trajectory.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    in_contact = [float(r["time_s"]) for r in rows if float(r["normal_force_N"]) > 0]
+    assert in_contact[-1] > o["impacts"][-1]["end_s"] + 1.0
+
+
 def test_a_config_that_overflows_is_named_not_blamed_on_the_step(tmp_path, capsys):
     """A body of 1e308 kg passes the config's rules (> 0), but its energy overflows: the
     failure says so instead of asking for a step of 'nan s'."""

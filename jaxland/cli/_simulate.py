@@ -30,7 +30,10 @@ def _print_summary(o: dict) -> None:
         ("touchdown", _fmt(o["touchdown_time_s"], 1, "s")),
         ("impacts (start-end, s)", ", ".join(
             f"{i['start_s']:.3f}-{'end' if i['end_s'] is None else format(i['end_s'], '.3f')}"
-            for i in o["impacts"][:5]) + (" ..." if o["n_impacts"] > 5 else "")),
+            for i in o["impacts"][:5]) + (" ..." if o["n_impacts"] > 5 else "")
+         + ("" if o["n_contact_changes_logged"] == o["n_contact_changes"] else
+            f" (listed: {o['n_impacts']}, from the first {o['n_contact_changes_logged']} of "
+            f"{o['n_contact_changes']} contact changes; later impacts are not listed)")),
         ("first-impact stroke", _fmt(o["first_impact_stroke_m"], 1e3, "mm")),
         ("max stroke", _fmt(o["max_stroke_m"], 1e3, "mm")),
         ("final stroke", _fmt(o["final_stroke_m"], 1e3, "mm")),
