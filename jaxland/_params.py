@@ -21,17 +21,22 @@ import numpy as np
 __all__ = ["Honeycomb", "Leg", "Ground", "Vehicle", "field_info"]
 
 
-def _f64(x):
-    try:
-        return jnp.asarray(x, dtype=jnp.float64)
-    except (TypeError, ValueError):  # a string, None, a ragged list: named, not a traceback
-        from ._errors import ConfigError
+def _f64(x, name: str = "value"):
+    kind = getattr(x, "dtype", None)
+    # a flag or a text would convert (True to 1.0, "0.2" to 0.2): refused as the typo it is
+    if not (isinstance(x, (bool, str, bytes, np.bool_))
+            or (kind is not None and np.dtype(kind).kind in "bUSO")):
+        try:
+            return jnp.asarray(x, dtype=jnp.float64)
+        except (TypeError, ValueError):  # None, a ragged list: named, not a traceback
+            pass
+    from ._errors import ConfigError
 
-        raise ConfigError("value", x, "must be a number or an array of numbers") from None
+    raise ConfigError(name, x, "must be a number or an array of numbers") from None
 
 
-def _opt_f64(x):
-    return None if x is None else _f64(x)
+def _opt_f64(x, name: str = "value"):
+    return None if x is None else _f64(x, name)
 
 
 def _opt_table(x):

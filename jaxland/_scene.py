@@ -8,6 +8,7 @@ from the world frame; at zero yaw leg i points along azimuth i * 360 / n_legs de
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -62,6 +63,14 @@ OPTIONAL_LIMITS = {"friction": (0.0, 2.0), "mass_scale": (0.5, 2.0), "plateau_sc
                    "com_offset": (-0.3, 0.3)}
 
 
+def _number(name: str, default, optional: bool = False):
+    """A Scene field converted to float64 (None stays None where ``optional``); a flag, a text
+    or no number is refused by the field's name."""
+    convert = _opt_f64 if optional else _f64
+    return eqx.field(converter=functools.partial(convert, name=f"scene.{name}"),
+                     default=default)
+
+
 class Scene(eqx.Module):
     """Touchdown conditions of one landing (see ``SCENE_FIELDS`` for units and limits).
 
@@ -72,24 +81,24 @@ class Scene(eqx.Module):
     axis, in the body frame (3-D model). Left as None they cost nothing.
     """
 
-    drop_height: jnp.ndarray = eqx.field(converter=_f64, default=0.2)
-    sink_speed: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    horizontal_speed: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    heading: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    roll: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    pitch: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    yaw: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    roll_rate: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    pitch_rate: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    yaw_rate: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    slope: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    slope_direction: jnp.ndarray = eqx.field(converter=_f64, default=0.0)
-    friction: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
+    drop_height: jnp.ndarray = _number("drop_height", 0.2)
+    sink_speed: jnp.ndarray = _number("sink_speed", 0.0)
+    horizontal_speed: jnp.ndarray = _number("horizontal_speed", 0.0)
+    heading: jnp.ndarray = _number("heading", 0.0)
+    roll: jnp.ndarray = _number("roll", 0.0)
+    pitch: jnp.ndarray = _number("pitch", 0.0)
+    yaw: jnp.ndarray = _number("yaw", 0.0)
+    roll_rate: jnp.ndarray = _number("roll_rate", 0.0)
+    pitch_rate: jnp.ndarray = _number("pitch_rate", 0.0)
+    yaw_rate: jnp.ndarray = _number("yaw_rate", 0.0)
+    slope: jnp.ndarray = _number("slope", 0.0)
+    slope_direction: jnp.ndarray = _number("slope_direction", 0.0)
+    friction: jnp.ndarray | None = _number("friction", None, optional=True)
     # None (the default) means no scatter: static, so the honeycomb stays a compile-time constant
     # of the loop (runtime-valued parameters make XLA's CPU loop several times slower).
-    plateau_scale: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
-    mass_scale: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
-    com_offset: jnp.ndarray | None = eqx.field(converter=_opt_f64, default=None)
+    plateau_scale: jnp.ndarray | None = _number("plateau_scale", None, optional=True)
+    mass_scale: jnp.ndarray | None = _number("mass_scale", None, optional=True)
+    com_offset: jnp.ndarray | None = _number("com_offset", None, optional=True)
 
     @classmethod
     def from_touchdown_speed(cls, speed_mps: float, **kwargs) -> Scene:

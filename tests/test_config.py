@@ -103,6 +103,17 @@ def test_bad_scene_is_refused(kwargs, field):
         jl.Scene(**kwargs).validate()
 
 
+@pytest.mark.parametrize("kwargs", [dict(drop_height=True), dict(sink_speed="2.0"),
+                                    dict(friction=False), dict(roll=np.array([True, False])),
+                                    dict(slope=None)])
+def test_a_flag_or_a_text_is_no_scene_value(kwargs):
+    """True would run as 1.0 and "2.0" as 2.0: refused when the scene is made, by name."""
+    (name, value), = kwargs.items()
+    with pytest.raises(jl.ConfigError) as err:
+        jl.Scene(**kwargs)
+    assert str(err.value).startswith(f"scene.{name} = {value!r}: must be a number")
+
+
 def test_bad_solver_is_refused():
     with pytest.raises(jl.ConfigError, match=r"solver\.dt"):
         jl.simulate(dt=-1e-5)
