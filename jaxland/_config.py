@@ -290,6 +290,28 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     return veh
 
 
+def follows_rules(veh: Vehicle):
+    """Whether every field of ``veh`` is finite and keeps its own rule, as a jnp bool (also
+    for traced values, inside jit and grad, where ``validate_vehicle`` cannot look). The rules
+    between fields stay the loaders' and ``simulate``'s: a fit's crush-peak forms may bend
+    them on purpose."""
+    import jax.numpy as jnp
+
+    ok = jnp.ones((), bool)
+    for mod in (veh, veh.leg, veh.honeycomb, veh.ground):
+        for f in field_info(type(mod)):
+            val = getattr(mod, f.name)
+            if val is None:
+                continue
+            val = jnp.asarray(val)
+            good = jnp.isfinite(val)
+            check = VALUE_RULES.get(f.metadata["rule"])
+            if check is not None:
+                good = good & check(val)
+            ok = ok & jnp.all(good)
+    return ok
+
+
 def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
     """Cross-field rules of the honeycomb's optional crush peaks and unloading stiffness (each
     checked only where the extension is on: a peak ratio above 1, an unloading ratio above 1)."""

@@ -87,9 +87,9 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     under jit name it). The summary's ``result`` is a ``Result`` code, ``OUTSIDE_ENVELOPE`` for
     a scene outside the documented envelope (``Scene.inside_envelope``). Each concrete value of
     the vehicle is checked first against its own rule (``validate_vehicle(fields_only=True)``:
-    a ``ConfigError`` names the one refused); traced ones (inside jit, vmap or grad) cannot be.
-    The rules between fields are ``simulate``'s and the loaders': a fit's crush-peak forms may
-    bend them on purpose."""
+    a ``ConfigError`` names the one refused); a traced one (inside jit, vmap or grad) outside
+    its rule gives ``INVALID_VEHICLE``, with NaN derivatives. The rules between fields are
+    ``simulate``'s and the loaders': a fit's crush-peak forms may bend them on purpose."""
     return integrate(get_model(model, scene), validate_vehicle(vehicle, fields_only=True),
                      scene, solver)
 

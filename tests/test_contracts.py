@@ -398,7 +398,9 @@ def test_refusals_show_the_value_given(tmp_path, capsys):
 
 def test_the_pure_landing_checks_the_vehicle_values_it_can_see():
     """Concrete invalid values are refused by name (they used to run to SUCCESSFUL); traced
-    ones, as a fit or a design moves them, cannot be checked and run."""
+    ones, as a fit, a design or a user's optimiser moves them, run, and a value outside its
+    field's rule gives INVALID_VEHICLE with NaN derivatives (it ran to SUCCESSFUL with a
+    finite gradient)."""
     solver = jl.Solver(dt=1e-5, t_end=0.05, save_dt=0.05)
     for get, val, field in ((lambda v: v.ground.gamma, -0.5, "ground.gamma"),
                             (lambda v: v.honeycomb.k_b1, -1e7, "honeycomb.k_b1")):
@@ -408,6 +410,17 @@ def test_the_pure_landing_checks_the_vehicle_values_it_can_see():
     traced = jax.jit(lambda g: jl.landing(eqx.tree_at(lambda v: v.ground.gamma, VEH, g),
                                           jl.Scene(), solver, "quarter")[1]["result"])
     assert int(traced(0.2)) in (int(jl.Result.NO_TOUCHDOWN), int(jl.Result.SUCCESSFUL))
+
+    def stroke(F1):
+        s = jl.landing(eqx.tree_at(lambda v: v.honeycomb.F1, VEH, F1),
+                       jl.Scene.from_touchdown_speed(2.0), solver, "quarter")[1]
+        return s["max_stroke_m"], s["result"]
+
+    grad = jax.jit(jax.grad(stroke, has_aux=True))
+    for F1, code in ((-5000.0, jl.Result.INVALID_VEHICLE), (0.0, jl.Result.INVALID_VEHICLE),
+                     (float(VEH.honeycomb.F1), jl.Result.UNFINISHED)):  # 50 ms: mid-crush
+        g, result = grad(jax.numpy.float64(F1))
+        assert int(result) == int(code) and np.isnan(g) == code.failed, (F1, result, g)
 
 
 def test_the_pure_landing_checks_its_solver_settings():

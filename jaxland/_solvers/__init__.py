@@ -4,6 +4,7 @@ each method needs. ``Solver`` holds the settings they share."""
 import jax
 import jax.numpy as jnp
 
+from .._config import follows_rules
 from ._base import (
     FAILED_CODES as FAILED_CODES,
     N_EVENTS as N_EVENTS,
@@ -41,11 +42,13 @@ def integrate(model, vehicle, scene, solver: Solver):
 
     The summary's ``result`` is the landing's ``verdict`` (a ``Result`` code;
     ``OUTSIDE_ENVELOPE`` for a scene outside ``Scene.inside_envelope``, or not
-    ``Scene.symmetric`` for the quarter model), and ``bottomed`` says
-    whether the stroke reached the bottoming stop (where the stroke's derivatives are the
-    stop's, not the honeycomb's). Every output of a failed landing keeps its value (for the
-    diagnosis) but has NaN derivatives: a failure never passes as a gradient. The solver's
-    settings are checked first (``Solver.validate``; a ``ConfigError`` names the one refused)."""
+    ``Scene.symmetric`` for the quarter model; ``INVALID_VEHICLE`` for a vehicle with a field
+    outside its own rule, ``jaxland._config.follows_rules``, traced ones included), and
+    ``bottomed`` says whether the stroke reached the bottoming stop (where the stroke's
+    derivatives are the stop's, not the honeycomb's). Every output of a failed landing keeps
+    its value (for the diagnosis) but has NaN derivatives: a failure never passes as a
+    gradient. The solver's settings are checked first (``Solver.validate``; a
+    ``ConfigError`` names the one refused)."""
     solver.validate()
     solver.method.check_model(model)
     traj, summary = solver.method.integrate(model, vehicle, scene, solver)
@@ -53,7 +56,11 @@ def integrate(model, vehicle, scene, solver: Solver):
     if model.name == "quarter":  # it represents symmetric vertical drops only
         inside = inside & scene.symmetric()
     code = jnp.where(inside, verdict(summary, vehicle, solver, model),
-                     int(Result.OUTSIDE_ENVELOPE)).astype(jnp.int32)
+                     int(Result.OUTSIDE_ENVELOPE))
+    # a traced vehicle (a user's optimiser stepping out of a field's rule) escapes
+    # validate_vehicle: its landing is no valid one, and its derivatives are NaN
+    code = jnp.where(follows_rules(vehicle), code,
+                     int(Result.INVALID_VEHICLE)).astype(jnp.int32)
     failed = jnp.isin(code, jnp.asarray(FAILED_CODES, code.dtype))
     summary = dict(summary, result=code, bottomed=model.leg_max(summary["max_stroke_m"])
                    > jnp.min(vehicle.honeycomb.x_L4))

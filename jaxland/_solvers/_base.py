@@ -42,6 +42,7 @@ class Result(enum.IntEnum):
     SOLVER_STOPPED = 6
     NO_TOUCHDOWN = 7
     UNFINISHED = 8
+    INVALID_VEHICLE = 9
 
     @property
     def message(self) -> str:
@@ -71,6 +72,8 @@ _MESSAGES = {
     Result.STEP_ABOVE_LIMIT: "step above the stability limit of the forces the landing reached",
     Result.OUTSIDE_ENVELOPE: "scene outside the documented envelope, or asymmetric for the "
                              "quarter model (not simulated as valid)",
+    Result.INVALID_VEHICLE: "a vehicle parameter outside its rule (not simulated as valid; "
+                            "jaxland.validate_vehicle names it)",
     Result.UNFINISHED: "t_end came during an impact (a leg on the ground still compressing at "
                        "its largest stroke) or while the vehicle still had the energy to tip "
                        "over: the max stroke, the peaks or the tip-over are not final",
