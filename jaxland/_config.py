@@ -308,6 +308,9 @@ def follows_rules(veh: Vehicle):
             check = VALUE_RULES.get(f.metadata["rule"])
             if check is not None:
                 good = good & check(val)
+            off = f.metadata.get("off")  # an extension's "not used" value (a traced one stays)
+            if isinstance(off, float):
+                good = good | (val == off)
             ok = ok & jnp.all(good)
     return ok
 

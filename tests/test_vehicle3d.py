@@ -57,7 +57,8 @@ def test_a_landing_outside_the_envelope_says_so_and_bad_scenes_are_named():
     codes = jl.landings(v, Scene.batch(drop_height=jnp.array([0.0, 0.05, 60.0])), solver,
                         "quarter")[1]["result"]
     assert codes.tolist() == [int(jl.Result.SUCCESSFUL), int(jl.Result.NO_TOUCHDOWN), out]
-    for make, needle in ((lambda: Scene(drop_height="abc"), "value = 'abc': must be a number"),
+    for make, needle in ((lambda: Scene(drop_height="abc"),
+                          "scene.drop_height = 'abc': must be a number"),
                          (lambda: jl.simulate(Scene(plateau_scale=0.9)),
                           "scene.plateau_scale = 0.9: must have one entry per leg"),
                          (lambda: jl.simulate({"drop_height": 0.1}),

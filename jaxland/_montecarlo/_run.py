@@ -217,7 +217,6 @@ def check_run(spec: MonteCarloSpec, vehicle: Vehicle) -> str:
                           f"exceeds the a-priori stability limit {limit:.3g} s of "
                           f"{spec.method}")
     check_fixed(spec, vehicle.n_legs)
-    _check_touchdown_possible(spec, vehicle)
     return model
 
 
@@ -237,8 +236,10 @@ def earliest_touchdown_s(spec: MonteCarloSpec, vehicle: Vehicle) -> float:
     return (math.sqrt(rate * rate + 2.0 * g * h) - rate) / g
 
 
-def _check_touchdown_possible(spec: MonteCarloSpec, vehicle: Vehicle) -> None:
-    """Refuse, before any landing, a run none of whose samples can touch down by t_end_s."""
+def check_touchdown_possible(spec: MonteCarloSpec, vehicle: Vehicle) -> None:
+    """Refuse, before any landing, a run none of whose samples can touch down by t_end_s
+    (``jaxland montecarlo``; ``run_montecarlo`` runs it and returns each sample's
+    NO_TOUCHDOWN)."""
     t = earliest_touchdown_s(spec, vehicle)
     if t > spec.t_end:
         raise ConfigError("montecarlo.t_end_s", spec.t_end,

@@ -63,6 +63,7 @@ def cmd_montecarlo(args) -> int:
     from .._config import load_vehicle, paper_vehicle
     from .._errors import ConfigError
     from .._montecarlo import init_distributed, load_montecarlo_spec, run_montecarlo
+    from .._montecarlo._run import check_touchdown_possible
 
     if args.coordinator is None:
         for flag, v in (("--num-processes", args.num_processes),
@@ -96,6 +97,7 @@ def cmd_montecarlo(args) -> int:
             spec.seed = args.seed
         spec.__post_init__()  # re-check n and seed after the overrides
         vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
+        check_touchdown_possible(spec, vehicle)
         result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
     import jax
 
