@@ -331,7 +331,8 @@ def _cmd_predict(args) -> int:
 
     out = _out_dir(args.out, (args.config, *args.data))
     vehicle = jl.load_vehicle(args.config, "--config")
-    status = read_fit_status(args.config)  # what the fit said of the vehicle, if it is one
+    # what the fit said of the vehicle, if it is one, and whether the file still holds it
+    status = read_fit_status(args.config, vehicle)
     drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     lines = fit_status_lines(args.config, status)
@@ -366,10 +367,21 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
     """predict's lines on the vehicle's fit (``read_fit_status``): none for a vehicle not
     written by ``jaxland fit``; else whether the fit is sound or which flags it carries, the
     MISFIT and NOT CONVERGED lines' text, and each fitted value's standard error, which the
-    predictions do not carry."""
+    predictions do not carry. A file whose values differ from its header's (``edited``) is
+    named as edited, each value with the file's and the fitted number, never as sound."""
+    from ._predict import EDITED
+
     if not status["from_fit"]:
         return []
-    if status["sound"]:
+    edited = status.get("edited") or []
+    others = [f for f in status["flags"] if not f.startswith(EDITED)]
+    if edited:
+        head = (f"{config}: fitted vehicle edited since the fit: " + "; ".join(
+            f"{e['key']} = {e['file']:.6g} in the file, {e['fitted']:.6g} fitted"
+            for e in edited) + ": these predictions are for the file's values, not the "
+            "fitted ones" + (f"; the fit is also flagged {', '.join(others)}" if others
+                             else ""))
+    elif status["sound"]:
         head = (f"{config}: fitted vehicle, fit sound (converged, no misfit, every value "
                 "identified)")
     else:
@@ -388,8 +400,9 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
             f"{n} {p['value'] if p['value'] is None else format(p['value'], '.6g')} "
             f"{p['unit']} ({p['note'] or 'no standard error'})"
             for n, p in params.items()))
-    lines.append("  the predictions below carry no uncertainty band: they are for the fitted "
-                 "values alone")
+    lines.append("  the predictions below carry no uncertainty band: they are for the "
+                 + ("file's values alone (not the fitted ones)" if edited
+                    else "fitted values alone"))
     return lines
 
 

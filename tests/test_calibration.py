@@ -22,7 +22,7 @@ import pytest
 import calibration as cal
 import jaxland as jl
 from calibration import virtual_rig as vr
-from calibration._parameters import get_values
+from calibration._parameters import get_values, set_values
 from calibration.cli import add_subcommands
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -510,6 +510,47 @@ def test_the_fit_status_reads_every_flag_of_the_header(tmp_path):
     assert good["sound"] and good["flags"] == [] and good["interval"] == "std_error"
     assert good["parameters"]["F1"]["std_error"] == 20.0
     assert read_fit_status(DATA / "truth_vehicle.toml") == {"from_fit": False}
+
+
+def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_sound(
+        tmp_path, capsys):
+    """A fitted_vehicle.toml whose values were edited after the fit runs the file's values:
+    predict names each edited value with the file's and the fitted number, does not call the
+    fit sound, and records the edit in each prediction's fit_status; the unedited file (the
+    header's 6 significant digits) is sound."""
+    from types import SimpleNamespace
+
+    from calibration._predict import read_fit_status
+
+    names = ("k", "gamma", "F1", "L_peak1")
+    values = np.array([2.5948123e6, 0.4014873, 5428.4812, 2.3456789e-3])
+    res = cal.FitResult(
+        names=names, values=values, std_errors=values * 1e-3, correlation=np.eye(4),
+        covariance=np.eye(4), identified=np.ones(4, bool), start_values=values,
+        vehicle=set_values(TRUTH, names, values),
+        diagnostics=dict(interval="std_error", misfit=[], at_bound=[]),
+        stages=[dict(status="converged")], drops=[SimpleNamespace(source="d.csv")])
+    sound = tmp_path / "fitted_vehicle.toml"
+    sound.write_text(res.to_toml())
+    status = read_fit_status(sound, jl.load_vehicle(sound))
+    assert status["sound"] and status["edited"] == [] and status["flags"] == []
+    edited = tmp_path / "edited.toml"
+    edited.write_text(sound.read_text().replace("k_N_per_m = 2594812.3",
+                                                "k_N_per_m = 4000000.0"))
+    assert edited.read_text() != sound.read_text()
+    status = read_fit_status(edited, jl.load_vehicle(edited))
+    assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: k"]
+    assert status["edited"] == [dict(name="k", key="ground.k_N_per_m", file=4e6,
+                                     fitted=2.59481e6, unit="N/m")]
+    out = tmp_path / "pred"
+    assert _run(["predict", "--config", str(edited), str(DATA / "drop_h0.30m.toml"), "--out",
+                 str(out), "--no-plots"]) == 0
+    cap = capsys.readouterr()
+    head = (f"{edited}: fitted vehicle edited since the fit: ground.k_N_per_m = 4e+06 in the "
+            "file, 2.59481e+06 fitted: these predictions are for the file's values")
+    assert f"warning: {head}" in cap.err and head in cap.out and "sound" not in cap.out
+    rep = json.loads((out / "prediction_drop_h0.30m.json").read_text())["fit_status"]
+    assert not rep["sound"] and rep["edited"][0]["file"] == 4e6
 
 
 @pytest.mark.parametrize("text", ["", "# only a comment\n", "[body]\n[honeycomb]\n"])
