@@ -184,6 +184,51 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     assert needle in str(err.value), str(err.value)
 
 
+@pytest.mark.parametrize("case,needle", [
+    # N values under kN headers, no acceleration to contradict them: 1000 times the forces
+    ("n_under_kn", "drop.csv: normal_force_kN = 'peak 8000 kN': exceeds 10 x the "),
+    ("n_under_kn_with_accel", "drop.csv: buffer_force_kN = 'peak 1.2e+04 kN': exceeds 10 x"),
+    # m under a mm header: a thousandth of the stroke
+    ("m_under_mm", "drop.csv: stroke_mm = 'peak 0.0899 mm': is under 1/10 of the "),
+    # ms under a time_s header, the rate written to match: 5 Hz
+    ("ms_under_s", "drop.csv: time_s = '0.2 s between samples': means 5 Hz (sample_rate_Hz = "
+                   "5.0); a drop record needs >= 100 Hz"),
+    ("too_long", "drop.csv: time_s = '61.198 s from first to last sample': must be <= 60 s"),
+])
+def test_a_unit_the_header_contradicts_is_refused_by_physics_before_the_fit(
+        tmp_path, capsys, case, needle):
+    """What no drop of the vehicle records, and a unit the header does not say gives: forces
+    beyond 10 times what the vehicle can put on a leg, a stroke under a tenth of what the
+    drop's energy needs, a sample rate under 100 Hz, a record over 60 s. `jaxland fit`
+    refuses each in one line naming the column as written, before any fit (exit 2, nothing
+    written); forces are judged before the acceleration (which they would wrongly blame)."""
+    from jaxland.cli import main
+
+    t, f, x = _trace()
+    meta = {"drop_height_m": 0.2, "sample_rate_Hz": 5000.0}
+    if case == "n_under_kn":
+        header, cols = ["time_s", "normal_force_kN", "stroke_m"], [t, f, x]
+    elif case == "n_under_kn_with_accel":
+        acc = -9.81 + np.minimum(np.clip(np.arange(t.size) - 100, 0, None) * 2.0, 40.0)
+        header = ["time_s", "buffer_force_kN", "stroke_m", "body_accel_mps2"]
+        cols = [t, f * 1.5, x, acc]
+    elif case == "m_under_mm":
+        header, cols = ["time_s", "normal_force_N", "stroke_mm"], [t, f, x]
+    elif case == "ms_under_s":
+        header, cols = ["time_s", "normal_force_N", "stroke_m"], [t * 1e3, f, x]
+        meta["sample_rate_Hz"] = 5.0
+    else:
+        t, f, x = _trace(n=30600, rate=500.0)
+        header, cols = ["time_s", "normal_force_N", "stroke_m"], [t, f, x]
+        meta["sample_rate_Hz"] = 500.0
+    path = _write(tmp_path, header, _rows(*cols), meta)
+    out = tmp_path / "out"
+    assert main(["fit", str(path), "--out", str(out), "--quiet", "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+    assert not out.exists()
+
+
 def test_bundled_synthetic_data_are_labelled_and_carry_their_truth():
     truth = jl.load_vehicle(DATA / "truth_vehicle.toml")
     np.testing.assert_allclose(get_values(truth, NAMES), P_TRUE, rtol=1e-11)
