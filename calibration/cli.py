@@ -42,6 +42,19 @@ def _start(text: str | None) -> dict | None:
             out[name.strip()] = float(val)
         except ValueError:
             raise jl.ConfigError(f"--start {name.strip()}", val, "must be a number") from None
+        if not math.isfinite(out[name.strip()]):
+            raise jl.ConfigError("--start", text, f"must be finite numbers (SI): {item.strip()}")
+    return out
+
+
+def _start_typed(text: str | None) -> dict:
+    """``--start``'s values as typed, by name (``{'k_b1': '1e12'}``): a refusal of one start
+    value names it as ``--start k_b1`` with what the user wrote."""
+    out = {}
+    for item in (text or "").split(","):
+        name, sep, val = item.partition("=")
+        if sep:
+            out.setdefault(name.strip(), val.strip())
     return out
 
 
@@ -163,6 +176,9 @@ def _cmd_fit(args) -> int:
         ("smoothing_m", "--smoothing-m", "smoothing_m"),
         ("smoothing_N", "--smoothing-n", "smoothing_n"),
         ("peak_form", "--peak-form", "peak_form"), ("peak_site", "--peak-site", "peak_site"))}
+    # one start value refused (start.gamma) as the user typed it, before --start as a whole
+    flags = {**{f"start.{n}": (f"--start {n}", v) for n, v in _start_typed(args.start).items()},
+             **flags}
     with named_by_flags(flags):
         names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config, "--config") if args.config else None

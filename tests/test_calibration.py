@@ -644,6 +644,33 @@ def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("start,needle", [
+    # the step's stability limit that the start value implies, not --dt
+    ("k_b1=1e12", "--start k_b1 = '1e12': makes euler's stability limit 1.99e-06 s, below "
+                  "the step dt = 1e-05 s"),
+    # the vehicle's rule, named by the start value as typed, not by the field it sets
+    ("gamma=1.5", "--start gamma = '1.5': must be in [0, 1)"),
+    ("F2=4000", "--start F2 = '4000': must exceed F1"),
+    ("k=2e6,gamma=1.5", "--start gamma = '1.5': must be in [0, 1)"),
+])
+def test_a_start_value_that_breaks_a_rule_is_named_as_typed(tmp_path, start, needle):
+    """fit --start NAME=VALUE refused by the vehicle's rules or by the step's stability limit
+    names --start NAME and the value as typed (it named ground.gamma, honeycomb.F2_N and
+    --dt); in Python, start.NAME."""
+    from calibration._fit import check_fit
+
+    out = tmp_path / "out"
+    with pytest.raises(jl.ConfigError) as err:
+        _run(["fit", str(DATA / "drop_h0.20m.toml"), "--start", start, "--out", str(out)])
+    assert str(err.value).startswith(needle), str(err.value)
+    assert not out.exists()
+    name, _, value = start.rpartition(",")[2].partition("=")
+    with pytest.raises(jl.ConfigError) as err:
+        check_fit(cal.load_drop_test(DATA / "drop_h0.20m.toml"),
+                      start={name: float(value)})
+    assert (err.value.field, err.value.value) == (f"start.{name}", float(value))
+
+
 def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_argument_in_python(
         tmp_path, capsys):
     """The default windows end 0.1 s after touchdown; a record that ends before is refused
