@@ -818,12 +818,57 @@ def _meta_paths(path: Path) -> tuple[Path, dict]:
     return meta_path, meta
 
 
-def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
+# keys a vehicle given in place of a drop's vehicle_config may change: the model's parameters
+# that jaxland fit calibrates (calibration._parameters.PARAMS) and the crush peak's table
+_TABLE_KEYS = ("honeycomb.excess1", "honeycomb.excess_length1_mm")
+
+
+def _flat_vehicle(vehicle: jl.Vehicle) -> dict:
+    """``{'body.m_body_kg': 1120.0, ...}``: every key of the vehicle's TOML."""
+    out = {}
+
+    def walk(prefix, table):
+        for k, val in table.items():
+            if isinstance(val, dict):
+                walk(f"{prefix}{k}.", val)
+            else:
+                out[prefix + k] = val
+    walk("", tomllib.loads(jl.vehicle_to_toml(vehicle)))
+    return out
+
+
+def article_differences(declared: jl.Vehicle, given: jl.Vehicle) -> list[tuple]:
+    """The keys outside the calibrated parameters (the test article: masses, inertias, gravity,
+    legs and their geometry, the honeycomb's lengths and stops) in which ``given`` differs from
+    ``declared``: ``[(key, declared value, given value)]``."""
+    from ._parameters import PARAMS
+
+    free = {p[2] for p in PARAMS.values()} | set(_TABLE_KEYS)
+    a, b = _flat_vehicle(declared), _flat_vehicle(given)
+    out = []
+    for key in a:
+        if key in free or key not in b:
+            continue
+        x, y = a[key], b[key]
+        same = (math.isclose(x, y, rel_tol=1e-9, abs_tol=0.0)
+                if isinstance(x, (int, float)) and isinstance(y, (int, float))
+                and not isinstance(x, bool) else x == y)
+        if not same:
+            out.append((key, x, y))
+    return out
+
+
+def load_drop_test(path, *, vehicle: jl.Vehicle | None = None,
+                   vehicle_name: str = "vehicle") -> DropTest:
     """Load one drop test from its metadata TOML (or its CSV, with the TOML beside it of the
     same name), validate everything and preprocess (touchdown, offsets, noise).
 
-    ``vehicle`` overrides the metadata's ``vehicle_config``. Raises ``jaxland.ConfigError``
-    naming the field (file, column or key), the value and the rule.
+    ``vehicle`` overrides the metadata's ``vehicle_config`` in the parameters ``jaxland fit``
+    calibrates; where the metadata names a ``vehicle_config``, ``vehicle`` must describe that
+    test article in every other key (``article_differences``), or the drop is refused naming
+    the ``vehicle_config``, the key, both values and ``vehicle_name`` (the CLI's ``--config
+    PATH``). Raises ``jaxland.ConfigError`` naming the field (file, column or key), the value
+    and the rule.
     """
     meta_path, meta = _meta_paths(Path(path))
     unknown = set(meta) - {"drop_test", *_OPTIONAL_TABLES}
@@ -843,17 +888,28 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
         raise _err("drop_test.data_file", data_file, "must be a file name (string)")
     csv_path = (meta_path.parent / data_file)
     cfg = table.get("vehicle_config")
+    declared = None
+    if cfg is not None and not isinstance(cfg, str):
+        raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
+    if cfg is not None:
+        try:
+            declared = jl.load_vehicle(meta_path.parent / cfg)
+        except jl.ConfigError as err:  # name the file the value is in
+            raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {err.field}",
+                       err.value, err.rule) from None
     if vehicle is None:
-        if cfg is None:
-            vehicle = jl.paper_vehicle()
-        elif not isinstance(cfg, str):
-            raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
-        else:
-            try:
-                vehicle = jl.load_vehicle(meta_path.parent / cfg)
-            except jl.ConfigError as err:  # name the file the value is in
-                raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {err.field}",
-                           err.value, err.rule) from None
+        vehicle = jl.paper_vehicle() if declared is None else declared
+    elif declared is not None:
+        diff = article_differences(declared, vehicle)
+        if diff:
+            key, was, now = diff[0]
+            more = f" (and {len(diff) - 1} more key(s))" if len(diff) > 1 else ""
+            raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {key}", was,
+                       f"differs from {vehicle_name}'s {now!r}{more}: the drop was made with "
+                       f"the article its vehicle_config describes, and {vehicle_name} may "
+                       "change only the parameters jaxland fit calibrates; give a "
+                       f"{vehicle_name.split()[0]} of that article, or correct the drop's "
+                       "vehicle_config")
     cols = _read_csv(csv_path)
     time_conv = {}
     if "time_ms" in cols:
@@ -902,10 +958,11 @@ def check_drop_names(drops, paths) -> None:
         seen[d.name] = p
 
 
-def load_drop_tests(paths, *, vehicle: jl.Vehicle | None = None) -> list[DropTest]:
+def load_drop_tests(paths, *, vehicle: jl.Vehicle | None = None,
+                    vehicle_name: str = "vehicle") -> list[DropTest]:
     """``load_drop_test`` for each path; the drops must share one vehicle configuration and
     have different names (``check_drop_names``)."""
-    drops = [load_drop_test(p, vehicle=vehicle) for p in paths]
+    drops = [load_drop_test(p, vehicle=vehicle, vehicle_name=vehicle_name) for p in paths]
     if not drops:
         raise _err("DATA", "<none>", "give at least one drop test")
     check_drop_names(drops, paths)

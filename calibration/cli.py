@@ -182,7 +182,7 @@ def _cmd_fit(args) -> int:
     with named_by_flags(flags):
         names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config, "--config") if args.config else None
-    drops = load_drop_tests(args.data, vehicle=vehicle)
+    drops = load_drop_tests(args.data, vehicle=vehicle, vehicle_name=f"--config {args.config}")
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
     for flag, v in (("--refine-window-s", args.refine_window_s), ("--robust", args.robust)):
@@ -349,7 +349,8 @@ def _cmd_predict(args) -> int:
     vehicle = jl.load_vehicle(args.config, "--config")
     # what the fit said of the vehicle, if it is one, and whether the file still holds it
     status = read_fit_status(args.config, vehicle)
-    drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
+    # one vehicle, the drops' own article, different names
+    drops = load_drop_tests(args.data, vehicle=vehicle, vehicle_name=f"--config {args.config}")
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     lines = fit_status_lines(args.config, status)
     if status["from_fit"] and not status["sound"]:

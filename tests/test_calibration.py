@@ -598,6 +598,40 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     assert not rep["sound"] and rep["edited"][0]["file"] == 4e6
 
 
+def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tmp_path,
+                                                                             capsys):
+    """--config gives the parameters jaxland fit calibrates; the drop's vehicle_config names
+    the article it was dropped as. A --config whose mass (or any key outside the calibrated
+    parameters) differs from it is refused in one line naming the drop's vehicle_config, the
+    key and both values, for predict and fit, before any simulation; one that differs only in
+    calibrated values (a fitted vehicle) runs."""
+    from jaxland.cli import main
+
+    nominal = jl.load_vehicle(DATA / "nominal_vehicle.toml")
+    for name in ("drop_h0.30m.toml", "drop_h0.30m.csv"):
+        (tmp_path / name).write_bytes((DATA / name).read_bytes())
+    heavy = tmp_path / "nominal_vehicle.toml"  # the drop's vehicle_config: a heavier article
+    heavy.write_text((DATA / "nominal_vehicle.toml").read_text().replace(
+        "m_body_kg = 1120.0", "m_body_kg = 1400.0"))
+    assert float(jl.load_vehicle(heavy).m_body) == 1400.0
+    config = str(DATA / "nominal_vehicle.toml")
+    drop = str(tmp_path / "drop_h0.30m.toml")
+    out = tmp_path / "out"
+    for argv in (["predict", "--config", config, drop], ["fit", drop, "--config", config]):
+        assert main([*argv, "--out", str(out), "--no-plots"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and (
+            "drop_h0.30m.toml: drop_test.vehicle_config nominal_vehicle.toml: body.m_body_kg = "
+            f"1400.0: differs from --config {config}'s 1120.0") in err[0], err
+        assert not out.exists()
+    # a vehicle that differs in calibrated parameters only is that article's
+    fitted = set_values(nominal, ("k", "F1"), np.array([3e6, 5600.0]))
+    assert cal.load_drop_test(DATA / "drop_h0.30m.toml", vehicle=fitted).vehicle is fitted
+    with pytest.raises(jl.ConfigError, match=r"body.m_body_kg = 1400.0: differs from "
+                                             r"vehicle's 1120.0"):
+        cal.load_drop_test(drop, vehicle=fitted)
+
+
 @pytest.mark.parametrize("text", ["", "# only a comment\n", "[body]\n[honeycomb]\n"])
 def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_vehicle(
         tmp_path, capsys, text):
