@@ -398,7 +398,8 @@ def _start_error(err: jl.ConfigError, start: dict) -> jl.ConfigError:
             or err.field.startswith(PARAMS[k][2] + ".")]
     if mine:
         return jl.ConfigError(f"start.{mine[0]}", start[mine[0]], err.rule)
-    rule = f"gives {err.field} = {err.value!r}: {err.rule}"
+    value = (f"{err.value:.6g}" if isinstance(err.value, float) else repr(err.value))
+    rule = f"gives {err.field} = {value}: {err.rule}"
     if len(start) == 1:
         k = next(iter(start))
         return jl.ConfigError(f"start.{k}", start[k], rule)
@@ -1202,7 +1203,10 @@ def _check_start_step(base, names, start: dict, dt: float, integrator: str, peak
     if dt > limit_of(None):
         return  # the base vehicle's own limit: dt is the cause
     for k, v in start.items():
-        lim = limit_of({k: v})
+        try:
+            lim = limit_of({k: v})
+        except jl.ConfigError:  # valid only with the other start values: judged together
+            continue
         if dt > lim:
             raise jl.ConfigError(f"start.{k}", v, f"makes {integrator}'s stability limit "
                                  f"{lim:.3g} s, below the step dt = {dt:g} s (the base "
