@@ -30,7 +30,7 @@ import numpy as np
 import jaxland as jl
 from jaxland._files import json_text
 
-from ._data import CHANNELS, DropTest, base_channel
+from ._data import CHANNELS, DropTest, article_differences, base_channel
 from ._filter import filtfilt_np
 
 __all__ = ["Prediction", "predict", "PAPER_ERRORS", "read_fit_status"]
@@ -97,8 +97,17 @@ def model_record(vehicle: jl.Vehicle, drop: DropTest, t_end_s: float | None = No
 
 def predict(vehicle: jl.Vehicle, drop: DropTest, *, touchdown_time_s: float | None = None
             ) -> Prediction:
-    """Simulate ``drop`` with ``vehicle`` and compare peaks, max and final stroke."""
+    """Simulate ``drop`` with ``vehicle`` and compare peaks, max and final stroke. A drop whose
+    metadata names a ``vehicle_config`` is refused with a ``vehicle`` of another article
+    (``article_differences``: it may differ only in the calibrated parameters)."""
     jl.validate_vehicle(vehicle)
+    diff = article_differences(drop.vehicle, vehicle) if drop.vehicle_config else []
+    if diff:
+        key, was, now = diff[0]
+        raise jl.ConfigError(f"{drop.name}: vehicle_config {drop.vehicle_config}: {key}", was,
+                             f"differs from the vehicle's {now!r}: the drop was made with the "
+                             "article its vehicle_config describes; the vehicle may change "
+                             "only the parameters jaxland fit calibrates")
     t0 = drop.touchdown_time_s if touchdown_time_s is None else float(touchdown_time_s)
     tm, model = model_record(vehicle, drop, drop.time_s[-1] - t0)
     data = drop.corrected

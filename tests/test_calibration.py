@@ -630,6 +630,9 @@ def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tm
     with pytest.raises(jl.ConfigError, match=r"body.m_body_kg = 1400.0: differs from "
                                              r"vehicle's 1120.0"):
         cal.load_drop_test(drop, vehicle=fitted)
+    with pytest.raises(jl.ConfigError, match=r"drop_h0.30m: vehicle_config nominal_vehicle.toml: "
+                                             r"body.m_body_kg = 1400.0: differs from"):
+        cal.predict(fitted, cal.load_drop_test(drop))  # in Python too, before simulating
 
 
 @pytest.mark.parametrize("text", ["", "# only a comment\n", "[body]\n[honeycomb]\n"])
