@@ -130,6 +130,13 @@ MIN_PRE_SAMPLES = 10  # samples before touchdown (offsets, and a touchdown that 
 MIN_NOISE_SAMPLES = 50  # pre-touchdown samples for a noise estimate from that segment
 MIN_AFTER_S = 0.05  # s of record after touchdown
 MIN_SAMPLES = 50
+# a drop's impact lasts tens of ms (50-70 ms of crush on the bundled 0.15-0.3 m drops): a
+# record sampled slower than this holds a few samples of it at most (times in ms under a
+# time_s header read 1000 times slower: 5 Hz for a 5 kHz record); and a drop record spans
+# seconds, so one longer than this is refused (fit and predict simulate all of it after
+# touchdown, and the simulator stops at 100 s)
+MIN_SAMPLE_RATE_HZ = 100.0
+MAX_RECORD_S = 60.0
 NOISE_FLOOR_REL = 1e-4  # noise floor, fraction of the channel's range (noise-free data)
 # the drop height that the free fall from release to touchdown implies must match the
 # metadata's within FREE_FALL_REL of it or FREE_FALL_ABS_M, whichever is larger (a release
@@ -139,6 +146,12 @@ FREE_FALL_ABS_M = 2e-3
 # a body acceleration swings through the impact by 0.5-1 of a force channel's swing over the
 # leg's mass (bundled records, rig drops of 0.01-1 m); in g by a tenth of that: refused below
 ACCEL_SWING_MIN = 0.25
+# a force channel's peak above this many times what the vehicle can put on a leg in the drop
+# (DropTest.impact_bounds' force_max_N), or a stroke under 1 / this of the least the drop's
+# energy needs (stroke_min_m), is refused: the bundled records and the rig's drops of 0.02 to
+# 3 m give up to 0.55 of the first and 1.1 to 9 times the second; N values under a kN header
+# give 330 times the first on the bundled records, m under a mm header 1/500 of the second
+PLAUSIBLE_FACTOR = 10.0
 _ONSET_ORDER = ("normal_force_N", "buffer_force_N", "body_accel_mps2", "stroke_m")
 
 
@@ -370,8 +383,13 @@ class DropTest:
         stays under a tenth of the leg's share of the weight (kN under an _N header, a flipped
         sign); a body acceleration whose swing through the impact is under ``ACCEL_SWING_MIN``
         of what the force channels imply for the leg's mass (g under an _mps2 header: about a
-        tenth); and a given touchdown time after the impact has begun. (A body acceleration's
-        free-fall level is not checked: the offset makes a specific force kinematic.)"""
+        tenth); a force whose peak exceeds ``PLAUSIBLE_FACTOR`` times what the vehicle can put
+        on a leg in this drop (N under a kN header), and a stroke whose peak is under 1 /
+        ``PLAUSIBLE_FACTOR`` of what the drop's energy needs (m under a mm header)
+        (``impact_bounds``); and a given touchdown time after the impact has begun. The forces
+        are checked first, and the acceleration last, against the forces. (A body
+        acceleration's free-fall level is not checked: the offset makes a specific force
+        kinematic.)"""
         t, t0, v = self.time_s, self.touchdown_time_s, self.vehicle
         after = t >= t0
         if self.touchdown_given_s is not None and "normal_force_N" in self.channels:
@@ -388,28 +406,114 @@ class DropTest:
         g = float(v.g)
         share = float(v.m_quarter + v.m_foot) * g  # N, one leg's weight at rest
         length = float(np.min(np.asarray(v.leg.L_h0)))
-        for col, vals in self.corrected.items():
-            base = base_channel(col)
-            noise = self.noise_std[col]
-            if base == "stroke_m":
-                top = float(np.max(np.abs(vals)))
-                if top > length:
-                    raise _err(f"{self.source}: {col}", f"{top:.4g} m", "exceeds the strut's "
-                               f"length ({length:.4g} m, leg.L_h0_m): a stroke in mm? (a "
-                               f"{col.replace('_m', '_mm')} column is converted)")
-                lo, hi = float(np.min(vals[after])), float(np.max(vals[after]))
-                if -lo > 4.0 * max(hi, 0.0) and -lo > 20.0 * noise:
-                    raise _err(f"{self.source}: {col}", f"{lo:.4g} m", "runs negative after "
-                               f"touchdown (up to {hi:.3g} m the other way): a stroke is "
-                               "positive in compression; flip its sign")
-            elif base in ("normal_force_N", "buffer_force_N"):
-                peak = float(np.max(vals[after]))
-                if peak < 0.1 * share:
-                    raise _err(f"{self.source}: {col}", f"peak {peak:.4g} N", "stays under a "
-                               f"tenth of the {share:.4g} N the leg carries at rest: a force "
-                               f"in kN (a {col.replace('_N', '_kN')} column is converted), or "
-                               "its sign flipped (compression positive)?")
+        corrected = self.corrected
+        forces = [c for c in corrected if base_channel(c) in ("normal_force_N", "buffer_force_N")]
+        strokes = [c for c in corrected if base_channel(c) == "stroke_m"]
+        peaks = {}
+        bounds = self.impact_bounds()
+        for col in forces:  # first: the stroke's rule reads the forces' peaks
+            peak = float(np.max(corrected[col][after]))
+            if peak < 0.1 * share:
+                raise _err(f"{self.source}: {col}", f"peak {peak:.4g} N", "stays under a "
+                           f"tenth of the {share:.4g} N the leg carries at rest: a force "
+                           f"in kN (a {col.replace('_N', '_kN')} column is converted), or "
+                           "its sign flipped (compression positive)?")
+            if peak > PLAUSIBLE_FACTOR * bounds["force_max_N"]:
+                name, factor, unit = self._as_written(col)
+                raise _err(f"{self.source}: {name}", f"peak {peak / factor:.4g} {unit}",
+                           f"exceeds {PLAUSIBLE_FACTOR:g} x the "
+                           f"{bounds['force_max_N'] / factor:.4g} {unit} this vehicle can put "
+                           f"on a leg in this drop (its strongest crush force with the "
+                           f"damping at the {self.touchdown_speed_mps:.3g} m/s touchdown, the "
+                           "stop, the foot's impact): "
+                           + ("forces in N under a kN header?" if unit == "kN" else
+                              "forces in N x 1000 (kN values under an _N header are read as "
+                              "N, N values under a kN header as kN)?"))
+            peaks[base_channel(col)] = max(peaks.get(base_channel(col), 0.0), peak)
+        bounds = self.impact_bounds(peaks)
+        for col in strokes:
+            vals, noise = corrected[col], self.noise_std[col]
+            top = float(np.max(np.abs(vals)))
+            if top > length:
+                raise _err(f"{self.source}: {col}", f"{top:.4g} m", "exceeds the strut's "
+                           f"length ({length:.4g} m, leg.L_h0_m): a stroke in mm? (a "
+                           f"{col.replace('_m', '_mm')} column is converted)")
+            lo, hi = float(np.min(vals[after])), float(np.max(vals[after]))
+            if -lo > 4.0 * max(hi, 0.0) and -lo > 20.0 * noise:
+                raise _err(f"{self.source}: {col}", f"{lo:.4g} m", "runs negative after "
+                           f"touchdown (up to {hi:.3g} m the other way): a stroke is "
+                           "positive in compression; flip its sign")
+            need = bounds["stroke_min_m"]
+            if hi < need / PLAUSIBLE_FACTOR:
+                name, factor, unit = self._as_written(col)
+                by = {k: peaks[k] for k in ("normal_force_N", "buffer_force_N") if k in peaks}
+                raise _err(f"{self.source}: {name}", f"peak {hi / factor:.4g} {unit}",
+                           f"is under 1/{PLAUSIBLE_FACTOR:g} of the {need / factor:.4g} {unit} "
+                           f"this drop needs: the leg's body share must absorb "
+                           f"{bounds['energy_J']:.4g} J ({float(v.m_quarter):.4g} kg at "
+                           f"{self.touchdown_speed_mps:.3g} m/s), the ground at most "
+                           f"{bounds['ground_energy_J']:.4g} J of it, the strut the rest at "
+                           "most at "
+                           + (f"the record's peak buffer force ({by['buffer_force_N']:.4g} N)"
+                              if "buffer_force_N" in by else
+                              f"the vehicle's strongest strut force "
+                              f"({bounds['strut_force_N']:.4g} N)")
+                           + (": a stroke in m under a stroke_mm header?" if unit == "mm"
+                              else ": a stroke in mm x 1/1000, or the wrong vehicle?"))
         self._check_accel_scale(after)
+
+    def _as_written(self, col: str) -> tuple[str, float, str]:
+        """A channel as the record wrote it: (its column, the factor its values were converted
+        to SI with, its unit): ``('normal_force_kN', 1000.0, 'kN')`` for a converted kN column,
+        ``(col, 1.0, the SI unit)`` otherwise."""
+        for text in self.unit_conversions.values():
+            given, arrow, rest = text.partition(" -> ")
+            si, _, factor = rest.partition(" (x ")
+            if arrow and si == col:
+                return given, float(factor.rstrip(")")), given.rpartition("_")[2]
+        return col, 1.0, CHANNELS[base_channel(col)][0]
+
+    def impact_bounds(self, peaks: dict | None = None) -> dict:
+        """What the vehicle can do to one leg on this drop (SI), the scales of the plausibility
+        rules (``PLAUSIBLE_FACTOR`` beyond them is refused). ``peaks``: the record's largest
+        ``normal_force_N`` and ``buffer_force_N`` over its legs, where it has them.
+
+        ``strut_force_N``: the strongest strut force before the stop, the honeycomb's strongest
+        crush force (plateaus and peaks) times the structural damping's (1 + D_b v_td) at the
+        touchdown speed. ``force_max_N``: the largest force a channel can carry, that strut
+        force, plus the stop's sqrt(2 E k_bottom) (times the damping's factor) for the energy
+        E the honeycomb's plateaus cannot absorb before it (the leg's and the foot's, at
+        touchdown and falling the stop's stroke x_L4 too), plus the foot's own impact on the
+        ground, v_td sqrt(k m_foot). ``energy_J``: the body share's kinetic energy at
+        touchdown, m_quarter v_td^2 / 2, the least the leg must absorb. ``ground_energy_J``:
+        the most the ground absorbs, F_N^2 / k (a pit of at most F_N / k under a force of at
+        most F_N, the record's peak normal force, or the strut force without one).
+        ``stroke_min_m``: the least stroke that absorbs the rest at a strut force of at most
+        F_B (the record's peak buffer force, or the strut force without one): (energy_J -
+        ground_energy_J) / F_B, 0 where the ground can take it all."""
+        v, hc = self.vehicle, self.vehicle.honeycomb
+        peaks = peaks or {}
+        f = lambda x: float(np.max(np.asarray(x)))  # noqa: E731
+        vt = float(self.touchdown_speed_mps)
+        peak1 = max(f(hc.peak_ratio1) if hc.peak_ratio1 is not None else 1.0,
+                    1.0 + f(hc.excess1) if hc.excess1 is not None and np.size(hc.excess1)
+                    else 1.0)
+        peak2 = f(hc.peak_ratio2) if hc.peak_ratio2 is not None else 1.0
+        damping = 1.0 + f(v.leg.D_b) * vt
+        strut = max(f(hc.F1) * peak1, f(hc.F2) * peak2) * damping
+        x_l1 = f(hc.F1) / f(hc.k_b1)
+        x_l3 = f(hc.x_L2) + (f(hc.F2) - f(hc.F1)) / f(hc.k_b3)
+        capacity = f(hc.F1) * (f(hc.x_L2) - x_l1) + f(hc.F2) * max(f(hc.x_L4) - x_l3, 0.0)
+        total = float(v.m_quarter + v.m_foot) * (0.5 * vt * vt + float(v.g) * f(hc.x_L4))
+        stop = math.sqrt(2.0 * max(total - capacity, 0.0) * f(hc.k_bottom)) * damping
+        k_ground = f(v.ground.k)
+        force_max = strut + stop + vt * math.sqrt(k_ground * float(v.m_foot))
+        energy = 0.5 * float(v.m_quarter) * vt * vt
+        f_n = peaks.get("normal_force_N", strut)
+        ground = f_n * f_n / k_ground
+        stroke_min = max(energy - ground, 0.0) / peaks.get("buffer_force_N", strut)
+        return dict(strut_force_N=strut, force_max_N=force_max, energy_J=energy,
+                    ground_energy_J=ground, stroke_min_m=stroke_min)
 
     def _check_accel_scale(self, after) -> None:
         """The body acceleration's swing after touchdown (peak to peak, of a 3-sample running
@@ -606,6 +710,18 @@ def _check_time(t: np.ndarray, rate) -> None:
     if abs(median * rate - 1.0) > 0.01:
         raise _err("sample_rate_Hz", rate, f"does not match the time column: its median "
                    f"interval {median:.6g} s means {1.0 / median:.6g} Hz (tolerance 1 %)")
+    if rate < MIN_SAMPLE_RATE_HZ:
+        raise _err(TIME, f"{median:.6g} s between samples", f"means {1.0 / median:.6g} Hz "
+                   f"(sample_rate_Hz = {rate!r}); a drop record needs >= "
+                   f"{MIN_SAMPLE_RATE_HZ:g} Hz, its impact lasting tens of ms: times in ms "
+                   f"under a {TIME} header? (a time_ms column is converted)")
+    span = float(t[-1] - t[0])
+    if span > MAX_RECORD_S:
+        raise _err(TIME, f"{span:.6g} s from first to last sample", f"must be <= "
+                   f"{MAX_RECORD_S:g} s: a drop record spans seconds (the fall from the "
+                   "highest drop_height_m, 50 m, takes 3.2 s, and a landing settles within "
+                   "one), and fit and predict simulate all of it after touchdown; times in ms "
+                   f"under a {TIME} header, or trim the record")
 
 
 def _num(key, val, lo, hi, lo_open=False):
@@ -702,12 +818,57 @@ def _meta_paths(path: Path) -> tuple[Path, dict]:
     return meta_path, meta
 
 
-def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
+# keys a vehicle given in place of a drop's vehicle_config may change: the model's parameters
+# that jaxland fit calibrates (calibration._parameters.PARAMS) and the crush peak's table
+_TABLE_KEYS = ("honeycomb.excess1", "honeycomb.excess_length1_mm")
+
+
+def _flat_vehicle(vehicle: jl.Vehicle) -> dict:
+    """``{'body.m_body_kg': 1120.0, ...}``: every key of the vehicle's TOML."""
+    out = {}
+
+    def walk(prefix, table):
+        for k, val in table.items():
+            if isinstance(val, dict):
+                walk(f"{prefix}{k}.", val)
+            else:
+                out[prefix + k] = val
+    walk("", tomllib.loads(jl.vehicle_to_toml(vehicle)))
+    return out
+
+
+def article_differences(declared: jl.Vehicle, given: jl.Vehicle) -> list[tuple]:
+    """The keys outside the calibrated parameters (the test article: masses, inertias, gravity,
+    legs and their geometry, the honeycomb's lengths and stops) in which ``given`` differs from
+    ``declared``: ``[(key, declared value, given value)]``."""
+    from ._parameters import PARAMS
+
+    free = {p[2] for p in PARAMS.values()} | set(_TABLE_KEYS)
+    a, b = _flat_vehicle(declared), _flat_vehicle(given)
+    out = []
+    for key in a:
+        if key in free or key not in b:
+            continue
+        x, y = a[key], b[key]
+        same = (math.isclose(x, y, rel_tol=1e-9, abs_tol=0.0)
+                if isinstance(x, (int, float)) and isinstance(y, (int, float))
+                and not isinstance(x, bool) else x == y)
+        if not same:
+            out.append((key, x, y))
+    return out
+
+
+def load_drop_test(path, *, vehicle: jl.Vehicle | None = None,
+                   vehicle_name: str = "vehicle") -> DropTest:
     """Load one drop test from its metadata TOML (or its CSV, with the TOML beside it of the
     same name), validate everything and preprocess (touchdown, offsets, noise).
 
-    ``vehicle`` overrides the metadata's ``vehicle_config``. Raises ``jaxland.ConfigError``
-    naming the field (file, column or key), the value and the rule.
+    ``vehicle`` overrides the metadata's ``vehicle_config`` in the parameters ``jaxland fit``
+    calibrates; where the metadata names a ``vehicle_config``, ``vehicle`` must describe that
+    test article in every other key (``article_differences``), or the drop is refused naming
+    the ``vehicle_config``, the key, both values and ``vehicle_name`` (the CLI's ``--config
+    PATH``). Raises ``jaxland.ConfigError`` naming the field (file, column or key), the value
+    and the rule.
     """
     meta_path, meta = _meta_paths(Path(path))
     unknown = set(meta) - {"drop_test", *_OPTIONAL_TABLES}
@@ -727,17 +888,28 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None) -> DropTest:
         raise _err("drop_test.data_file", data_file, "must be a file name (string)")
     csv_path = (meta_path.parent / data_file)
     cfg = table.get("vehicle_config")
+    declared = None
+    if cfg is not None and not isinstance(cfg, str):
+        raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
+    if cfg is not None:
+        try:
+            declared = jl.load_vehicle(meta_path.parent / cfg)
+        except jl.ConfigError as err:  # name the file the value is in
+            raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {err.field}",
+                       err.value, err.rule) from None
     if vehicle is None:
-        if cfg is None:
-            vehicle = jl.paper_vehicle()
-        elif not isinstance(cfg, str):
-            raise _err("drop_test.vehicle_config", cfg, "must be a file name (string)")
-        else:
-            try:
-                vehicle = jl.load_vehicle(meta_path.parent / cfg)
-            except jl.ConfigError as err:  # name the file the value is in
-                raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {err.field}",
-                           err.value, err.rule) from None
+        vehicle = jl.paper_vehicle() if declared is None else declared
+    elif declared is not None:
+        diff = article_differences(declared, vehicle)
+        if diff:
+            key, was, now = diff[0]
+            more = f" (and {len(diff) - 1} more key(s))" if len(diff) > 1 else ""
+            raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {key}", was,
+                       f"differs from {vehicle_name}'s {now!r}{more}: the drop was made with "
+                       f"the article its vehicle_config describes, and {vehicle_name} may "
+                       "change only the parameters jaxland fit calibrates; give a "
+                       f"{vehicle_name.split()[0]} of that article, or correct the drop's "
+                       "vehicle_config")
     cols = _read_csv(csv_path)
     time_conv = {}
     if "time_ms" in cols:
@@ -786,10 +958,11 @@ def check_drop_names(drops, paths) -> None:
         seen[d.name] = p
 
 
-def load_drop_tests(paths, *, vehicle: jl.Vehicle | None = None) -> list[DropTest]:
+def load_drop_tests(paths, *, vehicle: jl.Vehicle | None = None,
+                    vehicle_name: str = "vehicle") -> list[DropTest]:
     """``load_drop_test`` for each path; the drops must share one vehicle configuration and
     have different names (``check_drop_names``)."""
-    drops = [load_drop_test(p, vehicle=vehicle) for p in paths]
+    drops = [load_drop_test(p, vehicle=vehicle, vehicle_name=vehicle_name) for p in paths]
     if not drops:
         raise _err("DATA", "<none>", "give at least one drop test")
     check_drop_names(drops, paths)

@@ -389,6 +389,23 @@ def _until_two_agree(from_start, n: int, threads: int) -> list:
     return candidates
 
 
+def _start_error(err: jl.ConfigError, start: dict) -> jl.ConfigError:
+    """A vehicle rule that a start ``{name: value}`` broke, named ``start.<name>`` with the
+    start's value: the one whose field it is, else the only start value (the field the rule
+    names is then in the rule), else ``start`` as a whole (the base vehicle was valid, so the
+    start values broke it together)."""
+    mine = [k for k in start if PARAMS[k][2] == err.field
+            or err.field.startswith(PARAMS[k][2] + ".")]
+    if mine:
+        return jl.ConfigError(f"start.{mine[0]}", start[mine[0]], err.rule)
+    value = (f"{err.value:.6g}" if isinstance(err.value, float) else repr(err.value))
+    rule = f"gives {err.field} = {value}: {err.rule}"
+    if len(start) == 1:
+        k = next(iter(start))
+        return jl.ConfigError(f"start.{k}", start[k], rule)
+    return jl.ConfigError("start", start, rule)
+
+
 def _start_vehicle(base: jl.Vehicle, names, start) -> jl.Vehicle:
     if start is None:
         return base
@@ -404,7 +421,10 @@ def _start_vehicle(base: jl.Vehicle, names, start) -> jl.Vehicle:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise jl.ConfigError(f"start.{k}", v, "must be a finite number (SI)")
             vals[names.index(k)] = float(v)
-        return jl.validate_vehicle(set_values(base, names, vals))
+        try:
+            return jl.validate_vehicle(set_values(base, names, vals))
+        except jl.ConfigError as err:  # the vehicle's rule, named by the start value that broke it
+            raise _start_error(err, start) from None
     raise jl.ConfigError("start", type(start).__name__, "must be a Vehicle or {name: value}")
 
 
@@ -1168,6 +1188,35 @@ class FitSettings:
     start_values: np.ndarray
 
 
+def _check_start_step(base, names, start: dict, dt: float, integrator: str, peak_form,
+                      peak_site) -> None:
+    """A step ``dt`` above the start vehicle's stability limit but within the base vehicle's
+    is the start values' doing: refused as ``start.<name>`` (the start value whose vehicle
+    alone has a limit below ``dt``, with that limit), or ``start`` for several together."""
+    def limit_of(values):
+        given = _start_vehicle(base, names, values)
+        v = switch_on(given, names)
+        if peak_form == "ripple" and given.honeycomb.peak_rise1 is None:
+            v = _rise_start(v, names, "ripple", peak_site)
+        return float(jl.stable_step(v, method=integrator))
+
+    if dt > limit_of(None):
+        return  # the base vehicle's own limit: dt is the cause
+    for k, v in start.items():
+        try:
+            lim = limit_of({k: v})
+        except jl.ConfigError:  # valid only with the other start values: judged together
+            continue
+        if dt > lim:
+            raise jl.ConfigError(f"start.{k}", v, f"makes {integrator}'s stability limit "
+                                 f"{lim:.3g} s, below the step dt = {dt:g} s (the base "
+                                 f"vehicle's is {limit_of(None):.3g} s): start lower, or give "
+                                 "a step within that limit")
+    raise jl.ConfigError("start", start, f"together make {integrator}'s stability limit "
+                         f"{limit_of(start):.3g} s, below the step dt = {dt:g} s (the base "
+                         f"vehicle's is {limit_of(None):.3g} s)")
+
+
 def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, start=None,
               windows=WINDOWS_S, refine_window_s: float | None = REFINE_WINDOW_S,
               robust: float | None = ROBUST_K, method: str = "lm", max_iter: int = 60,
@@ -1210,6 +1259,8 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     if peak_form == "ripple" and given.honeycomb.peak_rise1 is None:
         start_vehicle = _rise_start(start_vehicle, names, "ripple", peak_site)  # a fold length
     limit = float(jl.stable_step(start_vehicle, method=integrator))
+    if isinstance(dt, (int, float)) and 0 < dt and dt > limit and isinstance(start, dict):
+        _check_start_step(base, names, start, dt, integrator, peak_form, peak_site)
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
                              f"{integrator} for the start vehicle)")

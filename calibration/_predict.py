@@ -20,6 +20,7 @@ noise standard deviations) and any artefact the model does not have (a crush pea
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ import numpy as np
 import jaxland as jl
 from jaxland._files import json_text
 
-from ._data import CHANNELS, DropTest, base_channel
+from ._data import CHANNELS, DropTest, article_differences, base_channel
 from ._filter import filtfilt_np
 
 __all__ = ["Prediction", "predict", "PAPER_ERRORS", "read_fit_status"]
@@ -96,8 +97,17 @@ def model_record(vehicle: jl.Vehicle, drop: DropTest, t_end_s: float | None = No
 
 def predict(vehicle: jl.Vehicle, drop: DropTest, *, touchdown_time_s: float | None = None
             ) -> Prediction:
-    """Simulate ``drop`` with ``vehicle`` and compare peaks, max and final stroke."""
+    """Simulate ``drop`` with ``vehicle`` and compare peaks, max and final stroke. A drop whose
+    metadata names a ``vehicle_config`` is refused with a ``vehicle`` of another article
+    (``article_differences``: it may differ only in the calibrated parameters)."""
     jl.validate_vehicle(vehicle)
+    diff = article_differences(drop.vehicle, vehicle) if drop.vehicle_config else []
+    if diff:
+        key, was, now = diff[0]
+        raise jl.ConfigError(f"{drop.name}: vehicle_config {drop.vehicle_config}: {key}", was,
+                             f"differs from the vehicle's {now!r}: the drop was made with the "
+                             "article its vehicle_config describes; the vehicle may change "
+                             "only the parameters jaxland fit calibrates")
     t0 = drop.touchdown_time_s if touchdown_time_s is None else float(touchdown_time_s)
     tm, model = model_record(vehicle, drop, drop.time_s[-1] - t0)
     data = drop.corrected
@@ -138,7 +148,7 @@ def _number(text: str | None) -> float | None:
     return x if np.isfinite(x) else None
 
 
-def read_fit_status(path) -> dict:
+def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     """What the header of a vehicle file written by ``jaxland fit`` (``fitted_vehicle.toml``,
     ``FitResult.to_toml``) says of its fit: ``{"from_fit": False}`` for a file without that
     header; else ``from_fit``, ``fitted_against`` (the records), ``sound`` (no flag),
@@ -146,7 +156,11 @@ def read_fit_status(path) -> dict:
     BOUND``), the ``misfit`` and ``not_converged`` lines' text (None where absent), the
     ``interval`` the errors are, ``parameters`` (``{name: {value, std_error,
     rel_std_error, unit, note}}``, the header's rounded numbers; std_error None where the
-    fit gave none) and ``uncertainty`` (how far the prediction carries it: not at all)."""
+    fit gave none) and ``uncertainty`` (how far the prediction carries it: not at all).
+
+    With ``vehicle`` (the file as loaded), ``edited`` lists each fitted value the file now
+    holds differently from its header (``edited_since_fit``); an edited file is not sound and
+    carries the flag ``EDITED SINCE THE FIT: <name>``: its predictions are not the fit's."""
     from ._fit import (
         AT_BOUND,
         HEADER_FIT,
@@ -182,6 +196,41 @@ def read_fit_status(path) -> dict:
         f"{'NOT IDENTIFIED' if NOT_IDENTIFIED in p['note'] else 'AT A BOUND'}: {n}"
         for n, p in params.items() if p["note"] and (NOT_IDENTIFIED in p["note"]
                                                       or AT_BOUND in p["note"])]
+    edited = [] if vehicle is None else edited_since_fit(params, vehicle)
+    flags += [f"{EDITED}: {e['name']}" for e in edited]
     return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
                 misfit=misfit, not_converged=capped, interval=interval or None,
-                parameters=params, uncertainty=NO_BAND)
+                parameters=params, uncertainty=NO_BAND,
+                **({} if vehicle is None else {"edited": edited}))
+
+
+EDITED = "EDITED SINCE THE FIT"
+
+
+def edited_since_fit(params: dict, vehicle: jl.Vehicle) -> list[dict]:
+    """The fitted values (``read_fit_status``'s ``parameters``, as the header printed them,
+    6 significant digits) that ``vehicle`` holds differently at the header's precision: one
+    ``{name, key, file, fitted, unit}`` per value, ``key`` the TOML key and ``file`` /
+    ``fitted`` in its units. A value the file does not hold as that key (an extension that is
+    off there, e.g. the crush peak of a fit with the peak on the force channels, or an
+    exponential peak's table) is not compared."""
+    from ._parameters import PARAMS
+
+    out = []
+    for name, p in params.items():
+        if name not in PARAMS or p["value"] is None:
+            continue
+        getter, _, key, *_ = PARAMS[name]
+        held = getter(vehicle)
+        if held is None or np.ndim(held) != 0:
+            continue
+        held, v = float(held), p["value"]
+        # the header's last printed digit, half of it either side (and rounding's noise)
+        half = 0.5 * 10.0 ** (math.floor(math.log10(abs(v))) - 5) if v else 0.0
+        if abs(held - v) <= half * (1.0 + 1e-6) + 1e-300:
+            continue
+        scale = 1e3 if key.endswith("_mm") else 1.0  # the key's units (SI otherwise)
+        out.append(dict(name=name, key=key, file=float(f"{held * scale:.6g}"),
+                        fitted=float(f"{p['value'] * scale:.6g}"), unit=key.rpartition("_")[2]
+                        if scale != 1.0 else p["unit"]))
+    return out

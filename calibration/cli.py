@@ -42,6 +42,19 @@ def _start(text: str | None) -> dict | None:
             out[name.strip()] = float(val)
         except ValueError:
             raise jl.ConfigError(f"--start {name.strip()}", val, "must be a number") from None
+        if not math.isfinite(out[name.strip()]):
+            raise jl.ConfigError("--start", text, f"must be finite numbers (SI): {item.strip()}")
+    return out
+
+
+def _start_typed(text: str | None) -> dict:
+    """``--start``'s values as typed, by name (``{'k_b1': '1e12'}``): a refusal of one start
+    value names it as ``--start k_b1`` with what the user wrote."""
+    out = {}
+    for item in (text or "").split(","):
+        name, sep, val = item.partition("=")
+        if sep:
+            out.setdefault(name.strip(), val.strip())
     return out
 
 
@@ -163,10 +176,13 @@ def _cmd_fit(args) -> int:
         ("smoothing_m", "--smoothing-m", "smoothing_m"),
         ("smoothing_N", "--smoothing-n", "smoothing_n"),
         ("peak_form", "--peak-form", "peak_form"), ("peak_site", "--peak-site", "peak_site"))}
+    # one start value refused (start.gamma) as the user typed it, before --start as a whole
+    flags = {**{f"start.{n}": (f"--start {n}", v) for n, v in _start_typed(args.start).items()},
+             **flags}
     with named_by_flags(flags):
         names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config, "--config") if args.config else None
-    drops = load_drop_tests(args.data, vehicle=vehicle)
+    drops = load_drop_tests(args.data, vehicle=vehicle, vehicle_name=f"--config {args.config}")
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
     for flag, v in (("--refine-window-s", args.refine_window_s), ("--robust", args.robust)):
@@ -331,8 +347,10 @@ def _cmd_predict(args) -> int:
 
     out = _out_dir(args.out, (args.config, *args.data))
     vehicle = jl.load_vehicle(args.config, "--config")
-    status = read_fit_status(args.config)  # what the fit said of the vehicle, if it is one
-    drops = load_drop_tests(args.data, vehicle=vehicle)  # one vehicle, different names
+    # what the fit said of the vehicle, if it is one, and whether the file still holds it
+    status = read_fit_status(args.config, vehicle)
+    # one vehicle, the drops' own article, different names
+    drops = load_drop_tests(args.data, vehicle=vehicle, vehicle_name=f"--config {args.config}")
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     lines = fit_status_lines(args.config, status)
     if status["from_fit"] and not status["sound"]:
@@ -366,10 +384,21 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
     """predict's lines on the vehicle's fit (``read_fit_status``): none for a vehicle not
     written by ``jaxland fit``; else whether the fit is sound or which flags it carries, the
     MISFIT and NOT CONVERGED lines' text, and each fitted value's standard error, which the
-    predictions do not carry."""
+    predictions do not carry. A file whose values differ from its header's (``edited``) is
+    named as edited, each value with the file's and the fitted number, never as sound."""
+    from ._predict import EDITED
+
     if not status["from_fit"]:
         return []
-    if status["sound"]:
+    edited = status.get("edited") or []
+    others = [f for f in status["flags"] if not f.startswith(EDITED)]
+    if edited:
+        head = (f"{config}: fitted vehicle edited since the fit: " + "; ".join(
+            f"{e['key']} = {e['file']:.6g} in the file, {e['fitted']:.6g} fitted"
+            for e in edited) + ": these predictions are for the file's values, not the "
+            "fitted ones" + (f"; the fit is also flagged {', '.join(others)}" if others
+                             else ""))
+    elif status["sound"]:
         head = (f"{config}: fitted vehicle, fit sound (converged, no misfit, every value "
                 "identified)")
     else:
@@ -388,8 +417,9 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
             f"{n} {p['value'] if p['value'] is None else format(p['value'], '.6g')} "
             f"{p['unit']} ({p['note'] or 'no standard error'})"
             for n, p in params.items()))
-    lines.append("  the predictions below carry no uncertainty band: they are for the fitted "
-                 "values alone")
+    lines.append("  the predictions below carry no uncertainty band: they are for the "
+                 + ("file's values alone (not the fitted ones)" if edited
+                    else "fitted values alone"))
     return lines
 
 

@@ -22,7 +22,7 @@ import pytest
 import calibration as cal
 import jaxland as jl
 from calibration import virtual_rig as vr
-from calibration._parameters import get_values
+from calibration._parameters import get_values, set_values
 from calibration.cli import add_subcommands
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -182,6 +182,51 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     with pytest.raises(jl.ConfigError) as err:
         cal.load_drop_test(path)
     assert needle in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("case,needle", [
+    # N values under kN headers, no acceleration to contradict them: 1000 times the forces
+    ("n_under_kn", "drop.csv: normal_force_kN = 'peak 8000 kN': exceeds 10 x the "),
+    ("n_under_kn_with_accel", "drop.csv: buffer_force_kN = 'peak 1.2e+04 kN': exceeds 10 x"),
+    # m under a mm header: a thousandth of the stroke
+    ("m_under_mm", "drop.csv: stroke_mm = 'peak 0.0899 mm': is under 1/10 of the "),
+    # ms under a time_s header, the rate written to match: 5 Hz
+    ("ms_under_s", "drop.csv: time_s = '0.2 s between samples': means 5 Hz (sample_rate_Hz = "
+                   "5.0); a drop record needs >= 100 Hz"),
+    ("too_long", "drop.csv: time_s = '61.198 s from first to last sample': must be <= 60 s"),
+])
+def test_a_unit_the_header_contradicts_is_refused_by_physics_before_the_fit(
+        tmp_path, capsys, case, needle):
+    """What no drop of the vehicle records, and a unit the header does not say gives: forces
+    beyond 10 times what the vehicle can put on a leg, a stroke under a tenth of what the
+    drop's energy needs, a sample rate under 100 Hz, a record over 60 s. `jaxland fit`
+    refuses each in one line naming the column as written, before any fit (exit 2, nothing
+    written); forces are judged before the acceleration (which they would wrongly blame)."""
+    from jaxland.cli import main
+
+    t, f, x = _trace()
+    meta = {"drop_height_m": 0.2, "sample_rate_Hz": 5000.0}
+    if case == "n_under_kn":
+        header, cols = ["time_s", "normal_force_kN", "stroke_m"], [t, f, x]
+    elif case == "n_under_kn_with_accel":
+        acc = -9.81 + np.minimum(np.clip(np.arange(t.size) - 100, 0, None) * 2.0, 40.0)
+        header = ["time_s", "buffer_force_kN", "stroke_m", "body_accel_mps2"]
+        cols = [t, f * 1.5, x, acc]
+    elif case == "m_under_mm":
+        header, cols = ["time_s", "normal_force_N", "stroke_mm"], [t, f, x]
+    elif case == "ms_under_s":
+        header, cols = ["time_s", "normal_force_N", "stroke_m"], [t * 1e3, f, x]
+        meta["sample_rate_Hz"] = 5.0
+    else:
+        t, f, x = _trace(n=30600, rate=500.0)
+        header, cols = ["time_s", "normal_force_N", "stroke_m"], [t, f, x]
+        meta["sample_rate_Hz"] = 500.0
+    path = _write(tmp_path, header, _rows(*cols), meta)
+    out = tmp_path / "out"
+    assert main(["fit", str(path), "--out", str(out), "--quiet", "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+    assert not out.exists()
 
 
 def test_bundled_synthetic_data_are_labelled_and_carry_their_truth():
@@ -512,6 +557,84 @@ def test_the_fit_status_reads_every_flag_of_the_header(tmp_path):
     assert read_fit_status(DATA / "truth_vehicle.toml") == {"from_fit": False}
 
 
+def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_sound(
+        tmp_path, capsys):
+    """A fitted_vehicle.toml whose values were edited after the fit runs the file's values:
+    predict names each edited value with the file's and the fitted number, does not call the
+    fit sound, and records the edit in each prediction's fit_status; the unedited file (the
+    header's 6 significant digits) is sound."""
+    from types import SimpleNamespace
+
+    from calibration._predict import read_fit_status
+
+    names = ("k", "gamma", "F1", "L_peak1")
+    values = np.array([2.5948123e6, 0.4014873, 5428.4812, 2.3456789e-3])
+    res = cal.FitResult(
+        names=names, values=values, std_errors=values * 1e-3, correlation=np.eye(4),
+        covariance=np.eye(4), identified=np.ones(4, bool), start_values=values,
+        vehicle=set_values(TRUTH, names, values),
+        diagnostics=dict(interval="std_error", misfit=[], at_bound=[]),
+        stages=[dict(status="converged")], drops=[SimpleNamespace(source="d.csv")])
+    sound = tmp_path / "fitted_vehicle.toml"
+    sound.write_text(res.to_toml())
+    status = read_fit_status(sound, jl.load_vehicle(sound))
+    assert status["sound"] and status["edited"] == [] and status["flags"] == []
+    edited = tmp_path / "edited.toml"
+    edited.write_text(sound.read_text().replace("k_N_per_m = 2594812.3",
+                                                "k_N_per_m = 4000000.0"))
+    assert edited.read_text() != sound.read_text()
+    status = read_fit_status(edited, jl.load_vehicle(edited))
+    assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: k"]
+    assert status["edited"] == [dict(name="k", key="ground.k_N_per_m", file=4e6,
+                                     fitted=2.59481e6, unit="N/m")]
+    out = tmp_path / "pred"
+    assert _run(["predict", "--config", str(edited), str(DATA / "drop_h0.30m.toml"), "--out",
+                 str(out), "--no-plots"]) == 0
+    cap = capsys.readouterr()
+    head = (f"{edited}: fitted vehicle edited since the fit: ground.k_N_per_m = 4e+06 in the "
+            "file, 2.59481e+06 fitted: these predictions are for the file's values")
+    assert f"warning: {head}" in cap.err and head in cap.out and "sound" not in cap.out
+    rep = json.loads((out / "prediction_drop_h0.30m.json").read_text())["fit_status"]
+    assert not rep["sound"] and rep["edited"][0]["file"] == 4e6
+
+
+def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tmp_path,
+                                                                             capsys):
+    """--config gives the parameters jaxland fit calibrates; the drop's vehicle_config names
+    the article it was dropped as. A --config whose mass (or any key outside the calibrated
+    parameters) differs from it is refused in one line naming the drop's vehicle_config, the
+    key and both values, for predict and fit, before any simulation; one that differs only in
+    calibrated values (a fitted vehicle) runs."""
+    from jaxland.cli import main
+
+    nominal = jl.load_vehicle(DATA / "nominal_vehicle.toml")
+    for name in ("drop_h0.30m.toml", "drop_h0.30m.csv"):
+        (tmp_path / name).write_bytes((DATA / name).read_bytes())
+    heavy = tmp_path / "nominal_vehicle.toml"  # the drop's vehicle_config: a heavier article
+    heavy.write_text((DATA / "nominal_vehicle.toml").read_text().replace(
+        "m_body_kg = 1120.0", "m_body_kg = 1400.0"))
+    assert float(jl.load_vehicle(heavy).m_body) == 1400.0
+    config = str(DATA / "nominal_vehicle.toml")
+    drop = str(tmp_path / "drop_h0.30m.toml")
+    out = tmp_path / "out"
+    for argv in (["predict", "--config", config, drop], ["fit", drop, "--config", config]):
+        assert main([*argv, "--out", str(out), "--no-plots"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and (
+            "drop_h0.30m.toml: drop_test.vehicle_config nominal_vehicle.toml: body.m_body_kg = "
+            f"1400.0: differs from --config {config}'s 1120.0") in err[0], err
+        assert not out.exists()
+    # a vehicle that differs in calibrated parameters only is that article's
+    fitted = set_values(nominal, ("k", "F1"), np.array([3e6, 5600.0]))
+    assert cal.load_drop_test(DATA / "drop_h0.30m.toml", vehicle=fitted).vehicle is fitted
+    with pytest.raises(jl.ConfigError, match=r"body.m_body_kg = 1400.0: differs from "
+                                             r"vehicle's 1120.0"):
+        cal.load_drop_test(drop, vehicle=fitted)
+    with pytest.raises(jl.ConfigError, match=r"drop_h0.30m: vehicle_config nominal_vehicle.toml: "
+                                             r"body.m_body_kg = 1400.0: differs from"):
+        cal.predict(fitted, cal.load_drop_test(drop))  # in Python too, before simulating
+
+
 @pytest.mark.parametrize("text", ["", "# only a comment\n", "[body]\n[honeycomb]\n"])
 def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_vehicle(
         tmp_path, capsys, text):
@@ -556,6 +679,33 @@ def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):
     with pytest.raises(jl.ConfigError, match=needle):
         _run(argv)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("start,needle", [
+    # the step's stability limit that the start value implies, not --dt
+    ("k_b1=1e12", "--start k_b1 = '1e12': makes euler's stability limit 1.99e-06 s, below "
+                  "the step dt = 1e-05 s"),
+    # the vehicle's rule, named by the start value as typed, not by the field it sets
+    ("gamma=1.5", "--start gamma = '1.5': must be in [0, 1)"),
+    ("F2=4000", "--start F2 = '4000': must exceed F1"),
+    ("k=2e6,gamma=1.5", "--start gamma = '1.5': must be in [0, 1)"),
+])
+def test_a_start_value_that_breaks_a_rule_is_named_as_typed(tmp_path, start, needle):
+    """fit --start NAME=VALUE refused by the vehicle's rules or by the step's stability limit
+    names --start NAME and the value as typed (it named ground.gamma, honeycomb.F2_N and
+    --dt); in Python, start.NAME."""
+    from calibration._fit import check_fit
+
+    out = tmp_path / "out"
+    with pytest.raises(jl.ConfigError) as err:
+        _run(["fit", str(DATA / "drop_h0.20m.toml"), "--start", start, "--out", str(out)])
+    assert str(err.value).startswith(needle), str(err.value)
+    assert not out.exists()
+    name, _, value = start.rpartition(",")[2].partition("=")
+    with pytest.raises(jl.ConfigError) as err:
+        check_fit(cal.load_drop_test(DATA / "drop_h0.20m.toml"),
+                      start={name: float(value)})
+    assert (err.value.field, err.value.value) == (f"start.{name}", float(value))
 
 
 def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_argument_in_python(
