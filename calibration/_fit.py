@@ -64,6 +64,17 @@ benchmarks/results/bench_fit.json):
    the drop runs without the peak and the force channels carry it as a gain of the crush
    so far (``CalibrationProblem``). The peak-shape refits then crawl on a kinked loss, and
    stop once a step lowers it by less than ``FORCES_REFIT_ATOL``.
+10. **Parameters left fixed** (``add_fixed_params_term``), where the misfit is warned and the
+   fit leaves some of ``DEFAULT_PARAMS`` fixed at the vehicle's values: the fit is run again
+   from its optimum with those freed as well (same settings, in a thread of its own beside
+   the channel spread's), and each value's shift to it is added in quadrature to
+   ``std_errors_total``. A truth that differs in a fixed parameter puts its difference into
+   every channel alike, as a missing peak does, and the fitted values take it up; the
+   wider model is the nearest that can hold it (docs/calibration.md, item 13).
+11. **No trusted interval** (``mark_interval_bounded``): where the misfit calls for the
+   missing-peak or the fixed-parameter term and its refit failed, the total leaves that
+   bias out, and ``diagnostics["interval_bounded"]`` is False with the reason; the report,
+   the fitted vehicle's header and the CLI say so.
 """
 
 from __future__ import annotations
