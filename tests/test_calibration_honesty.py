@@ -9,6 +9,7 @@ data with and without an artefact the model lacks.
 import dataclasses
 import itertools
 import math
+import types
 import warnings
 
 import jax
@@ -743,3 +744,20 @@ def test_lab_units_are_converted_and_logged(tmp_path):
         cal.DropTest.from_arrays(t_si, {"stroke_mm": rec["stroke_m"] * 1e3,
                                         "stroke_m": rec["stroke_m"]},
                                  sample_rate_Hz=5000.0, drop_height_m=0.2)
+
+
+def test_a_failed_missing_peak_term_counts_unless_the_freed_fit_fits():
+    """A failed missing-peak refit leaves the interval unbounded, except where the fit with
+    the fixed parameters freed was added and shows no misfit: the misfit was theirs."""
+    def marked(fixed):
+        res = types.SimpleNamespace(diagnostics=dict(  # the function reads only these
+            peak_model_term=dict(failed="it ended worse"), fixed_params_term=fixed))
+        cal_fit.mark_interval_bounded(res)
+        return res.diagnostics
+
+    freed = dict(added=True, failed=None, freed=["k"], misfit_wider=[])
+    assert marked(freed)["interval_bounded"] and marked(freed)["peak_not_called_for"]
+    for fixed in (None, dict(freed, misfit_wider=["lag-1 ..."])):
+        d = marked(fixed)
+        assert d["interval_bounded"] is False and d["peak_not_called_for"] is None
+        assert d["interval_not_bounded"][0].startswith("the missing-peak term could not be")
