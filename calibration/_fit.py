@@ -64,6 +64,17 @@ benchmarks/results/bench_fit.json):
    the drop runs without the peak and the force channels carry it as a gain of the crush
    so far (``CalibrationProblem``). The peak-shape refits then crawl on a kinked loss, and
    stop once a step lowers it by less than ``FORCES_REFIT_ATOL``.
+10. **Parameters left fixed** (``add_fixed_params_term``), where the misfit is warned and the
+   fit leaves some of ``DEFAULT_PARAMS`` fixed at the vehicle's values: the fit is run again
+   from its optimum with those freed as well (same settings, in a thread of its own beside
+   the channel spread's), and each value's shift to it is added in quadrature to
+   ``std_errors_total``. A truth that differs in a fixed parameter puts its difference into
+   every channel alike, as a missing peak does, and the fitted values take it up; the
+   wider model is the nearest that can hold it (docs/calibration.md, item 13).
+11. **No trusted interval** (``mark_interval_bounded``): where the misfit calls for the
+   missing-peak or the fixed-parameter term and its refit failed, the total leaves that
+   bias out, and ``diagnostics["interval_bounded"]`` is False with the reason; the report,
+   the fitted vehicle's header and the CLI say so.
 """
 
 from __future__ import annotations
@@ -171,6 +182,7 @@ HEADER_FIT = "# Calibrated by `jaxland fit` (calibration package) against: "
 HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): "
 HEADER_MISFIT = "# MISFIT: "
 HEADER_NOT_CONVERGED = "# NOT CONVERGED: "
+HEADER_NOT_BOUNDED = "# NO TRUSTED INTERVAL: "
 AT_BOUND = "AT A BOUND OF THE VEHICLE'S RULES"
 NOT_IDENTIFIED = "NOT IDENTIFIED by these records"
 
@@ -274,8 +286,15 @@ class FitResult:
                                        "fit the peak-shape term (misfit.model_form.spread), "
                                        "and under misfit without a crush peak in the model "
                                        "the shift to the model with one "
-                                       "(misfit.peak_model_term.term), added in quadrature"),
+                                       "(misfit.peak_model_term.term), and under misfit of "
+                                       "a fit that leaves default parameters fixed the shift "
+                                       "to the fit with them freed "
+                                       "(misfit.fixed_params_term.term), added in quadrature"),
             interval_reported=self.diagnostics.get("interval"),
+            # False: a bias term the misfit calls for failed (misfit.interval_not_bounded);
+            # the interval is then no bound on the values' error
+            interval_bounded=self.diagnostics.get("interval_bounded", True),
+            interval_not_bounded=self.diagnostics.get("interval_not_bounded"),
         )
 
     def to_json(self, path) -> Path:
@@ -314,6 +333,9 @@ class FitResult:
                 *([] if self.converged else [HEADER_NOT_CONVERGED + "the last stage stopped at "
                                              "its iteration cap; these values are not a "
                                              "minimum"]),
+                *([HEADER_NOT_BOUNDED + "; ".join(self.diagnostics["interval_not_bounded"])
+                   + " (fit_report.json, misfit.interval_not_bounded)"]
+                  if self.diagnostics.get("interval_bounded") is False else []),
                 ""]
         return "\n".join(head) + jl.vehicle_to_toml(self.vehicle)
 
@@ -1066,6 +1088,102 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
     else:
         rec["failed"] = f"{type(with_peak).__name__}: {with_peak}"
     result.diagnostics["peak_model_term"] = rec
+    mark_interval_bounded(result)
+
+
+def fixed_defaults(names) -> tuple:
+    """The default fitted parameters (``DEFAULT_PARAMS``) that a fit of ``names`` leaves fixed
+    at the vehicle's values: the fixed-parameter term frees them."""
+    return tuple(n for n in DEFAULT_PARAMS if n not in names)
+
+
+def wants_fixed_params_term(setting, misfit, names) -> bool:
+    """Whether a fit gets the fixed-parameter term: ``setting`` "auto" (``fit``'s
+    ``fixed_params_term``), its residuals show misfit (``misfit``: the misfit messages) and
+    it leaves some of the default fitted parameters fixed (``fixed_defaults``)."""
+    return setting == "auto" and bool(misfit) and bool(fixed_defaults(names))
+
+
+def add_fixed_params_term(result: FitResult, wider) -> None:
+    """Widen ``result`` (a fit of a subset of the default parameters whose residuals show
+    misfit) by the fixed-parameter term: per parameter |value - value with the fixed default
+    parameters freed as well|, ``wider`` that fit (run from ``result``'s optimum), added in
+    quadrature to ``std_errors_total``; recorded in ``diagnostics["fixed_params_term"]``.
+    ``wider`` an exception (that fit failed), or a fit that ended worse than ``result`` (its
+    model holds this one: it stopped short of its optimum): the term is 0, the failure
+    recorded, and the interval marked as not bounded (``mark_interval_bounded``)."""
+    names = result.names
+    freed = fixed_defaults(names)
+    reason = ("the residuals show misfit (" + "; ".join(result.diagnostics["misfit"])
+              + ") and the fit leaves " + ", ".join(freed) + " fixed at the vehicle's values: "
+              "where the truth differs in them, every fitted value takes up the difference, "
+              "in every channel alike, so neither the HAC error, the channel spread nor the "
+              "missing-peak term covers that bias; the fit was repeated with them freed as "
+              "well (from this fit's optimum, same settings) and each value's shift to that "
+              "fit is added in quadrature to std_error_total")
+    rec = dict(reason=reason, added=False, failed=None, freed=list(freed), params=None,
+               values=None, std_errors_hac=None, shift=None, term=dict.fromkeys(names, 0.0))
+    if isinstance(wider, FitResult):
+        shift = np.array([wider.value(n) for n in names]) - result.values
+        chi2_fit = _chi2(result.problem, result.theta)
+        chi2_wider = _chi2(wider.problem, wider.theta)
+        rec.update(chi2_fit=chi2_fit, chi2_wider=chi2_wider)
+        if not chi2_wider <= chi2_fit * (1.0 + NESTED_CHI2_RTOL):
+            # the wider model holds this one (its extra values at the vehicle's): its
+            # optimum fits at least as well, so a fit that ends worse stopped short of it
+            rec["failed"] = (f"it ended worse than the fit with them fixed (chi2 "
+                             f"{chi2_wider:.6g} against {chi2_fit:.6g}), short of its optimum")
+        elif np.all(np.isfinite(shift)):
+            term = np.abs(shift)
+            result.std_errors_total = np.sqrt(result.std_errors_total**2 + term**2)
+            d = wider.diagnostics
+            rec.update(
+                added=True, params=list(wider.names),
+                values=dict(zip(wider.names, wider.values.tolist())),
+                std_errors_hac=dict(zip(wider.names, wider.std_errors_hac.tolist())),
+                shift=dict(zip(names, shift.tolist())), term=dict(zip(names, term.tolist())),
+                misfit_wider=d["misfit"],
+                residual_variance_factor_wider=d["residual_variance_factor"],
+                at_bound_wider=d["at_bound"], wall_s=wider.wall_s)
+        else:
+            rec["failed"] = "non-finite values"
+    else:
+        rec["failed"] = f"{type(wider).__name__}: {wider}"
+    result.diagnostics["fixed_params_term"] = rec
+    mark_interval_bounded(result)
+
+
+# the bias terms a misfit calls for, by their diagnostics key: (name in words, what it covers)
+BIAS_TERMS = (("peak_model_term", "missing-peak term", "how far a crush peak moves the values"),
+              ("fixed_params_term", "fixed-parameter term",
+               "how far the parameters left fixed move the values"))
+
+
+def mark_interval_bounded(result: FitResult) -> None:
+    """Record whether the reported interval bounds the bias the misfit calls for:
+    ``diagnostics["interval_bounded"]`` False, with ``interval_not_bounded`` naming each
+    bias term that was called for and could not be computed (its refit failed), else True
+    (and None). Such an interval is the scatter about a biased fit, not a bound on its error:
+    the values can lie many of its standard errors from the truth. A failed missing-peak term
+    is not called for where the fit with the fixed parameters freed (the fixed-parameter
+    term, added) shows no misfit: the misfit was theirs, and a fit without a peak that fits
+    the record gets no missing-peak term either (``peak_not_called_for`` says so)."""
+    d = result.diagnostics
+    fp = d.get("fixed_params_term")
+    explained = bool(fp is not None and fp["added"] and not fp["misfit_wider"])
+    why = [f"the {label} could not be computed ({rec['failed']}), so std_error_total leaves "
+           f"out {what}"
+           for key, label, what in BIAS_TERMS
+           if (rec := d.get(key)) is not None and rec.get("failed")
+           and not (key == "peak_model_term" and explained)]
+    pm = d.get("peak_model_term")
+    d["peak_not_called_for"] = (
+        "the fit with " + ", ".join(fp["freed"]) + " freed shows no misfit: the misfit comes "
+        "from the parameters left fixed, which the fixed-parameter term covers, so the "
+        "missing-peak term's failure leaves no bias uncovered"
+        if explained and pm is not None and pm.get("failed") else None)
+    d["interval_bounded"] = not why
+    d["interval_not_bounded"] = why or None
 
 
 def _rise_start(vehicle: jl.Vehicle, names, form: str | None = None,
@@ -1299,6 +1417,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         smoothing_m: float | None = None, smoothing_N: float | None = None,
         fit_touchdown: bool = True, channels=None, peak_form: str | None = None,
         model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
+        fixed_params_term: bool | str = "auto",
         peak_site: str = HONEYCOMB, progress=None, _inner: bool = False) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
@@ -1343,6 +1462,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         crush peak (``has_no_peak``): the fit is repeated with the primary peak
         (``PEAK_PARAMS``) and each value's shift to it is added in quadrature to
         ``std_errors_total`` (``add_peak_model_term``); False leaves it out
+    fixed_params_term : the fixed-parameter term of the uncertainty: ``"auto"`` (default)
+        computes it where the residuals show misfit and ``params`` leave some of the default
+        parameters (``DEFAULT_PARAMS``) fixed: the fit is repeated from its optimum with those
+        freed as well and each value's shift to it is added in quadrature to
+        ``std_errors_total`` (``add_fixed_params_term``); False leaves it out
     peak_site : where the primary crush peak sits (needs peak1): ``"honeycomb"`` (default: the
         law's; its crush work moves the stroke and the body) or ``"forces"``, on the force
         channels alone (the drop runs without it and the force channels carry it as a gain,
@@ -1363,6 +1487,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                         smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                         peak_form=peak_form, model_form=model_form,
                         peak_model_term=peak_model_term, peak_site=peak_site)
+    if fixed_params_term not in ("auto", False):
+        raise jl.ConfigError("fixed_params_term", fixed_params_term, "must be 'auto' or False")
     drops, names, windows, stages_w = (checked.drops, checked.names, checked.windows,
                                        checked.stages_w)
     integrator, smoothing_m, smoothing_N = (checked.integrator, checked.smoothing_m,
@@ -1495,8 +1621,24 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                 refine_window_s=refine_window_s, robust=robust, multistart=multistart,
                 method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
                 smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
-                channels=channels, model_form=False, peak_model_term=False, progress=tagged,
-                _inner=True)
+                channels=channels, model_form=False, peak_model_term=False,
+                fixed_params_term=False, progress=tagged, _inner=True)
+        wider_future = None
+        if wants_fixed_params_term(fixed_params_term, unc["misfit"], names):
+            # the same fit with the fixed default parameters freed, from this optimum (they
+            # from the vehicle's values), in a thread of its own beside the others
+            tagged_w = None if progress is None else (
+                lambda rec: progress(dict(rec, stage="with " + ", ".join(fixed_defaults(
+                    names)) + " freed " + rec["stage"])))
+            wider_future = _in_thread(
+                fit, drops, names + fixed_defaults(names), vehicle=vehicle,
+                start=dict(zip(names, values.tolist())), windows=windows,
+                refine_window_s=refine_window_s, robust=robust, multistart=multistart,
+                method=method, max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
+                smoothing_m=smoothing_m, smoothing_N=smoothing_N, fit_touchdown=fit_touchdown,
+                channels=channels, peak_form=peak_form, model_form=False,
+                peak_model_term=False, fixed_params_term=False, peak_site=peak_site,
+                progress=tagged_w, _inner=True)
         spread, shifts = (channel_spread(final, theta, huber_c, max_iter, pool)
                           if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
         spread_failed = [g for g, v in shifts.items() if v is None]
@@ -1543,6 +1685,12 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             warn(f"the fit with the crush peak failed ({err}), so std_error_total leaves out "
                  "how far the peak moves the values (misfit.peak_model_term.failed in the "
                  "report)", MisfitWarning, stacklevel=2)
+    wider = None
+    if wider_future is not None:
+        try:
+            wider = wider_future.result()
+        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError) as err:
+            wider = err
     form_term = (np.array([mform["spread"][n] for n in names]) if mform is not None
                  else np.zeros_like(values))
     if unc["misfit"]:
@@ -1557,6 +1705,9 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                 "value's shift to it is in std_error_total too (misfit.peak_model_term; "
                 "--compare-models says whether the data support the peak)"
                 if with_peak is not None else "")
+             + (f"; the fit leaves {', '.join(fixed_defaults(names))} fixed, so it was "
+                "repeated with them freed and each value's shift to that fit is in "
+                "std_error_total too (misfit.fixed_params_term)" if wider is not None else "")
              + f". Largest misfit: {worst}", MisfitWarning, stacklevel=2)
     # an inner fit (the missing-peak term's) reports only its values to the outer one
     where_peak = None if _inner else peak_location(final, theta, unc["residuals"],
@@ -1595,7 +1746,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             worst_window=unc["where"], at_bound=list(bound),
             trust=trust,
             interval=("std_error_total" if (unc["misfit"] or mform is not None) else trust),
-            model_form=mform, peak_model_term=None,
+            model_form=mform, peak_model_term=None, fixed_params_term=None,
+            interval_bounded=True, interval_not_bounded=None,
             filtered_noise_lag1_autocorr=final.noise_lag1,
             channel_spread={g: None if v is None else dict(zip(names, v.tolist()))
                             for g, v in shifts.items()},
@@ -1614,11 +1766,19 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                       pre_touchdown_s=PRE_S, fit_touchdown=fit_touchdown,
                       channels=list(final.channels), max_iter=max_iter,
                       peak_form=form, model_form=model_form, peak_site=peak_site,
-                      peak_model_term=peak_model_term,
+                      peak_model_term=peak_model_term, fixed_params_term=fixed_params_term,
                       model="quarter (jaxland.landing), from touchdown",
                       channel_map={c: CHANNELS[base_channel(c)][1] for c in final.channels},
                       filter_cfc={d.name: dict(d.filters) for d in drops if d.filters} or None,
                       filter_margin_s=final.margin_s))
     if with_peak is not None:
         add_peak_model_term(result, with_peak)
+    if wider is not None:
+        add_fixed_params_term(result, wider)
+    if not result.diagnostics["interval_bounded"]:
+        warn("NO TRUSTED INTERVAL: " + "; ".join(result.diagnostics["interval_not_bounded"])
+             + ". The misfit calls for that term: without it the reported interval is the "
+             "scatter about a biased fit, and the values may lie many of its standard errors "
+             "from the truth (misfit.interval_not_bounded in the report)",
+             MisfitWarning, stacklevel=2)
     return result

@@ -220,7 +220,8 @@ def _cmd_fit(args) -> int:
           f"{checked.smoothing_N:g} N)", file=sys.stderr)
     # the fit runs with the settings as checked (the integrator's default smoothing filled in)
     fit_kw.update(integrator=checked.integrator, smoothing_m=checked.smoothing_m,
-                  smoothing_N=checked.smoothing_N, progress=_Progress(args.quiet))
+                  smoothing_N=checked.smoothing_N, progress=_Progress(args.quiet),
+                  fixed_params_term=False if args.no_fixed_params_term else "auto")
     if peak_form is not None:
         fit_kw["peak_form"] = peak_form
     cmp = None
@@ -286,11 +287,13 @@ def _cmd_fit(args) -> int:
              if diag["misfit"] else ""))
     trusted = _INTERVAL_TEXT[diag["trust"]]
     pm = diag.get("peak_model_term")
+    fp = diag.get("fixed_params_term")
     print("  interval reported: " + (
         f"total (std_error_total) = {trusted}"
         + (" + channel spread" if diag["misfit"] else "")
         + (" + peak-shape term" if diag["model_form"] is not None else "")
         + (" + missing-peak term" if pm is not None and pm["added"] else "")
+        + (" + fixed-parameter term" if fp is not None and fp["added"] else "")
         if diag["interval"] == "std_error_total" else trusted))
     if pm is not None:
         print("  missing crush peak: the residuals show misfit and the model has no crush "
@@ -302,7 +305,25 @@ def _cmd_fit(args) -> int:
                  "leaves it out; --compare-models says whether the data support the peak)"
                  if pm["added"] else
                  f"peak; the fit with one failed ({pm['failed']}), so the total leaves out "
-                 "how far the peak moves the values"))
+                 "how far the peak moves the values"
+                 + (f"; but {diag['peak_not_called_for']}" if diag.get("peak_not_called_for")
+                    else "")))
+    if fp is not None:
+        freed = ", ".join(fp["freed"])
+        print(f"  parameters left fixed: the residuals show misfit and {freed} stayed at the "
+              "vehicle's values, " + (
+                  "so it was fitted again with them freed ("
+                  + ", ".join(f"{k} {fp['values'][k]:.6g}" for k in fp["freed"])
+                  + f"; chi2 {fp['chi2_wider']:.6g} against {fp['chi2_fit']:.6g} with them "
+                  "fixed); each value's shift to that fit is added to the total "
+                  "(--no-fixed-params-term leaves it out; fit them too where the record "
+                  "determines them)" if fp["added"] else
+                  f"and the fit with them freed failed ({fp['failed']}), so the total leaves "
+                  "out how far they move the values"))
+    if diag.get("interval_bounded") is False:
+        print("  NO TRUSTED INTERVAL: " + "; ".join(diag["interval_not_bounded"])
+              + ". The misfit calls for it: the +/- below is the scatter about a biased fit, "
+              "not a bound on the values' error, which can be many times larger")
     mf = diag["model_form"]
     if mf is not None:
         other = ", ".join(f"{k} (dAIC {f['daic_adjusted']:+.3g}"
@@ -498,6 +519,12 @@ def add_subcommands(subparsers) -> None:
                         "show misfit and the fitted model has no crush peak: the fit repeated "
                         "with the crush peak (peak1, L_peak1) and each value's shift to it "
                         "added to the total standard error")
+    f.add_argument("--no-fixed-params-term", action="store_true",
+                   help="leave out the fixed-parameter term, on by default when the residuals "
+                        "show misfit and --params leaves some of the default parameters (k, "
+                        "gamma, D_b, k_b1, F1, F2) fixed: the fit repeated from its optimum "
+                        "with those freed as well and each value's shift to it added to the "
+                        "total standard error")
     f.add_argument("--out", default="out/fit", help="output folder (default out/fit)")
     f.add_argument("--no-plots", action="store_true", help="skip the figures")
     f.add_argument("--quiet", action="store_true", help="no per-iteration progress lines")

@@ -8,6 +8,8 @@ data with and without an artefact the model lacks.
 
 import dataclasses
 import itertools
+import math
+import types
 import warnings
 
 import jax
@@ -358,6 +360,93 @@ def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_pa
 def test_the_missing_peak_term_is_refused_by_name_when_misnamed():
     with pytest.raises(jl.ConfigError, match="peak_model_term"):
         cal.fit(vr.drop_test(0.2, seed=7), peak_model_term=True)
+    with pytest.raises(jl.ConfigError, match="fixed_params_term"):
+        cal.fit(vr.drop_test(0.2, seed=7), fixed_params_term=True)
+
+
+# the fixed-parameter term: k_b1 and F1 fitted, the rest of the defaults left at the nominal
+# vehicle's values, which the rig's truth does not share (k, gamma, D_b 20-30 % off)
+FIXED_FIT = ["--params", "k_b1,F1", "--windows", "0.01,0.03", "--refine-window-s", "0.06",
+             "--no-plots", "--quiet"]
+
+
+def _cli_fit(toml, out, *flags) -> tuple[str, dict]:
+    """``jaxland fit`` of ``toml`` (FIXED_FIT) into ``out``: (its printed output, its
+    fit_report.json)."""
+    import argparse
+    import contextlib
+    import io
+    import json
+
+    from calibration.cli import add_subcommands
+
+    parser = argparse.ArgumentParser()
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["fit", str(toml), *FIXED_FIT, "--out", str(out), *flags])
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert args.func(args) == 0
+    return text.getvalue(), json.loads((out / "fit_report.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def fixed_rig(tmp_path_factory):
+    """The rig's 0.2 m drop without a crush peak, its metadata naming the nominal vehicle."""
+    path = tmp_path_factory.mktemp("fixed")
+    toml, _ = vr.write_drop_test(path, 0.2, seed=7, artefacts=dict(crush_peak=0.0))
+    vr.write_nominal(path)
+    return toml
+
+
+def test_parameters_left_fixed_widen_the_total_to_the_fit_with_them_freed(fixed_rig):
+    """A subset fit whose fixed parameters the truth does not share misfits, and every channel
+    takes up the difference: the HAC error, the channel spread and the missing-peak term
+    leave k_b1 and F1 more than 2 of them off the truth. The fit is repeated with the fixed
+    defaults freed, and each value's shift to it added to the total: that covers the truth
+    (fails if the term is not computed or not added)."""
+    text, rep = _cli_fit(fixed_rig, fixed_rig.parent / "on")
+    fp = rep["misfit"]["fixed_params_term"]
+    assert rep["misfit"]["misfit"] and fp["added"] and fp["failed"] is None
+    assert fp["freed"] == ["k", "gamma", "D_b", "F2"]
+    assert fp["params"] == ["k_b1", "F1", "k", "gamma", "D_b", "F2"]
+    assert fp["chi2_wider"] < fp["chi2_fit"] and "misfit" in fp["reason"]
+    assert rep["interval_reported"] == "std_error_total" and rep["interval_bounded"]
+    truth = dict(zip(("k_b1", "F1"), get_values(vr.truth_vehicle(), ("k_b1", "F1"))))
+    for n, t in truth.items():
+        p = rep["parameters"][n]
+        assert abs(p["value"] - t) <= 2.0 * p["std_error_total"], n
+        assert fp["term"][n] == pytest.approx(abs(fp["values"][n] - p["value"]), rel=1e-12)
+        without = math.sqrt(p["std_error_total"] ** 2 - fp["term"][n] ** 2)
+        assert abs(p["value"] - t) > 2.0 * without, n
+    assert "+ fixed-parameter term" in text
+    assert "parameters left fixed: the residuals show misfit and k, gamma, D_b, F2" in text
+    assert "NO TRUSTED INTERVAL" not in text
+
+
+def test_a_failed_bias_refit_marks_the_interval_as_not_bounded(fixed_rig, monkeypatch):
+    """Where the refit a bias term needs fails, the total leaves that bias out: the report
+    marks the interval as not bounded, and the output and the fitted vehicle's header say
+    NO TRUSTED INTERVAL (fails if the failure is only recorded in the term)."""
+    fit0 = cal_fit.fit
+
+    def failing(drops, params=cal.DEFAULT_PARAMS, **kw):
+        if kw.get("_inner") and set(cal.DEFAULT_PARAMS) <= set(params):
+            raise jl.SimulationError("forced failure")
+        return fit0(drops, params, **kw)
+
+    monkeypatch.setattr(cal_fit, "fit", failing)
+    out = fixed_rig.parent / "failed"
+    text, rep = _cli_fit(fixed_rig, out)
+    fp = rep["misfit"]["fixed_params_term"]
+    assert not fp["added"] and fp["failed"] == "SimulationError: forced failure"
+    assert rep["interval_bounded"] is False and rep["misfit"]["interval_bounded"] is False
+    (why,) = rep["interval_not_bounded"]
+    assert why.startswith("the fixed-parameter term could not be computed (SimulationError")
+    assert "+ fixed-parameter term" not in text
+    assert "  NO TRUSTED INTERVAL: the fixed-parameter term could not be computed" in text
+    head = (out / "fitted_vehicle.toml").read_text().split("\n[")[0]
+    assert cal_fit.HEADER_NOT_BOUNDED + why in head
 
 
 def test_failed_channel_refits_are_named_and_the_total_falls_back(monkeypatch):
@@ -655,3 +744,20 @@ def test_lab_units_are_converted_and_logged(tmp_path):
         cal.DropTest.from_arrays(t_si, {"stroke_mm": rec["stroke_m"] * 1e3,
                                         "stroke_m": rec["stroke_m"]},
                                  sample_rate_Hz=5000.0, drop_height_m=0.2)
+
+
+def test_a_failed_missing_peak_term_counts_unless_the_freed_fit_fits():
+    """A failed missing-peak refit leaves the interval unbounded, except where the fit with
+    the fixed parameters freed was added and shows no misfit: the misfit was theirs."""
+    def marked(fixed):
+        res = types.SimpleNamespace(diagnostics=dict(  # the function reads only these
+            peak_model_term=dict(failed="it ended worse"), fixed_params_term=fixed))
+        cal_fit.mark_interval_bounded(res)
+        return res.diagnostics
+
+    freed = dict(added=True, failed=None, freed=["k"], misfit_wider=[])
+    assert marked(freed)["interval_bounded"] and marked(freed)["peak_not_called_for"]
+    for fixed in (None, dict(freed, misfit_wider=["lag-1 ..."])):
+        d = marked(fixed)
+        assert d["interval_bounded"] is False and d["peak_not_called_for"] is None
+        assert d["interval_not_bounded"][0].startswith("the missing-peak term could not be")
