@@ -152,8 +152,9 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     """What the header of a vehicle file written by ``jaxland fit`` (``fitted_vehicle.toml``,
     ``FitResult.to_toml``) says of its fit: ``{"from_fit": False}`` for a file without that
     header; else ``from_fit``, ``fitted_against`` (the records), ``sound`` (no flag),
-    ``flags`` (``MISFIT``, ``NOT CONVERGED``, and a parameter ``NOT IDENTIFIED`` or ``AT A
-    BOUND``), the ``misfit`` and ``not_converged`` lines' text (None where absent), the
+    ``flags`` (``MISFIT``, ``NOT CONVERGED``, ``NO TRUSTED INTERVAL``, and a parameter ``NOT
+    IDENTIFIED`` or ``AT A BOUND``), the ``misfit``, ``not_converged`` and
+    ``interval_not_bounded`` lines' text (None where absent), the
     ``interval`` the errors are, ``parameters`` (``{name: {value, std_error,
     rel_std_error, unit, note}}``, the header's rounded numbers; std_error None where the
     fit gave none) and ``uncertainty`` (how far the prediction carries it: not at all).
@@ -165,6 +166,7 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         AT_BOUND,
         HEADER_FIT,
         HEADER_MISFIT,
+        HEADER_NOT_BOUNDED,
         HEADER_NOT_CONVERGED,
         HEADER_VALUES,
         NOT_IDENTIFIED,
@@ -191,15 +193,19 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     misfit = next((x[len(HEADER_MISFIT):] for x in head if x.startswith(HEADER_MISFIT)), None)
     capped = next((x[len(HEADER_NOT_CONVERGED):] for x in head
                    if x.startswith(HEADER_NOT_CONVERGED)), None)
+    unbounded = next((x[len(HEADER_NOT_BOUNDED):] for x in head
+                      if x.startswith(HEADER_NOT_BOUNDED)), None)
     flags = (["MISFIT"] if misfit is not None else []) + (
-        ["NOT CONVERGED"] if capped is not None else []) + [
+        ["NOT CONVERGED"] if capped is not None else []) + (
+        ["NO TRUSTED INTERVAL"] if unbounded is not None else []) + [
         f"{'NOT IDENTIFIED' if NOT_IDENTIFIED in p['note'] else 'AT A BOUND'}: {n}"
         for n, p in params.items() if p["note"] and (NOT_IDENTIFIED in p["note"]
                                                       or AT_BOUND in p["note"])]
     edited = [] if vehicle is None else edited_since_fit(params, vehicle)
     flags += [f"{EDITED}: {e['name']}" for e in edited]
     return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
-                misfit=misfit, not_converged=capped, interval=interval or None,
+                misfit=misfit, not_converged=capped, interval_not_bounded=unbounded,
+                interval=interval or None,
                 parameters=params, uncertainty=NO_BAND,
                 **({} if vehicle is None else {"edited": edited}))
 

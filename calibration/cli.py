@@ -404,7 +404,8 @@ def _cmd_predict(args) -> int:
 def fit_status_lines(config: str, status: dict) -> list[str]:
     """predict's lines on the vehicle's fit (``read_fit_status``): none for a vehicle not
     written by ``jaxland fit``; else whether the fit is sound or which flags it carries, the
-    MISFIT and NOT CONVERGED lines' text, and each fitted value's standard error, which the
+    MISFIT, NOT CONVERGED and NO TRUSTED INTERVAL lines' text, and each fitted value's
+    standard error (untrusted where the header says so), which the
     predictions do not carry. A file whose values differ from its header's (``edited``) is
     named as edited, each value with the file's and the fitted number, never as sound."""
     from ._predict import EDITED
@@ -426,7 +427,8 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
         head = (f"{config}: fitted vehicle whose fit is flagged {', '.join(status['flags'])}"
                 ": these predictions are not those of a sound fit")
     lines = [head]
-    for flag, key in (("MISFIT", "misfit"), ("NOT CONVERGED", "not_converged")):
+    for flag, key in (("MISFIT", "misfit"), ("NOT CONVERGED", "not_converged"),
+                      ("NO TRUSTED INTERVAL", "interval_not_bounded")):
         if status[key] is not None:
             lines.append(f"  {flag}: {status[key]}")
     params = status["parameters"]

@@ -447,6 +447,14 @@ def test_a_failed_bias_refit_marks_the_interval_as_not_bounded(fixed_rig, monkey
     assert "  NO TRUSTED INTERVAL: the fixed-parameter term could not be computed" in text
     head = (out / "fitted_vehicle.toml").read_text().split("\n[")[0]
     assert cal_fit.HEADER_NOT_BOUNDED + why in head
+    # predict reads it from the header: not sound, and says why
+    from calibration._predict import read_fit_status
+    from calibration.cli import fit_status_lines
+
+    status = read_fit_status(out / "fitted_vehicle.toml")
+    assert not status["sound"] and "NO TRUSTED INTERVAL" in status["flags"]
+    assert any(line.startswith(f"  NO TRUSTED INTERVAL: {why}")
+               for line in fit_status_lines("v.toml", status))
 
 
 def test_failed_channel_refits_are_named_and_the_total_falls_back(monkeypatch):
