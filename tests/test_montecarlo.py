@@ -350,6 +350,29 @@ def test_wilson_interval_covers_a_known_probability():
     assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
 
 
+def test_a_probability_with_unfinished_landings_lies_in_its_stated_range():
+    """Touchdowns of 6-11 m/s cut off at 0.1 s: the 28 finished ones all bottomed out (the
+    hard ones finish first), so the probability over them, 1, is biased; over all 40 the
+    landings run to 0.3 s (none unfinished) give 0.875, inside the range the cut-off run states
+    with its 12 unfinished landings: counted as far as they are, then as all bottoming out."""
+    disp = {"sink_speed_mps": Distribution("uniform", low=6.0, high=11.0)}
+    runs = {t: run_montecarlo(MonteCarloSpec(dispersion=disp, fixed={"drop_height_m": 0.0},
+                                             n=40, seed=2, t_end=t), progress=False)
+            for t in (0.1, 0.3)}
+    short, final = runs[0.1].summary, runs[0.3].summary
+    assert final["n_unfinished"] == 0 and short["n_unfinished"] > 0
+    p = final["bottoming"]["probability"]
+    cut = short["bottoming"]
+    assert cut["probability"] != p  # the finished landings alone are no sample of all
+    lo, hi = cut["all_landings"]["range"]
+    already = runs[0.1].outputs["bottomed_out"][runs[0.1].failure == int(jl.Result.UNFINISHED)]
+    assert lo <= p <= hi
+    assert hi - lo == pytest.approx((short["n_unfinished"] - already.sum()) / 40, abs=1e-12)
+    clo, chi = cut["all_landings"]["ci95_wilson"]
+    assert clo == wilson_interval(round(lo * 40), 40)[0] and chi == wilson_interval(
+        round(hi * 40), 40)[1]
+
+
 def test_failed_samples_are_counted_and_the_rest_is_intact():
     """Touchdowns of 2-18 m/s at dt = 1e-5 s: those above ~9 m/s bottom out with forces too
     stiff for the step and are recorded as failed (with the reason); every other sample equals

@@ -32,6 +32,7 @@ from ._stats import (
     proportion,
     sensitivity,
     tip_over_of,
+    with_unfinished,
 )
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
@@ -413,6 +414,7 @@ def _gather(outputs: dict, inputs: dict, n: int, chunk: int, n_proc: int):
 
 def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dict:
     ok = failure == int(Result.SUCCESSFUL)
+    unfinished = failure == int(Result.UNFINISHED)
     failed = np.isin(failure, FAILED_CODES)
     target = (outputs["min_stability_margin_m"] if "min_stability_margin_m" in outputs
               else outputs["max_stroke_m"].max(axis=1))
@@ -427,7 +429,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         failed_samples=np.flatnonzero(failed).tolist()[:100],
         n_no_touchdown=int((failure == int(Result.NO_TOUCHDOWN)).sum()),
         # still in an impact at t_end: outcomes not final, counted apart (raise t_end_s)
-        n_unfinished=int((failure == int(Result.UNFINISHED)).sum()),
+        n_unfinished=int(unfinished.sum()),
         n_retried=int(outputs["retried"].sum()),
         early_stop=spec.early_stop,
         n_settled=(int(np.isfinite(outputs["settled_time_s"]).sum())
@@ -438,8 +440,12 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         n_succeeded=int(ok.sum()),
         # over the successful landings; None where there is none (0/0 is no probability).
         # The quarter model cannot tip: no probability, not a computed-looking 0
-        tip_over=tip_over_of(model, outputs["tipped_over"][ok]),
-        bottoming=proportion(outputs["bottomed_out"][ok]),
+        # (all_landings: where it lies with the unfinished landings, which could still
+        # tip or bottom out)
+        tip_over=with_unfinished(tip_over_of(model, outputs["tipped_over"][ok]),
+                                 outputs["tipped_over"][unfinished]),
+        bottoming=with_unfinished(proportion(outputs["bottomed_out"][ok]),
+                                  outputs["bottomed_out"][unfinished]),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
             "peak_body_accel_mps2": percentiles(outputs["peak_body_accel_mps2"][ok]),

@@ -51,6 +51,23 @@ def tip_over_of(model: str, tipped) -> dict:
     return not_modelled(np.size(tipped), TIP_OVER_NOT_MODELLED)
 
 
+def with_unfinished(p: dict, flags_unfinished) -> dict:
+    """``p`` (a ``proportion`` over the successful landings) with ``all_landings``: where the
+    probability over them and the unfinished ones lies (``flags_unfinished``: the flag each
+    unfinished landing carries so far; one it has may stay, one it lacks may still come).
+    Counted apart, the unfinished landings would bias it low: they are those still in an
+    impact or able to tip. ``range`` [-] counts them as far as they are, then as all
+    flagged; ``ci95_wilson`` widens it by the Wilson intervals of both ends."""
+    if p.get("modelled") is False or p["count"] is None:
+        return p
+    u = int(np.size(flags_unfinished))
+    now, n = p["count"] + int(np.sum(flags_unfinished)), p["n"] + u
+    most = p["count"] + u
+    return dict(p, all_landings=dict(
+        n=n, n_unfinished=u, range=[now / n, most / n] if n else None,
+        ci95_wilson=[wilson_interval(now, n)[0], wilson_interval(most, n)[1]]))
+
+
 def probability_text(p: dict, nd: int = 3) -> str:
     """A probability with its 95 % interval for a report line (``p``: the summary's
     count/n/probability/ci95_wilson); a probability over no landing is none, one the model

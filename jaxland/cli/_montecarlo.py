@@ -39,6 +39,17 @@ def _no_successful_landing(s: dict) -> None:
                           f"below {s['dt_s']:g} s{again}")
 
 
+def _with_unfinished(p: dict) -> str:
+    """Where a probability lies with the unfinished landings (``with_unfinished``), for its
+    report line; nothing where none is unfinished."""
+    a = p.get("all_landings")
+    if not a or not a["n_unfinished"]:
+        return ""
+    (lo, hi), (clo, chi) = a["range"], a["ci95_wilson"]
+    return (f"; with the {a['n_unfinished']} unfinished: {lo:.4g} to {hi:.4g} (95% CI "
+            f"[{clo:.4g}, {chi:.4g}])")
+
+
 def _retried_text(result) -> str:
     """What the retries did (``_montecarlo._run._retry``): how many samples failed
     numerically and ran again, how, down to which step, and how many still failed."""
@@ -126,11 +137,11 @@ def cmd_montecarlo(args) -> int:
     if tip["modelled"]:
         print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI "
               f"[{tip['ci95_wilson'][0]:.4g}, {tip['ci95_wilson'][1]:.4g}]  "
-              f"({tip['count']}/{tip['n']})")
+              f"({tip['count']}/{tip['n']}){_with_unfinished(tip)}")
     else:  # no probability to print: a 0 would read as computed
         print(f"  P(tip-over)         not modelled: {tip['reason']}")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
-          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']})")
+          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']}){_with_unfinished(bot)}")
     for name, env in s["envelopes"].items():
         if not env:
             continue
