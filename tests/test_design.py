@@ -476,6 +476,21 @@ def test_steps_are_checked_on_the_stiffest_design_the_bounds_allow(tmp_path, cap
     assert err.count("\n") == 1
 
 
+def test_a_verification_that_ends_before_any_touchdown_is_refused_before_the_banner(
+        tmp_path, capsys):
+    """The design scenes (1 s) touch down from 2 m; the verification's 0.1 s cannot: found
+    after the optimisation, every verification landing would come back without touchdown."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(TINY.replace("drop_height_m = 0.0", "drop_height_m = 2.0")
+                    .replace("t_end_s = 0.1\n[objective]", "t_end_s = 1.0\n[objective]"))
+    assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxland: error: montecarlo.t_end_s = 0.1: ends before the earliest "
+                          "touchdown the dispersion allows (0.433 s") and err.count("\n") == 1
+
+
 def test_design_scenes_that_never_touch_down_are_named_not_called_numerical(tmp_path, capsys):
     from jaxland.cli import main
 

@@ -18,6 +18,7 @@ from .._montecarlo._run import (
     _summarise,
     bottomed_out,
     check_run,
+    check_touchdown_possible,
     mc_solver,
     retry_method,
 )
@@ -187,10 +188,11 @@ def _verification_spec(spec: DesignSpec, n, seed) -> MonteCarloSpec:
 def check_verification(problem: DesignProblem, n: int | None = None) -> None:
     """Refuse, before the optimisation, a verification Monte Carlo that could not run on the
     baseline or on a design inside the bounds (its ``dt_s`` above the stability limit, an
-    ``n`` beyond this machine's memory): found after the optimisation, it would cost the
-    whole design."""
+    ``n`` beyond this machine's memory, a ``t_end_s`` before any touchdown): found after the
+    optimisation, it would cost the whole design."""
     vspec = _verification_spec(problem.spec, n, problem.spec.montecarlo.seed)
     check_run(vspec, problem.vehicle)
+    check_touchdown_possible(vspec, problem.vehicle)
     problem.check_step("montecarlo.dt_s", vspec.dt, vspec.method)
 
 

@@ -243,11 +243,14 @@ def check_touchdown_possible(spec: MonteCarloSpec, vehicle: Vehicle) -> None:
     NO_TOUCHDOWN)."""
     t = earliest_touchdown_s(spec, vehicle)
     if t > spec.t_end:
+        across = spec.range_of("horizontal_speed_mps")[1] * spec.range_of("slope_deg")[1]
+        slope = (f", horizontal_speed_mps <= {spec.range_of('horizontal_speed_mps')[1]:g} "
+                 f"across slope_deg <= {spec.range_of('slope_deg')[1]:g}" if across else "")
         raise ConfigError("montecarlo.t_end_s", spec.t_end,
                           f"ends before the earliest touchdown the dispersion allows ({t:.3g} s,"
                           f" from drop_height_m >= {spec.range_of('drop_height_m')[0]:g} at "
-                          f"sink_speed_mps <= {spec.range_of('sink_speed_mps')[1]:g}): no "
-                          "sample could land; raise it")
+                          f"sink_speed_mps <= {spec.range_of('sink_speed_mps')[1]:g}{slope}): "
+                          "no sample could land; raise it")
 
 
 def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
