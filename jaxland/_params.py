@@ -15,20 +15,32 @@ import dataclasses
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["Honeycomb", "Leg", "Ground", "Vehicle", "field_info"]
 
 
+def _kind(x) -> str | None:
+    """The numpy dtype kind of a value (None for a traced one: its dtype is the program's)."""
+    if isinstance(x, jax.core.Tracer):
+        return None
+    dtype = getattr(x, "dtype", None)
+    if dtype is None:
+        try:
+            dtype = np.asarray(x).dtype
+        except (TypeError, ValueError):  # a ragged list
+            return "O"
+    return np.dtype(dtype).kind
+
+
 def _f64(x, name: str = "value"):
-    kind = getattr(x, "dtype", None)
     # a flag or a text would convert (True to 1.0, "0.2" to 0.2): refused as the typo it is
-    if not (isinstance(x, (bool, str, bytes, np.bool_))
-            or (kind is not None and np.dtype(kind).kind in "bUSO")):
+    if _kind(x) not in ("b", "U", "S", "O"):
         try:
             return jnp.asarray(x, dtype=jnp.float64)
-        except (TypeError, ValueError):  # None, a ragged list: named, not a traceback
+        except (TypeError, ValueError):
             pass
     from ._errors import ConfigError
 

@@ -123,11 +123,12 @@ class Scene(eqx.Module):
         for name, val in fields.items():
             if val is None:
                 out[name] = None
-            elif name in vector:
-                val = jnp.asarray(val, jnp.float64)
+                continue
+            val = _f64(val, f"scene.{name}")  # refused by name before it is broadcast
+            if name in vector:
                 out[name] = jnp.broadcast_to(val, (n, val.shape[-1]))
             else:
-                out[name] = jnp.broadcast_to(jnp.asarray(val, jnp.float64), (n,))
+                out[name] = jnp.broadcast_to(val, (n,))
         return cls(**out)
 
     def touchdown_speed(self, g=9.81):

@@ -105,13 +105,21 @@ def test_bad_scene_is_refused(kwargs, field):
 
 @pytest.mark.parametrize("kwargs", [dict(drop_height=True), dict(sink_speed="2.0"),
                                     dict(friction=False), dict(roll=np.array([True, False])),
-                                    dict(slope=None)])
+                                    dict(slope=None), dict(drop_height=[True, False]),
+                                    dict(sink_speed=[1.0, "2"])])
 def test_a_flag_or_a_text_is_no_scene_value(kwargs):
-    """True would run as 1.0 and "2.0" as 2.0: refused when the scene is made, by name."""
+    """True would run as 1.0 and "2.0" as 2.0: refused when the scene is made, by name, also
+    in a list and in a batch."""
     (name, value), = kwargs.items()
-    with pytest.raises(jl.ConfigError) as err:
-        jl.Scene(**kwargs)
-    assert str(err.value).startswith(f"scene.{name} = {value!r}: must be a number")
+    for batch in (False, True):
+        if batch and value is None:
+            continue  # a batch leaves a field out with None
+        with pytest.raises(jl.ConfigError) as err:
+            if batch:
+                jl.Scene.batch(**kwargs, yaw=np.zeros(2))
+            else:
+                jl.Scene(**kwargs)
+        assert str(err.value).startswith(f"scene.{name} = {value!r}: must be a number")
 
 
 def test_bad_solver_is_refused():
