@@ -219,6 +219,20 @@ def _rule_ok(rule: str, val: np.ndarray) -> np.ndarray | None:
     return None if check is None else check(val)  # None: a cross-field rule, checked below
 
 
+def field_ok(f, val, xp=np):
+    """Per element, whether a value of the parameter field ``f`` keeps its own rule: finite,
+    and within the rule or at the extension's "off" value (the one rule for concrete values,
+    ``validate_vehicle``, and traced ones, ``follows_rules``; ``xp``: numpy or jax.numpy)."""
+    good = xp.isfinite(val)
+    ok = _rule_ok(f.metadata["rule"], val)
+    if ok is not None:
+        good = good & ok
+    off = f.metadata.get("off")  # "not used": a TOML file's is read as None, a traced one stays
+    if isinstance(off, float):
+        good = good | (val == off)
+    return good
+
+
 def _fail(section, f, val, rule):
     md = f.metadata
     shown = float(val) / md["to_si"]
@@ -241,10 +255,7 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
             val = concrete(getattr(mod, f.name))
             if val is None:
                 continue
-            bad = ~np.isfinite(val)
-            ok = _rule_ok(f.metadata["rule"], val)
-            if ok is not None:
-                bad |= ~ok
+            bad = ~field_ok(f, val)
             if np.any(bad):
                 _fail(section, f, val[bad].flat[0], f.metadata["rule"])
     if fields_only:
@@ -303,15 +314,7 @@ def follows_rules(veh: Vehicle):
             val = getattr(mod, f.name)
             if val is None:
                 continue
-            val = jnp.asarray(val)
-            good = jnp.isfinite(val)
-            check = VALUE_RULES.get(f.metadata["rule"])
-            if check is not None:
-                good = good & check(val)
-            off = f.metadata.get("off")  # an extension's "not used" value (a traced one stays)
-            if isinstance(off, float):
-                good = good | (val == off)
-            ok = ok & jnp.all(good)
+            ok = ok & jnp.all(field_ok(f, jnp.asarray(val), jnp))
     return ok
 
 

@@ -423,6 +423,25 @@ def test_the_pure_landing_checks_the_vehicle_values_it_can_see():
         assert int(result) == int(code) and np.isnan(g) == code.failed, (F1, result, g)
 
 
+def test_concrete_and_traced_vehicles_keep_one_rule_per_field():
+    """validate_vehicle (concrete values) and follows_rules (traced ones) judge every value
+    alike, an extension's off value included (a rise length of 0 is off in both)."""
+    from jaxland._config import follows_rules
+
+    traced = jax.jit(follows_rules)
+    for get, values in ((lambda v: v.honeycomb.peak_rise1, (0.0, -1e-3, 1e-3, np.inf)),
+                        (lambda v: v.honeycomb.F1, (0.0, -1.0, 5000.0, np.nan)),
+                        (lambda v: v.ground.gamma, (0.0, 0.99, 1.0, -0.1))):
+        for x in values:
+            veh = eqx.tree_at(get, VEH, jax.numpy.float64(x), is_leaf=lambda n: n is None)
+            try:
+                jl.validate_vehicle(veh, fields_only=True)
+                concrete = True
+            except jl.ConfigError:
+                concrete = False
+            assert bool(traced(veh)) == concrete, (x, concrete)
+
+
 def test_the_pure_landing_checks_its_solver_settings():
     for kw, field in ((dict(dt=0.0, t_end=0.3, save_dt=1e-4), "solver.dt"),
                       (dict(dt=-1e-5, t_end=0.3, save_dt=1e-4), "solver.dt"),
