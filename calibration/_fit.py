@@ -1701,13 +1701,14 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
              + ". The classical standard errors are too small: trust the HAC ones "
              "(std_error_hac), widened by how far the values move when one channel "
              f"is left out (std_error_total){_disagreement(names, shifts, trusted)}"
-             + ("; the model has no crush peak, so the fit was repeated with one and each "
-                "value's shift to it is in std_error_total too (misfit.peak_model_term; "
-                "--compare-models says whether the data support the peak)"
-                if with_peak is not None else "")
+             + ("; the model has no crush peak, so the fit was repeated with one, and where "
+                "that fit succeeded each value's shift to it is in std_error_total too "
+                "(misfit.peak_model_term says whether it did; --compare-models says whether "
+                "the data support the peak)" if with_peak is not None else "")
              + (f"; the fit leaves {', '.join(fixed_defaults(names))} fixed, so it was "
-                "repeated with them freed and each value's shift to that fit is in "
-                "std_error_total too (misfit.fixed_params_term)" if wider is not None else "")
+                "repeated with them freed, and where that fit succeeded each value's shift "
+                "to it is in std_error_total too (misfit.fixed_params_term says whether it "
+                "did)" if wider is not None else "")
              + f". Largest misfit: {worst}", MisfitWarning, stacklevel=2)
     # an inner fit (the missing-peak term's) reports only its values to the outer one
     where_peak = None if _inner else peak_location(final, theta, unc["residuals"],

@@ -229,6 +229,33 @@ def test_a_unit_the_header_contradicts_is_refused_by_physics_before_the_fit(
     assert not out.exists()
 
 
+def test_the_plausibility_margins_on_the_bundled_records(tmp_path):
+    """The bundled records reach at most 0.34 of the force bound and 1.66 to 1.99 times the
+    least stroke (the figures formats.md quotes), far inside the factor of 10; a small stroke
+    under an SI header loads (soft ground may take the energy), under a mm header it is
+    refused as m values."""
+    from calibration._data import base_channel
+
+    force, stroke = [], []
+    for toml in sorted(DATA.glob("drop_*.toml")):
+        d = cal.load_drop_test(toml)
+        peaks = {}
+        for col, vals in d.corrected.items():
+            if base_channel(col) in ("normal_force_N", "buffer_force_N"):
+                peaks[base_channel(col)] = max(peaks.get(base_channel(col), 0.0),
+                                               float(np.max(vals)))
+        bounds = d.impact_bounds(peaks)
+        force.append(max(peaks.values()) / bounds["force_max_N"])
+        stroke += [float(np.max(v)) / bounds["stroke_min_m"] for c, v in d.corrected.items()
+                   if base_channel(c) == "stroke_m"]
+    assert 0.32 < max(force) < 0.35 and 1.6 < min(stroke) and max(stroke) < 2.0, (force, stroke)
+    t, f, x = _trace()
+    meta = {"drop_height_m": 0.2, "sample_rate_Hz": 5000.0}
+    small = cal.load_drop_test(_write(tmp_path, ["time_s", "normal_force_N", "stroke_m"],
+                                      _rows(t, f, x / 1000.0), meta))
+    assert float(np.max(small.corrected["stroke_m"])) < 1e-3
+
+
 def test_bundled_synthetic_data_are_labelled_and_carry_their_truth():
     truth = jl.load_vehicle(DATA / "truth_vehicle.toml")
     np.testing.assert_allclose(get_values(truth, NAMES), P_TRUE, rtol=1e-11)
