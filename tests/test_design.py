@@ -466,6 +466,11 @@ def test_steps_are_checked_on_the_stiffest_design_the_bounds_allow(tmp_path, cap
         prob.vehicle_at(jnp.asarray(corner)), method=method, model=MODELS[prob.model])),
         rel=1e-6)
     assert stiffest < 1e-4 < at_start, (stiffest, at_start)
+    # no design inside the bounds is stiffer than the stiffest corner (4000 random ones)
+    z = np.random.default_rng(0).normal(0.0, 3.0, (4000, len(prob.variables)))
+    inside = jax.jit(jax.vmap(lambda z: stable_step(prob.vehicle_at(z), method=method,
+                                                    model=MODELS[prob.model])))(z)
+    assert float(np.min(inside)) >= stiffest * (1 - 1e-12)
     spec = tmp_path / "spec.toml"
     spec.write_text(text.replace(old, new))
     assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
@@ -474,6 +479,28 @@ def test_steps_are_checked_on_the_stiffest_design_the_bounds_allow(tmp_path, cap
                           f"limit {stiffest:.3g} s of {method} for the stiffest design inside "
                           "the bounds (F1_N = 8000, k_a_N_per_m = 1e+09)"), err
     assert err.count("\n") == 1
+
+
+def test_the_stiffest_corner_bounds_every_design_of_seven_variables():
+    """The corner check's premise: no design inside the bounds of seven of the variables
+    (4000 random ones) has a smaller stable step than the stiffest corner, for euler and
+    verlet."""
+    from jaxland._design import DesignProblem, design_spec_from_dict
+    from jaxland._models import MODELS
+    from jaxland._solvers import stable_step
+
+    bounds = {"F1_N": (2000.0, 9000.0), "F2_N": (4000.0, 20000.0), "x_L2_mm": (20.0, 150.0),
+              "x_L4_mm": (160.0, 400.0), "k_a_N_per_m": (1e6, 2e7),
+              "theta_b_deg": (52.0, 66.0), "R_m": (0.5, 1.5)}
+    data = tomllib.loads(TINY)
+    data["variables"] = {k: {"low": lo, "high": hi} for k, (lo, hi) in bounds.items()}
+    prob = DesignProblem(design_spec_from_dict(data))
+    z = np.random.default_rng(1).normal(0.0, 3.0, (4000, len(bounds)))
+    for method in ("euler", "verlet"):
+        stiffest, _ = prob.stiffest_step(method)
+        steps = jax.jit(jax.vmap(lambda z, m=method: stable_step(
+            prob.vehicle_at(z), method=m, model=MODELS[prob.model])))(z)
+        assert float(np.min(steps)) >= stiffest * (1 - 1e-12), method
 
 
 def test_a_verification_that_ends_before_any_touchdown_is_refused_before_the_banner(

@@ -220,6 +220,7 @@ class DesignProblem:
                               "keep the dispersion inside the envelope (truncnormal, uniform)"
                               ) from None
         check_bounds(spec, self.vehicle)
+        self._stiffest: dict = {}  # per method: stiffest_step's answer
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
                                       baseline_value(self.vehicle, v.name, self.cells))
                              for v in self.variables}, check=True)
@@ -286,17 +287,25 @@ class DesignProblem:
 
     def stiffest_step(self, method: str) -> tuple[float, dict]:
         """The smallest a-priori stable step [s] of ``method`` over the designs the bounds
-        allow, and that design (TOML units). The stiffnesses and masses move monotonically
-        with each variable, so the least stable design is a corner of the bounds: each
-        corner's step is computed (2^variables of them)."""
-        k = len(self.variables)
-        corners = np.array(list(itertools.product((-BOX_Z, BOX_Z), repeat=k)))
-        steps = jax.jit(jax.vmap(lambda z: stable_step(self.vehicle_at(z), method=method,
-                                                       model=MODELS[self.model])))
-        lim = np.asarray(steps(jnp.asarray(corners)))
-        i = int(np.argmin(lim))
-        vals = self.from_z(jnp.asarray(corners[i]))
-        return float(lim[i]), {n: float(vals[n]) / VARIABLES[n].to_si for n in self.names}
+        allow, and the bounds that set it (TOML units: the variables at that corner whose
+        other bound gives a larger step). The stiffnesses and masses move monotonically with
+        each variable, so the least stable design is a corner of the bounds: each corner's
+        step is computed (2^variables of them)."""
+        if method not in self._stiffest:
+            k = len(self.variables)
+            corners = np.array(list(itertools.product((-BOX_Z, BOX_Z), repeat=k)))
+            steps = jax.jit(jax.vmap(lambda z: stable_step(
+                self.vehicle_at(z), method=method, model=MODELS[self.model])))
+            lim = np.asarray(steps(jnp.asarray(corners)))
+            i = int(np.argmin(lim))
+            flipped = np.repeat(corners[i][None], k, axis=0)
+            flipped[np.arange(k), np.arange(k)] *= -1.0
+            moves = np.asarray(steps(jnp.asarray(flipped))) > lim[i] * (1.0 + 1e-9)
+            vals = self.from_z(jnp.asarray(corners[i]))
+            self._stiffest[method] = (float(lim[i]), {
+                n: float(vals[n]) / VARIABLES[n].to_si
+                for j, n in enumerate(self.names) if moves[j]})
+        return self._stiffest[method]
 
     def check_step(self, key: str, dt: float, method: str) -> None:
         """Refuse a step ``dt`` [s] (the TOML ``key``) above ``method``'s stability limit
