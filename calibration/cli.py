@@ -38,12 +38,15 @@ def _start(text: str | None) -> dict | None:
         name, sep, val = item.partition("=")
         if not sep:
             raise jl.ConfigError("--start", item, "must be name=value pairs, e.g. k=2e6,F1=5000")
+        name = name.strip()
+        if name in out:
+            raise jl.ConfigError(f"--start {name}", val.strip(), "is given twice")
         try:
-            out[name.strip()] = float(val)
+            out[name] = float(val)
         except ValueError:
-            raise jl.ConfigError(f"--start {name.strip()}", val, "must be a number") from None
-        if not math.isfinite(out[name.strip()]):
-            raise jl.ConfigError("--start", text, f"must be finite numbers (SI): {item.strip()}")
+            raise jl.ConfigError(f"--start {name}", val, "must be a number") from None
+        if not math.isfinite(out[name]):
+            raise jl.ConfigError(f"--start {name}", val.strip(), "must be a finite number (SI)")
     return out
 
 

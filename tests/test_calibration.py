@@ -692,7 +692,9 @@ def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_v
 @pytest.mark.parametrize("argv,needle", [
     # refused under the flag the user typed, with the value as typed
     (["fit", "DATA/drop_h0.20m.toml", "--params", "k,zeta"], "--params = 'k,zeta': unknown"),
-    (["fit", "DATA/drop_h0.20m.toml", "--start", "k=nan"], "--start = 'k=nan': must be"),
+    (["fit", "DATA/drop_h0.20m.toml", "--start", "k=nan"], "--start k = 'nan': must be a finite"),
+    (["fit", "DATA/drop_h0.20m.toml", "--start", "k=2e6,k=3e6"], "--start k = '3e6': is given "
+                                                                  "twice"),
     (["fit", "DATA/drop_h0.20m.toml", "--dt", "1"], "--dt = 1.0: must be in"),
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
     (["fit", "DATA/missing.toml"], "does not exist"),
