@@ -413,12 +413,17 @@ def test_parameters_left_fixed_widen_the_total_to_the_fit_with_them_freed(fixed_
     assert fp["chi2_wider"] < fp["chi2_fit"] and "misfit" in fp["reason"]
     assert rep["interval_reported"] == "std_error_total" and rep["interval_bounded"]
     truth = dict(zip(("k_b1", "F1"), get_values(vr.truth_vehicle(), ("k_b1", "F1"))))
+    # how many total standard errors from the truth, with the term and without it (the
+    # figures docs/calibration.md quotes)
+    quoted = {"k_b1": (0.92, 2.65), "F1": (1.01, 5.77)}
     for n, t in truth.items():
         p = rep["parameters"][n]
         assert abs(p["value"] - t) <= 2.0 * p["std_error_total"], n
         assert fp["term"][n] == pytest.approx(abs(fp["values"][n] - p["value"]), rel=1e-12)
         without = math.sqrt(p["std_error_total"] ** 2 - fp["term"][n] ** 2)
         assert abs(p["value"] - t) > 2.0 * without, n
+        z = (abs(p["value"] - t) / p["std_error_total"], abs(p["value"] - t) / without)
+        assert z == pytest.approx(quoted[n], abs=0.01), (n, z)
     assert "+ fixed-parameter term" in text
     assert "parameters left fixed: the residuals show misfit and k, gamma, D_b, F2" in text
     assert "NO TRUSTED INTERVAL" not in text
