@@ -60,6 +60,7 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--dt", "-1e-5"], "--dt = -1e-05: must be a finite number > 0 s"),
     (["--dt=-1E-5"], "--dt = -1e-05: must be a finite number > 0 s"),
     (["--t-end", "1e400"], "--t-end = inf: must be a finite number > 0 s"),
+    (["--t-end", "1e-9"], "--t-end = 1e-09: must be >= dt = 1e-05 s (one step)"),
     (["--friction", "3"], "--friction = 3.0: must be finite and in [0, 2]"),
     (["--roll-rate-degps", "1000"], "--roll-rate-degps = 1000.0: must be finite and in"),
     (["--model", "quarter", "--roll-deg", "5"], "--model = 'quarter': the quarter model"),
@@ -72,6 +73,15 @@ def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, n
     err = capsys.readouterr().err
     assert needle in err and err.count("\n") == 1, err
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_run_shorter_than_the_save_interval_saves_at_its_end(tmp_path, capsys):
+    """The default save interval (1e-4 s) is no refusal of a 5e-5 s run (it named the
+    save_dt nobody gave): the run saves every 5e-5 s, at its end."""
+    out = tmp_path / "short"
+    assert main(["simulate", "--t-end", "5e-5", "--no-plots", "--out", str(out)]) == 0
+    o = json.loads((out / "summary.json").read_text())
+    assert o["save_dt_s"] == pytest.approx(5e-5, rel=1e-12) and o["t_end_s"] == o["save_dt_s"]
 
 
 def test_an_output_folder_that_cannot_be_written_is_refused_before_the_run(capsys):

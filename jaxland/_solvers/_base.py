@@ -133,7 +133,8 @@ class Solver(eqx.Module):
     ``method`` is an integrator (``Euler()``, ``EulerImplicit()``, ``Verlet()``,
     ``Leapfrog()``, ``Impulse(dI=...)``, ``Tsit5(rtol=..., atol=...)``) or its name for the
     defaults. ``jaxland.landing`` checks the settings (``validate``) before it runs.
-    ``save_dt=None`` is the smallest whole multiple of ``dt`` that is at least 1e-4 s.
+    ``save_dt=None`` is the smallest whole multiple of ``dt`` that is at least 1e-4 s (or
+    the largest that fits in a shorter ``t_end``).
     """
 
     dt: float = eqx.field(static=True, default=1e-5)  # s, step (impulse: cap; tsit5: first)
@@ -167,7 +168,10 @@ class Solver(eqx.Module):
 
     def __post_init__(self):
         if self.save_dt is None and _finite_positive(self.dt):
-            self.save_dt = self.dt * max(1, math.ceil(SAVE_DT_MIN / self.dt - 1e-9))
+            every = max(1, math.ceil(SAVE_DT_MIN / self.dt - 1e-9))
+            if _finite_positive(self.t_end):  # a run shorter than that saves at its end
+                every = min(every, max(1, math.floor(self.t_end / self.dt + 1e-9)))
+            self.save_dt = self.dt * every
 
     @property
     def save_every(self) -> int:
@@ -208,6 +212,9 @@ class Solver(eqx.Module):
     def validate(self) -> Solver:
         """All settings, and how they relate."""
         self.validate_values()
+        if self.t_end < self.dt:
+            raise ConfigError("solver.t_end", self.t_end, f"must be >= dt = {self.dt} s (one "
+                              "step)")
         if self.save_dt < self.dt:
             raise ConfigError("solver.save_dt", self.save_dt, f"must be >= dt = {self.dt} s")
         if self.save_dt > self.t_end:
