@@ -339,6 +339,8 @@ BAD = [
     (("variables", "k_a_N_per_m", "low"), -1.0, "variables.k_a_N_per_m.low", "> 0"),
     (("variables", "F1_N", "high"), 9500.0, "variables.F1_N.high", "F2 must be able"),
     (("variables", "x_L2_mm", "high"), 190.0, "variables.x_L2_mm.high", "x_L4 must be able"),
+    # shown as written (0.45, not its round trip through metres, 0.45000000000000007)
+    (("variables", "x_L2_mm", "low"), 0.45, "variables.x_L2_mm.low", "must exceed x_L1"),
     (("variables", "primary_cell_size_mm"), {"low": 5.0, "high": 9.0}, "variables",
      "not both"),
     (("objective", "measure"), "median", "objective.measure", "must be one of"),
@@ -370,6 +372,18 @@ BAD = [
 ]
 
 
+def test_cell_bounds_that_allow_a_weak_secondary_name_a_bound_the_spec_gives():
+    """Only the secondary foil is a variable: the refusal names its low bound as written, not
+    the secondary cell size the spec leaves at its [cells] value."""
+    spec = copy.deepcopy(ROBUST)
+    del spec["variables"]["F1_N"]
+    spec["variables"]["secondary_foil_thickness_mm"] = dict(low=0.01, high=0.2)
+    with pytest.raises(jl.ConfigError) as err:
+        DesignProblem(design_spec_from_dict(spec))
+    assert str(err.value).startswith("variables.secondary_foil_thickness_mm.low = 0.01: the "
+                                     "cell bounds allow F2 = "), str(err.value)
+
+
 @pytest.mark.parametrize("path,value,field,rule", BAD, ids=[".".join(b[0]) for b in BAD])
 def test_malformed_specs_are_refused_by_name(path, value, field, rule):
     with pytest.raises(jl.ConfigError) as err:
@@ -378,6 +392,8 @@ def test_malformed_specs_are_refused_by_name(path, value, field, rule):
     assert rule in err.value.rule
     if value is not _DELETE and not isinstance(value, dict):
         assert repr(value) in str(err.value) or str(value) in str(err.value)
+    if isinstance(value, float):  # as written, not after a round trip through SI units
+        assert err.value.value == value, err.value
 
 
 def test_baseline_outside_bounds_is_refused():

@@ -25,7 +25,6 @@ from .._simulate import landings
 from .._solvers import Result, Solver, stable_step
 from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
 from ._spec import (
-    _DEG,
     CELL_VARS,
     CONSTRAINTS,
     FORCE_VARS,
@@ -110,6 +109,11 @@ def check_bounds(spec: DesignSpec, vehicle: Vehicle) -> None:
     and the rule; before any work (``DesignProblem`` and the command call it)."""
     hc, leg = vehicle.honeycomb, vehicle.leg
     b = {v.name: (v.low * v.to_si, v.high * v.to_si) for v in spec.variables}
+    typed = {v.name: {"low": v.low, "high": v.high} for v in spec.variables}  # as written
+
+    def bound(name: str, end: str):
+        """A refusal of ``variables.<name>.<end>`` for a rule, the value as the spec gives it."""
+        return lambda rule: ConfigError(f"variables.{name}.{end}", typed[name][end], rule)
     x_l1 = float(hc.F1 / hc.k_b1)
     dx3 = float((hc.F2 - hc.F1) / hc.k_b3)
     if any(n in b for n in CELL_VARS):
@@ -119,34 +123,33 @@ def check_bounds(spec: DesignSpec, vehicle: Vehicle) -> None:
         f2_min = float(cells_force(c["secondary_cell_size_mm"][1],
                                     c["secondary_foil_thickness_mm"][0], spec.cells))
         if not f2_min > ORDER_RATIO * f1_max:
-            raise ConfigError("variables.secondary_cell_size_mm.high",
-                              c["secondary_cell_size_mm"][1] * 1e3,
-                              f"the cell bounds allow F2 = {f2_min:.4g} N <= {ORDER_RATIO} "
-                              f"x F1 = {ORDER_RATIO * f1_max:.4g} N; the secondary stage "
-                              "must be stronger than the primary over the whole box")
+            # the first bound given of those that set the weakest F2 and the strongest F1
+            name, end = next((n, e) for n, e in (
+                ("secondary_cell_size_mm", "high"), ("secondary_foil_thickness_mm", "low"),
+                ("primary_foil_thickness_mm", "high"), ("primary_cell_size_mm", "low"))
+                if n in b)
+            raise bound(name, end)(
+                f"the cell bounds allow F2 = {f2_min:.4g} N <= {ORDER_RATIO} x F1 = "
+                f"{ORDER_RATIO * f1_max:.4g} N; the secondary stage must be stronger than the "
+                "primary over the whole box")
     else:
         f1_hi = b.get("F1_N", (float(hc.F1),) * 2)[1]
         f2_hi = b.get("F2_N", (float(hc.F2),) * 2)[1]
         if not f2_hi > ORDER_RATIO * f1_hi:
-            key = "F2_N.high" if "F2_N" in b else "F1_N.high"
-            raise ConfigError(f"variables.{key}", (f2_hi if "F2_N" in b else f1_hi),
-                              f"F2 must be able to exceed {ORDER_RATIO} x F1 over the whole "
-                              f"box: F2 max {f2_hi:.4g} N vs F1 max {f1_hi:.4g} N")
+            raise bound("F2_N" if "F2_N" in b else "F1_N", "high")(
+                f"F2 must be able to exceed {ORDER_RATIO} x F1 over the whole box: F2 max "
+                f"{f2_hi:.4g} N vs F1 max {f1_hi:.4g} N")
     if "x_L2_mm" in b and b["x_L2_mm"][0] <= x_l1:
-        raise ConfigError("variables.x_L2_mm.low", b["x_L2_mm"][0] * 1e3,
-                          f"must exceed x_L1 = {x_l1 * 1e3:.4g} mm")
+        raise bound("x_L2_mm", "low")(f"must exceed x_L1 = {x_l1 * 1e3:.4g} mm")
     x2_hi = b.get("x_L2_mm", (float(hc.x_L2),) * 2)[1]
     x4_hi = b.get("x_L4_mm", (float(hc.x_L4),) * 2)[1]
     if not x4_hi > x2_hi + dx3 + ORDER_GAP_M:
-        key = "x_L4_mm.high" if "x_L4_mm" in b else "x_L2_mm.high"
-        raise ConfigError(f"variables.{key}", (x4_hi if "x_L4_mm" in b else x2_hi) * 1e3,
-                          f"x_L4 must be able to exceed x_L2 + (x_L3 - x_L2) + 1 mm over "
-                          f"the whole box (x_L2 max {x2_hi * 1e3:.4g} mm, x_L4 max "
-                          f"{x4_hi * 1e3:.4g} mm)")
-    if x4_hi >= float(leg.L_h0):
-        raise ConfigError("variables.x_L4_mm.high", x4_hi * 1e3,
-                          f"must be shorter than the main strut, L_h0 = "
-                          f"{float(leg.L_h0) * 1e3:.4g} mm")
+        raise bound("x_L4_mm" if "x_L4_mm" in b else "x_L2_mm", "high")(
+            f"x_L4 must be able to exceed x_L2 + (x_L3 - x_L2) + 1 mm over the whole box "
+            f"(x_L2 max {x2_hi * 1e3:.4g} mm, x_L4 max {x4_hi * 1e3:.4g} mm)")
+    if x4_hi >= float(leg.L_h0) and "x_L4_mm" in b:
+        raise bound("x_L4_mm", "high")(f"must be shorter than the main strut, L_h0 = "
+                                       f"{float(leg.L_h0) * 1e3:.4g} mm")
     for c in spec.constraints:  # max stroke <= x_L4 - margin needs x_L4 > margin
         if c.name == "stroke" and not c.threshold < x4_hi:
             raise ConfigError("constraints.stroke.margin_mm", c.threshold * 1e3,
@@ -156,17 +159,17 @@ def check_bounds(spec: DesignSpec, vehicle: Vehicle) -> None:
     if "theta_b_deg" in b:
         lo, hi = b["theta_b_deg"]
         if not (0 < lo and hi < math.pi / 2):
-            raise ConfigError("variables.theta_b_deg", f"[{lo / _DEG:g}, {hi / _DEG:g}]",
+            raise ConfigError("variables.theta_b_deg", [typed["theta_b_deg"]["low"],
+                                                        typed["theta_b_deg"]["high"]],
                               "must lie in (0, 90) deg")
         if not float(leg.L_h0) * math.sin(lo) > 1.05 * float(leg.H2):
-            raise ConfigError("variables.theta_b_deg.low", lo / _DEG,
-                              "L_h0 sin theta_b must exceed 1.05 H2 (the leg triangle "
-                              "degenerates)")
+            raise bound("theta_b_deg", "low")("L_h0 sin theta_b must exceed 1.05 H2 (the leg "
+                                              "triangle degenerates)")
     if "R_m" in b and not b["R_m"][0] > 0:
-        raise ConfigError("variables.R_m.low", b["R_m"][0], "must be > 0")
+        raise bound("R_m", "low")("must be > 0")
     for n in ("k_a_N_per_m", *FORCE_VARS, *CELL_VARS):
         if n in b and not b[n][0] > 0:
-            raise ConfigError(f"variables.{n}.low", b[n][0] / VARIABLES[n].to_si, "must be > 0")
+            raise bound(n, "low")("must be > 0")
 
 
 class DesignProblem:
