@@ -152,7 +152,8 @@ def check_bounds(spec: DesignSpec, vehicle: Vehicle) -> None:
                                        f"{float(leg.L_h0) * 1e3:.4g} mm")
     for c in spec.constraints:  # max stroke <= x_L4 - margin needs x_L4 > margin
         if c.name == "stroke" and not c.threshold < x4_hi:
-            raise ConfigError("constraints.stroke.margin_mm", c.threshold * 1e3,
+            shown = float(f"{c.threshold * 1e3:.12g}")  # as written, not its round trip
+            raise ConfigError("constraints.stroke.margin_mm", shown,
                               f"must be below the largest x_L4 the design can reach "
                               f"({x4_hi * 1e3:.4g} mm): no landing can keep its stroke "
                               "that far from bottoming out")
