@@ -1045,6 +1045,42 @@ def wants_peak_model_term(setting, misfit, names, vehicle: jl.Vehicle) -> bool:
 NESTED_CHI2_RTOL = 1e-6
 
 
+def _nested_term(result: FitResult, nested, *, own: str, other: str, worse: str) -> dict:
+    """A bias term's record: ``nested`` (a fit whose model holds ``result``'s, or the
+    exception it raised) and, where it reached its optimum, each value's shift to it, added
+    in quadrature to ``result.std_errors_total``. Keys: ``chi2_<own>`` and ``chi2_<other>``;
+    ``failed`` (why no term: the exception, non-finite values, or ``nested`` ending worse
+    than ``worse``: its model holds that one, so its optimum fits at least as well, and a fit
+    that ends worse stopped short of it); where added: ``added``, ``params``, ``values``,
+    ``std_errors_hac``, ``shift``, ``term``, ``misfit_<other>``,
+    ``residual_variance_factor_<other>``, ``at_bound_<other>`` and ``wall_s``."""
+    if not isinstance(nested, FitResult):
+        return dict(failed=f"{type(nested).__name__}: {nested}")
+    names = result.names
+    shift = np.array([nested.value(n) for n in names]) - result.values
+    chi2_own = _chi2(result.problem, result.theta)
+    chi2_nested = _chi2(nested.problem, nested.theta)
+    rec = {f"chi2_{own}": chi2_own, f"chi2_{other}": chi2_nested}
+    if not chi2_nested <= chi2_own * (1.0 + NESTED_CHI2_RTOL):
+        rec["failed"] = (f"it ended worse than {worse} (chi2 {chi2_nested:.6g} against "
+                         f"{chi2_own:.6g}), short of its optimum")
+    elif not np.all(np.isfinite(shift)):
+        rec["failed"] = "non-finite values"
+    else:
+        term = np.abs(shift)
+        result.std_errors_total = np.sqrt(result.std_errors_total**2 + term**2)
+        d = nested.diagnostics
+        rec.update({
+            "added": True, "params": list(nested.names),
+            "values": dict(zip(nested.names, nested.values.tolist())),
+            "std_errors_hac": dict(zip(nested.names, nested.std_errors_hac.tolist())),
+            "shift": dict(zip(names, shift.tolist())), "term": dict(zip(names, term.tolist())),
+            f"misfit_{other}": d["misfit"],
+            f"residual_variance_factor_{other}": d["residual_variance_factor"],
+            f"at_bound_{other}": d["at_bound"], "wall_s": nested.wall_s})
+    return rec
+
+
 def add_peak_model_term(result: FitResult, with_peak) -> None:
     """Widen ``result`` (a fit without a crush peak whose residuals show misfit) by the
     missing-peak term: per parameter |value without the peak - value with it|, ``with_peak``
@@ -1060,33 +1096,9 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
               "that fit is added in quadrature to std_error_total")
     rec = dict(reason=reason, added=False, failed=None, params=None, values=None,
                std_errors_total=None, shift=None, term=dict.fromkeys(names, 0.0))
-    if isinstance(with_peak, FitResult):
-        shift = np.array([with_peak.value(n) for n in names]) - result.values
-        chi2_without = _chi2(result.problem, result.theta)
-        chi2_with = _chi2(with_peak.problem, with_peak.theta)
-        if not chi2_with <= chi2_without * (1.0 + NESTED_CHI2_RTOL):
-            # the model with the peak holds the one without it (peak off): its optimum fits
-            # at least as well, so a fit that ends worse stopped short of it
-            rec.update(chi2_without=chi2_without, chi2_with=chi2_with,
-                       failed=f"it ended worse than the fit without a peak (chi2 "
-                              f"{chi2_with:.6g} against {chi2_without:.6g}), short of its "
-                              "optimum")
-        elif np.all(np.isfinite(shift)):
-            term = np.abs(shift)
-            result.std_errors_total = np.sqrt(result.std_errors_total**2 + term**2)
-            d = with_peak.diagnostics
-            rec.update(
-                added=True, params=list(with_peak.names),
-                values=dict(zip(with_peak.names, with_peak.values.tolist())),
-                std_errors_hac=dict(zip(with_peak.names, with_peak.std_errors_hac.tolist())),
-                shift=dict(zip(names, shift.tolist())), term=dict(zip(names, term.tolist())),
-                chi2_without=chi2_without, chi2_with=chi2_with,
-                misfit_with=d["misfit"], at_bound_with=d["at_bound"],
-                wall_s=with_peak.wall_s)
-        else:
-            rec["failed"] = "non-finite values"
-    else:
-        rec["failed"] = f"{type(with_peak).__name__}: {with_peak}"
+    # the model with the peak holds the one without it (peak off)
+    rec.update(_nested_term(result, with_peak, own="without", other="with",
+                            worse="the fit without a peak"))
     result.diagnostics["peak_model_term"] = rec
     mark_interval_bounded(result)
 
@@ -1123,32 +1135,9 @@ def add_fixed_params_term(result: FitResult, wider) -> None:
               "fit is added in quadrature to std_error_total")
     rec = dict(reason=reason, added=False, failed=None, freed=list(freed), params=None,
                values=None, std_errors_hac=None, shift=None, term=dict.fromkeys(names, 0.0))
-    if isinstance(wider, FitResult):
-        shift = np.array([wider.value(n) for n in names]) - result.values
-        chi2_fit = _chi2(result.problem, result.theta)
-        chi2_wider = _chi2(wider.problem, wider.theta)
-        rec.update(chi2_fit=chi2_fit, chi2_wider=chi2_wider)
-        if not chi2_wider <= chi2_fit * (1.0 + NESTED_CHI2_RTOL):
-            # the wider model holds this one (its extra values at the vehicle's): its
-            # optimum fits at least as well, so a fit that ends worse stopped short of it
-            rec["failed"] = (f"it ended worse than the fit with them fixed (chi2 "
-                             f"{chi2_wider:.6g} against {chi2_fit:.6g}), short of its optimum")
-        elif np.all(np.isfinite(shift)):
-            term = np.abs(shift)
-            result.std_errors_total = np.sqrt(result.std_errors_total**2 + term**2)
-            d = wider.diagnostics
-            rec.update(
-                added=True, params=list(wider.names),
-                values=dict(zip(wider.names, wider.values.tolist())),
-                std_errors_hac=dict(zip(wider.names, wider.std_errors_hac.tolist())),
-                shift=dict(zip(names, shift.tolist())), term=dict(zip(names, term.tolist())),
-                misfit_wider=d["misfit"],
-                residual_variance_factor_wider=d["residual_variance_factor"],
-                at_bound_wider=d["at_bound"], wall_s=wider.wall_s)
-        else:
-            rec["failed"] = "non-finite values"
-    else:
-        rec["failed"] = f"{type(wider).__name__}: {wider}"
+    # the wider model holds this one (its extra values at the vehicle's)
+    rec.update(_nested_term(result, wider, own="fit", other="wider",
+                            worse="the fit with them fixed"))
     result.diagnostics["fixed_params_term"] = rec
     mark_interval_bounded(result)
 
