@@ -55,9 +55,10 @@ def with_unfinished(p: dict, flags_unfinished) -> dict:
     """``p`` (a ``proportion`` over the successful landings) with ``all_landings``: where the
     probability over them and the unfinished ones lies (``flags_unfinished``: the flag each
     unfinished landing carries so far; one it has may stay, one it lacks may still come).
-    Counted apart, the unfinished landings would bias it low: they are those still in an
-    impact or able to tip. ``range`` [-] counts them as far as they are, then as all
-    flagged; ``ci95_wilson`` widens it by the Wilson intervals of both ends."""
+    The unfinished landings are no sample of all (those still in an impact or able to tip),
+    so the probability over the finished ones alone is biased, either way. ``range`` [-]
+    counts them as flagged as far as they are, then as all flagged; ``ci95_wilson`` widens
+    it by the Wilson intervals of both ends."""
     if p.get("modelled") is False or p["count"] is None:
         return p
     u = int(np.size(flags_unfinished))
