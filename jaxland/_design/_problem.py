@@ -317,10 +317,12 @@ class DesignProblem:
         the verification runs the design it returns."""
         limit, at = self.stiffest_step(method)
         if dt > limit:
-            where = ", ".join(f"{n} = {v:.4g}" for n, v in at.items())
+            where = ("the stiffest design inside the bounds ("
+                     + ", ".join(f"{n} = {v:.4g}" for n, v in at.items())
+                     + "): lower it, or narrow the bounds" if at else
+                     "every design inside the bounds (no variable moves it): lower it")
             raise ConfigError(key, dt, f"exceeds the stability limit {limit:.3g} s of "
-                              f"{method} for the stiffest design inside the bounds ({where}): "
-                              "lower it, or narrow the bounds")
+                              f"{method} for {where}")
 
     # --- outcomes
     @property
