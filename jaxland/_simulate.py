@@ -37,6 +37,7 @@ from ._solvers import (
     stable_step,
     step_limit_reached,
 )
+from ._solvers._base import MAX_STEPS
 
 __all__ = ["landing", "landings", "simulate", "Landing", "impacts_from_events", "choose_model",
            "get_model"]
@@ -317,6 +318,30 @@ def _step_below(limit: float) -> float:
     return DEFAULT_DT if safe >= DEFAULT_DT else 1e-4 / math.ceil(1e-4 / safe)
 
 
+def _refuse_stiffness(vehicle: Vehicle, dt: float, t_end: float) -> None:
+    """Refuse a vehicle whose own stability limit makes the default step take more than
+    ``MAX_STEPS`` steps, naming the parameter furthest from the paper vehicle's among its
+    stiffest spring and its lightest mass (a stiffness of 1e30 N/m, a foot of 1e-300 kg)."""
+    paper = paper_vehicle()
+    hc, leg, gr = vehicle.honeycomb, vehicle.leg, vehicle.ground
+    springs = {"honeycomb.k_b1_N_per_m": (hc.k_b1, paper.honeycomb.k_b1),
+               "honeycomb.k_b3_N_per_m": (hc.k_b3, paper.honeycomb.k_b3),
+               "leg.k_topout_N_per_m": (leg.k_topout, paper.leg.k_topout),
+               "leg.k_a_N_per_m": (leg.k_a, paper.leg.k_a),
+               "ground.k_N_per_m": (gr.k, paper.ground.k),
+               "ground.k_tan_N_per_m": (gr.k_tan, paper.ground.k_tan)}
+    key = max(springs, key=lambda k: float(springs[k][0]))
+    value, usual = (float(x) for x in springs[key])
+    mass = float(vehicle.m_foot)
+    if float(paper.m_foot) / mass > value / usual:
+        key, value = "body.m_foot_kg", mass
+    raise ConfigError(key, value, f"makes the vehicle's stable step about "
+                      f"{dt / STEP_SAFETY:.3g} s, so "
+                      f"t_end = {t_end:g} s would take {t_end / dt:.3g} steps (at most "
+                      f"{MAX_STEPS:.0e}): its stiffest spring on its lightest mass is no "
+                      "gear's; check the vehicle's stiffnesses and masses")
+
+
 def check_step(solver: Solver, vehicle: Vehicle, model: AbstractModel) -> None:
     """Refuse a step above the method's a-priori stability limit for this vehicle, naming it."""
     method = solver.method
@@ -379,6 +404,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
+    if chosen and solver.n_steps > MAX_STEPS:
+        _refuse_stiffness(vehicle, dt, t_end)
     if not isinstance(method, Tsit5):
         check_step(solver, vehicle, mod)
     solver.validate()

@@ -136,6 +136,24 @@ def test_a_config_that_overflows_is_named_not_blamed_on_the_step(tmp_path, capsy
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("text,line", [
+    ("[ground]\nk_N_per_m = 1e30\n", "ground.k_N_per_m = 1e+30: makes the vehicle's stable "
+                                      "step about 1.41e-15 s, so t_end = 0.01 s would take"),
+    ("[leg]\nk_a_N_per_m = 1e25\n", "leg.k_a_N_per_m = 1e+25: makes the vehicle's stable"),
+])
+def test_a_stiffness_no_gear_has_is_named_not_blamed_on_the_step(tmp_path, capsys, text,
+                                                                line):
+    """Without --dt the step follows the vehicle's stability limit; a spring of 1e30 N/m
+    passes the config's rules (> 0) but makes that step absurd: the refusal names the
+    spring, not the solver.dt the user never gave."""
+    cfg = tmp_path / "stiff.toml"
+    cfg.write_text(text)
+    assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--no-plots",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"jaxland: error: {line}") and err.count("\n") == 1, err
+
+
 def test_simulate_refuses_bad_config_file(tmp_path, capsys):
     cfg = tmp_path / "bad.toml"
     cfg.write_text("[ground]\ngamma = 1.5\n")

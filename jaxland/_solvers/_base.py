@@ -24,6 +24,7 @@ from .._models import AbstractModel, Oscillator, Smoothing
 SAVE_DT_MIN = 1e-4  # s: the default output interval is the smallest multiple of dt above this
 T_END_MAX = 100.0  # s, longest simulated duration
 SAVES_MAX = 1_000_000  # most saved samples of one landing (a trajectory of ~40 columns)
+MAX_STEPS = 5e8  # steps a run may take (t_end / dt)
 N_EVENTS = 256  # default capacity of the contact on/off log (later changes are counted)
 
 
@@ -229,8 +230,8 @@ class Solver(eqx.Module):
             raise ConfigError("solver.save_dt", self.save_dt,
                               f"gives {self.n_saves} saved samples over t_end = {self.t_end:g} s;"
                               f" at most {SAVES_MAX:.0e}: raise save_dt")
-        if self.n_steps > 5e8:
-            raise ConfigError("solver.dt", self.dt, "t_end/dt must be <= 5e8 steps")
+        if self.n_steps > MAX_STEPS:
+            raise ConfigError("solver.dt", self.dt, f"t_end/dt must be <= {MAX_STEPS:.0e} steps")
         if self.early_stop or self.ledger_every > 1:
             from ._names import FIXED_STEP_METHODS
 
