@@ -66,6 +66,7 @@ def test_the_drop_spread_covers_block_to_block_scatter(fits):
     np.testing.assert_allclose(res.std_errors_total[ok],
                                np.sqrt(hac**2 + ch**2 + drop**2)[ok], rtol=1e-12)
     i = res.names.index("F1")
+    assert res.value("F1") < fits["f1_truths"].min()
     miss = abs(res.value("F1") - fits["f1_truths"].mean())
     assert miss <= 2.0 * res.std_errors_total[i]
     assert miss > 2.5 * np.hypot(hac[i], ch[i])  # the channel spread alone misses it
