@@ -286,8 +286,9 @@ def _cmd_fit(args) -> int:
     print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
-          + ("  MISFIT: trust the HAC standard errors widened by the channel spread (total)"
-             if diag["misfit"] else ""))
+          + ("  MISFIT: trust the HAC standard errors widened by the channel spread"
+             + (" and the drop spread" if diag.get("drop_spread") is not None else "")
+             + " (total)" if diag["misfit"] else ""))
     trusted = _INTERVAL_TEXT[diag["trust"]]
     pm = diag.get("peak_model_term")
     fp = diag.get("fixed_params_term")

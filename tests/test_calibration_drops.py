@@ -123,3 +123,40 @@ def test_a_failed_drop_refit_leaves_no_trusted_interval(monkeypatch):
                for why in res.diagnostics["interval_not_bounded"])
     assert any(m.startswith("NO TRUSTED INTERVAL") for m in warned)
     assert "NO TRUSTED INTERVAL" in res.to_toml().split("\n[")[0]
+
+
+def test_the_cli_reports_the_drop_spread(tmp_path, capsys):
+    """`jaxland fit` of the scattered blocks' records: the interval line names the drop spread,
+    a `drop spread:` line names the drop whose absence moves the values most, and the misfit
+    warning says the drops disagree (fails when the CLI leaves them out)."""
+    import argparse
+    import json
+
+    from calibration.cli import add_subcommands
+
+    truth = vr.truth_vehicle()
+    f1 = float(get_values(truth, ("F1",))[0])
+    (tmp_path / "nominal.toml").write_text(jl.vehicle_to_toml(jl.paper_vehicle()))
+    files = []
+    for i, (h, s) in enumerate(zip(HEIGHTS, SCATTER)):
+        t, ch, _ = vr.record(set_values(truth, ("F1",), np.array([f1 * s])), h, seed=11 + i,
+                             crush_peak=0.0, duration_s=0.3)
+        jl.atomic_write_csv(tmp_path / f"block{i}.csv", {"time_s": t, **ch}, digits=7)
+        (tmp_path / f"block{i}.toml").write_text(
+            f'[drop_test]\ndata_file = "block{i}.csv"\ndrop_height_m = {h}\n'
+            f'sample_rate_Hz = {vr.SAMPLE_RATE_HZ}\nvehicle_config = "nominal.toml"\n')
+        files.append(str(tmp_path / f"block{i}.toml"))
+    p = argparse.ArgumentParser(prog="jaxland")
+    add_subcommands(p.add_subparsers(dest="command", required=True))
+    args = p.parse_args(["fit", *files, "--windows", "0.01,0.03", "--refine-window-s", "0.06",
+                         "--no-peak-model-term", "--out", str(tmp_path / "fit"), "--quiet",
+                         "--no-plots"])
+    assert args.func(args) == 0
+    cap = capsys.readouterr()
+    rep = json.loads((tmp_path / "fit" / "fit_report.json").read_text())
+    big = rep["misfit"]["drop_spread"]["largest"]
+    assert "interval reported: total (std_error_total) = HAC (std_error_hac) + channel spread " \
+           "+ drop spread" in cap.out
+    assert f"  drop spread: the values refitted without each drop in turn; without " \
+           f"{big['drop']} they move most ({big['param']} by" in cap.out
+    assert "the drops disagree" in cap.err
