@@ -72,9 +72,19 @@ benchmarks/results/bench_fit.json):
    every channel alike, as a missing peak does, and the fitted values take it up; the
    wider model is the nearest that can hold it (docs/calibration.md, item 13).
 11. **No trusted interval** (``mark_interval_bounded``): where the misfit calls for the
-   missing-peak or the fixed-parameter term and its refit failed, the total leaves that
-   bias out, and ``diagnostics["interval_bounded"]`` is False with the reason; the report,
-   the fitted vehicle's header and the CLI say so.
+   missing-peak or the fixed-parameter term or the drop spread and its refit failed, the
+   total leaves that bias out, and ``diagnostics["interval_bounded"]`` is False with the
+   reason; the report, the fitted vehicle's header and the CLI say so.
+12. **Drop spread** (``drop_spread``), where the misfit is warned and the fit has two or more
+   drops: the final stage refitted from the optimum once per drop left out (its touchdown
+   coordinate held), on the channel spread's pool and compiled program. Drops of one
+   campaign differ in what the model holds common to them (each honeycomb block crushes at
+   its own plateau), and a joint fit's values then sit where no drop's truth is; the channel
+   spread leaves out a quantity of every drop alike and does not see it. Each value's
+   largest shift is added in quadrature to ``std_errors_total`` (``misfit.drop_spread``);
+   where it exceeds the channel spread of some value the misfit warning says the drops
+   disagree. A failed drop refit leaves the interval not bounded (item 11): that bias is
+   then covered by nothing else.
 """
 
 from __future__ import annotations
@@ -172,7 +182,7 @@ class IdentifiabilityWarning(UserWarning):
 
 class MisfitWarning(UserWarning):
     """The residuals contradict the model (too large or autocorrelated): the classical standard
-    errors are too small; use the HAC ones widened by the channel spread
+    errors are too small; use the HAC ones widened by the channel and drop spreads
     (``FitResult.std_errors_total``)."""
 
 
@@ -282,7 +292,9 @@ class FitResult:
                                      "(holds under misfit: autocorrelated residuals)",
                        std_error_total="same unit as the value; the trusted standard error "
                                        "and, under misfit, the channel spread "
-                                       "(misfit.channel_spread), with a crush peak in the "
+                                       "(misfit.channel_spread) and, of several drops, the "
+                                       "drop spread (misfit.drop_spread.spread), with a "
+                                       "crush peak in the "
                                        "fit the peak-shape term (misfit.model_form.spread), "
                                        "and under misfit without a crush peak in the model "
                                        "the shift to the model with one "
@@ -627,6 +639,67 @@ def peak_location(problem: CalibrationProblem, theta, res, jac) -> dict | None:
                 motion_channels=[c for c, m in zip(problem.channels, motion) if m])
 
 
+def _leave_out(problem: CalibrationProblem, theta, subs: dict, huber_c, max_iter: int, pool):
+    """Start the refits of ``problem``'s final window from ``theta``, one per entry of
+    ``subs`` (label: ``(channels, drops, free)``, the ``windowed`` arguments and the
+    coordinates that move; Levenberg-Marquardt, same Huber threshold, same compiled
+    functions), on ``pool`` (None: one after the other, here). Returns a function that waits
+    for them: ``{label: shift of each value [SI], or None where that refit failed}``."""
+    values = problem.values(theta)
+
+    def without(label):
+        channels, drops, free = subs[label]
+        sub = problem.windowed(problem.active_window_s, channels=channels,
+                               drops=drops).robust(huber_c)
+        try:
+            th, _, _ = levenberg_marquardt(sub, theta, max_iter=max_iter, ftol=FTOL, free=free)
+        except (jl.SimulationError, np.linalg.LinAlgError):
+            return None
+        shift = sub.values(th) - values
+        return shift if np.all(np.isfinite(shift)) else None
+
+    if pool is None:
+        done = {g: without(g) for g in subs}
+        return lambda: done
+    futures = {g: pool.submit(without, g) for g in subs}
+    return lambda: {g: f.result() for g, f in futures.items()}
+
+
+def _largest(problem: CalibrationProblem, theta, shifts: dict) -> np.ndarray:
+    """The largest absolute shift of each value over ``shifts`` (None: a failed refit, left
+    out); NaN where every refit failed, zeros where there were none."""
+    values = problem.values(theta)
+    if not shifts:
+        return np.zeros_like(values)
+    done = [v for v in shifts.values() if v is not None]
+    return np.max(np.abs(done), axis=0) if done else np.full_like(values, np.nan)
+
+
+def channel_subs(problem: CalibrationProblem) -> dict:
+    """The channel spread's refits (``_leave_out``): one per base channel, without every leg
+    and drop of it; none with fewer than two base channels."""
+    groups = list(dict.fromkeys(base_channel(c) for c in problem.channels))
+    if len(groups) < 2:
+        return {}
+    return {g: ([c for c in problem.channels if base_channel(c) != g], None, None)
+            for g in groups}
+
+
+def drop_subs(problem: CalibrationProblem) -> dict:
+    """The drop spread's refits (``_leave_out``): one per drop, without it (its touchdown
+    coordinate, which no residual then moves, held); none with fewer than two drops."""
+    n = len(problem.drops)
+    if n < 2:
+        return {}
+    out = {}
+    for i, d in enumerate(problem.drops):
+        free = np.ones(problem.n_theta, bool)
+        if problem.fit_touchdown:
+            free[problem.n_z + i] = False
+        out[d.name] = (None, [k for k in range(n) if k != i], free)
+    return out
+
+
 def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: int = 60,
                    pool=None):
     """How far the fitted values move when one measured quantity is left out: for each base
@@ -636,30 +709,18 @@ def channel_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: i
     and per channel the shifts (None where that refit failed). Fewer than two base channels:
     no spread (zeros). ``pool``: an executor the refits run on (default: one after the other
     here)."""
-    groups = list(dict.fromkeys(base_channel(c) for c in problem.channels))
-    values = problem.values(theta)
-    shifts = {}
-    if len(groups) < 2:
-        return np.zeros_like(values), shifts
+    shifts = _leave_out(problem, theta, channel_subs(problem), huber_c, max_iter, pool)()
+    return _largest(problem, theta, shifts), shifts
 
-    def without(g):
-        keep = [c for c in problem.channels if base_channel(c) != g]
-        sub = problem.windowed(problem.active_window_s, channels=keep).robust(huber_c)
-        try:
-            th, _, _ = levenberg_marquardt(sub, theta, max_iter=max_iter, ftol=FTOL)
-        except (jl.SimulationError, np.linalg.LinAlgError):
-            return None
-        shift = sub.values(th) - values
-        return shift if np.all(np.isfinite(shift)) else None
 
-    if pool is None:
-        shifts = {g: without(g) for g in groups}
-    else:
-        futures = {g: pool.submit(without, g) for g in groups}
-        shifts = {g: f.result() for g, f in futures.items()}
-    done = [v for v in shifts.values() if v is not None]
-    spread = np.max(np.abs(done), axis=0) if done else np.full_like(values, np.nan)
-    return spread, shifts
+def drop_spread(problem: CalibrationProblem, theta, huber_c=None, max_iter: int = 60,
+                pool=None):
+    """How far the fitted values move when one drop is left out: for each drop, the final
+    window refitted from ``theta`` without it (as ``channel_spread``). Returns ``(spread,
+    shifts)``: the largest absolute shift of each parameter [SI] over the drops left out, and
+    per drop the shifts (None where that refit failed). A single drop: no spread (zeros)."""
+    shifts = _leave_out(problem, theta, drop_subs(problem), huber_c, max_iter, pool)()
+    return _largest(problem, theta, shifts), shifts
 
 
 def check_peak_form(names, peak_form: str | None) -> None:
@@ -1145,7 +1206,52 @@ def add_fixed_params_term(result: FitResult, wider) -> None:
 # the bias terms a misfit calls for, by their diagnostics key: (name in words, what it covers)
 BIAS_TERMS = (("peak_model_term", "missing-peak term", "how far a crush peak moves the values"),
               ("fixed_params_term", "fixed-parameter term",
-               "how far the parameters left fixed move the values"))
+               "how far the parameters left fixed move the values"),
+              ("drop_spread", "drop spread", "how far the drops pull the values apart"))
+
+
+def drop_spread_record(names, shifts: dict, spread: np.ndarray, channel: np.ndarray,
+                       se: np.ndarray) -> dict:
+    """The drop spread's record (``misfit.drop_spread``): per drop left out the values'
+    shifts (None: that refit failed), ``spread`` (the largest absolute shift of each value
+    over the drops that refitted, added in quadrature to ``std_errors_total``; 0 where every
+    refit failed), ``largest`` (the drop whose absence moves a value most in units of ``se``,
+    the trusted errors: drop, parameter, shift, z), ``dominates`` (the parameters whose drop
+    spread exceeds their channel spread ``channel``: then the drops disagree more than the
+    channels) and ``failed`` (why the spread is incomplete, or None), ``failed_drops``."""
+    spread = np.nan_to_num(spread, nan=0.0)
+    failed = [d for d, v in shifts.items() if v is None]
+    best = None
+    for d, v in shifts.items():
+        for i, n in enumerate(names):
+            if v is None:
+                continue
+            z = abs(v[i]) / se[i] if se[i] > 0 else 0.0
+            if math.isfinite(z) and (best is None or z > best["z"]):
+                best = dict(drop=d, param=n, shift=float(v[i]), z=float(z))
+    return dict(
+        shifts={d: None if v is None else dict(zip(names, v.tolist())) for d, v in shifts.items()},
+        spread=dict(zip(names, spread.tolist())), largest=best,
+        dominates=[n for n, a, b in zip(names, spread, np.nan_to_num(channel)) if a > b],
+        failed=(f"the refit without the drop {', '.join(failed)} failed" if failed else None),
+        failed_drops=failed)
+
+
+def _drops_disagree(rec: dict) -> str:
+    """'; the drops disagree: ...' where the drop spread exceeds the channel spread of some
+    parameter (``rec["dominates"]``), naming the drop whose absence moves a value most; ''
+    otherwise."""
+    best = rec["largest"]
+    if not rec["dominates"] or best is None:
+        return ""
+    n = best["param"]
+    unit = "" if PARAMS[n][1] == "1" else f" {PARAMS[n][1]}"
+    return (f"; the drops disagree (the values move more when one drop is left out than when "
+            f"one channel is, for {', '.join(rec['dominates'])}: the drops' articles or "
+            f"conditions differ, e.g. block-to-block scatter of the honeycomb), most without "
+            f"{best['drop']}: {n} moves by {best['shift']:+.3g}{unit} ({best['z']:.2g} x its "
+            "HAC standard error); std_error_total holds the drop spread "
+            "(misfit.drop_spread)")
 
 
 def mark_interval_bounded(result: FitResult) -> None:
@@ -1628,8 +1734,13 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                 channels=channels, peak_form=peak_form, model_form=False,
                 peak_model_term=False, fixed_params_term=False, peak_site=peak_site,
                 progress=tagged_w, _inner=True)
+        # the drop spread's refits queue on the same pool, beside the channel spread's
+        spreads = bool(unc["misfit"]) and not _inner
+        drops_done = (_leave_out(final, theta, drop_subs(final), huber_c, max_iter, pool)
+                      if spreads and len(drops) > 1 else None)
         spread, shifts = (channel_spread(final, theta, huber_c, max_iter, pool)
-                          if unc["misfit"] and not _inner else (np.zeros_like(values), {}))
+                          if spreads else (np.zeros_like(values), {}))
+        drop_shifts = drops_done() if drops_done is not None else None
         spread_failed = [g for g, v in shifts.items() if v is None]
         if spread_failed:
             spread = np.nan_to_num(spread, nan=0.0)  # all failed: the total is the trusted error
@@ -1682,6 +1793,15 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             wider = err
     form_term = (np.array([mform["spread"][n] for n in names]) if mform is not None
                  else np.zeros_like(values))
+    drops_rec, drops_term = None, np.zeros_like(values)
+    if drop_shifts is not None:
+        drops_rec = drop_spread_record(names, drop_shifts, _largest(final, theta, drop_shifts),
+                                       spread, trusted)
+        drops_term = np.array([drops_rec["spread"][n] for n in names])
+        if drops_rec["failed"]:
+            warn(f"the fit without the drop {', '.join(drops_rec['failed_drops'])} failed, so "
+                 "std_error_total leaves out how far that drop pulls the fit "
+                 "(misfit.drop_spread.failed in the report)", MisfitWarning, stacklevel=2)
     if unc["misfit"]:
         worst = "; ".join(
             f"{w['drop']}: {w['channel']} {_window_text(*w['window_s'])} "
@@ -1690,6 +1810,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
              + ". The classical standard errors are too small: trust the HAC ones "
              "(std_error_hac), widened by how far the values move when one channel "
              f"is left out (std_error_total){_disagreement(names, shifts, trusted)}"
+             + (_drops_disagree(drops_rec) if drops_rec is not None else "")
              + ("; the model has no crush peak, so the fit was repeated with one, and where "
                 "that fit succeeded each value's shift to it is in std_error_total too "
                 "(misfit.peak_model_term says whether it did; --compare-models says whether "
@@ -1730,7 +1851,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         touchdown_std_errors_s=unc["t_se"], residual_rms=final.channel_rms(theta),
         sigma2=unc["sigma2"], n_obs=final.n_obs, dof=unc["dof"],
         std_errors_hac=unc["se_hac"], covariance_hac=unc["cov_hac"],
-        std_errors_total=np.sqrt(trusted**2 + spread**2 + form_term**2),
+        std_errors_total=np.sqrt(trusted**2 + spread**2 + drops_term**2 + form_term**2),
         diagnostics=dict(residual_variance_factor=unc["sigma2"], residual_lag1_autocorr=unc[
             "rho1"], hac_bandwidth_samples=unc["hac_lag"], misfit=unc["misfit"],
             worst_window=unc["where"], at_bound=list(bound),
@@ -1742,6 +1863,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             channel_spread={g: None if v is None else dict(zip(names, v.tolist()))
                             for g, v in shifts.items()},
             channel_spread_failed=spread_failed,
+            **({} if drops_rec is None else {"drop_spread": drops_rec}),
             noise_free_record=bool(unc.get("noise_free", False)),
             peak_location=where_peak, peak_site_check=site_check),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
@@ -1765,6 +1887,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         add_peak_model_term(result, with_peak)
     if wider is not None:
         add_fixed_params_term(result, wider)
+    if drops_rec is not None:
+        mark_interval_bounded(result)
     if not result.diagnostics["interval_bounded"]:
         warn("NO TRUSTED INTERVAL: " + "; ".join(result.diagnostics["interval_not_bounded"])
              + ". The misfit calls for that term: without it the reported interval is the "

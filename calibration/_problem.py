@@ -444,10 +444,11 @@ class CalibrationProblem:
 
         self._res, self._jac, self._embed = res, jac, embed
 
-    def windowed(self, window_s: float, channels=None) -> CalibrationProblem:
+    def windowed(self, window_s: float, channels=None, drops=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
         ``window_s`` after touchdown (<= the problem's ``window_s``), and only ``channels``
-        (default: all of the problem's)."""
+        (default: all of the problem's) of the drops at the indices ``drops`` (default: all;
+        a drop left out keeps its touchdown coordinate, which no residual then moves)."""
         if not 0.0 < window_s <= self.window_s + 1e-12:
             raise jl.ConfigError("window_s", window_s,
                                  f"must be in (0, {self.window_s:g}] s (the problem's window)")
@@ -456,6 +457,9 @@ class CalibrationProblem:
         if channels is not None:
             keep = np.array([c in channels for c in self.channels], dtype=float)
             new.mask = new.mask * keep[None, :, None]
+        if drops is not None:
+            keep = np.array([i in drops for i in range(len(self.drops))], dtype=float)
+            new.mask = new.mask * keep[:, None, None]
         new.n_obs = int(new.mask.sum())
         new.active_window_s = float(window_s)
         return new

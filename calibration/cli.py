@@ -286,14 +286,16 @@ def _cmd_fit(args) -> int:
     print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
-          + ("  MISFIT: trust the HAC standard errors widened by the channel spread (total)"
-             if diag["misfit"] else ""))
+          + ("  MISFIT: trust the HAC standard errors widened by the channel spread"
+             + (" and the drop spread" if diag.get("drop_spread") is not None else "")
+             + " (total)" if diag["misfit"] else ""))
     trusted = _INTERVAL_TEXT[diag["trust"]]
     pm = diag.get("peak_model_term")
     fp = diag.get("fixed_params_term")
     print("  interval reported: " + (
         f"total (std_error_total) = {trusted}"
         + (" + channel spread" if diag["misfit"] else "")
+        + (" + drop spread" if diag.get("drop_spread") is not None else "")
         + (" + peak-shape term" if diag["model_form"] is not None else "")
         + (" + missing-peak term" if pm is not None and pm["added"] else "")
         + (" + fixed-parameter term" if fp is not None and fp["added"] else "")
@@ -323,6 +325,18 @@ def _cmd_fit(args) -> int:
                   "determines them)" if fp["added"] else
                   f"and the fit with them freed failed ({fp['failed']}), so the total leaves "
                   "out how far they move the values"))
+    ds = diag.get("drop_spread")
+    if ds is not None:
+        big = ds["largest"]
+        print("  drop spread: the values refitted without each drop in turn"
+              + (f"; without {big['drop']} they move most ({big['param']} by "
+                 f"{big['shift']:+.4g} {PARAMS[big['param']][1]}, {big['z']:.2g} x its "
+                 "HAC standard error)" if big is not None else "")
+              + (f"; the drops disagree more than the channels on {', '.join(ds['dominates'])}"
+                 if ds["dominates"] else "")
+              + (f"; {ds['failed']}, so the total leaves out how far that drop pulls the fit"
+                 if ds["failed"] else "")
+              + "; each value's largest shift is added to the total")
     if diag.get("interval_bounded") is False:
         print("  NO TRUSTED INTERVAL: " + "; ".join(diag["interval_not_bounded"])
               + ". The misfit calls for it: the +/- below is the scatter about a biased fit, "
