@@ -254,7 +254,7 @@ MUTATIONS = [
       ("tests/test_calibration_honesty.py::"
        "test_a_missing_peak_widens_the_total_to_the_fit_with_the_peak",), ("calibration",)),
     M("worse_peak_fit_used", "a refit with the peak that ends worse still adds its shift",
-      "if not chi2_with <= chi2_without * (1.0 + NESTED_CHI2_RTOL):", "if False:",
+      "if not chi2_nested <= chi2_own * (1.0 + NESTED_CHI2_RTOL):", "if False:",
       ("tests/test_calibration_honesty.py::"
        "test_a_fit_with_the_peak_that_ends_worse_than_without_it_is_named_failed",),
       ("calibration",)),
