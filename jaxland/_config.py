@@ -219,6 +219,15 @@ def _rule_ok(rule: str, val: np.ndarray) -> np.ndarray | None:
     return None if check is None else check(val)  # None: a cross-field rule, checked below
 
 
+def vehicle_fields(veh: Vehicle):
+    """``(section, module, field)`` of every documented parameter of ``veh``, in TOML order:
+    the body's, then the leg's, the honeycomb's and the ground's."""
+    for section, mod in (("body", veh), ("leg", veh.leg), ("honeycomb", veh.honeycomb),
+                         ("ground", veh.ground)):
+        for f in field_info(type(mod)):
+            yield section, mod, f
+
+
 def field_ok(f, val, xp=np):
     """Per element, whether a value of the parameter field ``f`` keeps its own rule: finite,
     and within the rule or at the extension's "off" value (the one rule for concrete values,
@@ -249,15 +258,13 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     Raises ``ConfigError`` naming the TOML key, the value (in TOML units) and the rule. Leaves
     that are tracers (inside jit/grad) are skipped; batched leaves are checked element-wise.
     """
-    for section, mod in (("body", veh), ("leg", veh.leg), ("honeycomb", veh.honeycomb),
-                         ("ground", veh.ground)):
-        for f in field_info(type(mod)):
-            val = concrete(getattr(mod, f.name))
-            if val is None:
-                continue
-            bad = ~field_ok(f, val)
-            if np.any(bad):
-                _fail(section, f, val[bad].flat[0], f.metadata["rule"])
+    for section, mod, f in vehicle_fields(veh):
+        val = concrete(getattr(mod, f.name))
+        if val is None:
+            continue
+        bad = ~field_ok(f, val)
+        if np.any(bad):
+            _fail(section, f, val[bad].flat[0], f.metadata["rule"])
     if fields_only:
         return veh
     hc = veh.honeycomb
@@ -309,11 +316,9 @@ def follows_rules(veh: Vehicle):
     import jax.numpy as jnp
 
     ok = jnp.ones((), bool)
-    for mod in (veh, veh.leg, veh.honeycomb, veh.ground):
-        for f in field_info(type(mod)):
-            val = getattr(mod, f.name)
-            if val is None:
-                continue
+    for _, mod, f in vehicle_fields(veh):
+        val = getattr(mod, f.name)
+        if val is not None:
             ok = ok & jnp.all(field_ok(f, jnp.asarray(val), jnp))
     return ok
 

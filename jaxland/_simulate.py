@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import __version__
-from ._config import paper_vehicle, validate_vehicle
+from ._config import paper_vehicle, validate_vehicle, vehicle_fields
 from ._errors import ConfigError, SimulationError
 from ._files import atomic_write_csv, atomic_write_text, flat_columns, json_text
 from ._models import MODELS, AbstractModel
@@ -320,23 +320,22 @@ def _step_below(limit: float) -> float:
 
 def _refuse_stiffness(vehicle: Vehicle, dt: float, t_end: float) -> None:
     """Refuse a vehicle whose own stability limit makes the default step take more than
-    ``MAX_STEPS`` steps, naming the parameter furthest from the paper vehicle's among its
-    stiffest spring and its lightest mass (a stiffness of 1e30 N/m, a foot of 1e-300 kg)."""
-    paper = paper_vehicle()
-    hc, leg, gr = vehicle.honeycomb, vehicle.leg, vehicle.ground
-    springs = {"honeycomb.k_b1_N_per_m": (hc.k_b1, paper.honeycomb.k_b1),
-               "honeycomb.k_b3_N_per_m": (hc.k_b3, paper.honeycomb.k_b3),
-               "leg.k_topout_N_per_m": (leg.k_topout, paper.leg.k_topout),
-               "leg.k_a_N_per_m": (leg.k_a, paper.leg.k_a),
-               "ground.k_N_per_m": (gr.k, paper.ground.k),
-               "ground.k_tan_N_per_m": (gr.k_tan, paper.ground.k_tan)}
-    key = max(springs, key=lambda k: float(springs[k][0]))
-    value, usual = (float(x) for x in springs[key])
-    mass = float(vehicle.m_foot)
-    if float(paper.m_foot) / mass > value / usual:
-        key, value = "body.m_foot_kg", mass
-    raise ConfigError(key, value, f"makes the vehicle's stable step about "
-                      f"{dt / STEP_SAFETY:.3g} s, so "
+    ``MAX_STEPS`` steps, naming the stiffness (N/m) or mass (kg) furthest from the paper
+    vehicle's (a stiffness of 1e30 N/m, a foot of 1e-300 kg)."""
+    usual = {(s, f.name): float(getattr(m, f.name)) for s, m, f in
+             vehicle_fields(paper_vehicle()) if f.metadata["unit"] in ("N/m", "kg")}
+
+    def off_by(section, mod, f) -> float:  # how many times stiffer, or lighter
+        unit, val = f.metadata["unit"], np.asarray(getattr(mod, f.name), dtype=float)
+        if unit == "N/m":
+            return float(np.max(val)) / usual[section, f.name]
+        return usual[section, f.name] / float(np.min(val)) if unit == "kg" else 0.0
+
+    section, mod, f = max(vehicle_fields(vehicle), key=lambda t: off_by(*t))
+    val = np.asarray(getattr(mod, f.name), dtype=float)
+    value = float(np.max(val) if f.metadata["unit"] == "N/m" else np.min(val))
+    raise ConfigError(f"{section}.{f.metadata['toml']}", value, f"makes the vehicle's stable "
+                      f"step about {dt / STEP_SAFETY:.3g} s, so "
                       f"t_end = {t_end:g} s would take {t_end / dt:.3g} steps (at most "
                       f"{MAX_STEPS:.0e}): its stiffest spring on its lightest mass is no "
                       "gear's; check the vehicle's stiffnesses and masses")
