@@ -861,6 +861,22 @@ def article_differences(declared: jl.Vehicle, given: jl.Vehicle) -> list[tuple]:
     return out
 
 
+def check_same_article(declared: jl.Vehicle, given: jl.Vehicle, where: str,
+                       given_name: str = "vehicle") -> None:
+    """Refuse ``given`` (named ``given_name``) in place of a drop's ``vehicle_config``
+    (``declared``, named ``where``) where it describes another test article
+    (``article_differences``), naming the first key that differs and both values."""
+    diff = article_differences(declared, given)
+    if diff:
+        key, was, now = diff[0]
+        more = f" (and {len(diff) - 1} more key(s))" if len(diff) > 1 else ""
+        raise _err(f"{where}: {key}", was,
+                   f"differs from {given_name}'s {now!r}{more}: the drop was made with the "
+                   f"article its vehicle_config describes, and {given_name} may change only "
+                   f"the parameters jaxland fit calibrates; give a {given_name.split()[0]} of "
+                   "that article, or correct the drop's vehicle_config")
+
+
 def load_drop_test(path, *, vehicle: jl.Vehicle | None = None,
                    vehicle_name: str = "vehicle") -> DropTest:
     """Load one drop test from its metadata TOML (or its CSV, with the TOML beside it of the
@@ -868,7 +884,7 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None,
 
     ``vehicle`` overrides the metadata's ``vehicle_config`` in the parameters ``jaxland fit``
     calibrates; where the metadata names a ``vehicle_config``, ``vehicle`` must describe that
-    test article in every other key (``article_differences``), or the drop is refused naming
+    test article in every other key (``check_same_article``), or the drop is refused naming
     the ``vehicle_config``, the key, both values and ``vehicle_name`` (the CLI's ``--config
     PATH``). Raises ``jaxland.ConfigError`` naming the field (file, column or key), the value
     and the rule.
@@ -903,16 +919,8 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None,
     if vehicle is None:
         vehicle = jl.paper_vehicle() if declared is None else declared
     elif declared is not None:
-        diff = article_differences(declared, vehicle)
-        if diff:
-            key, was, now = diff[0]
-            more = f" (and {len(diff) - 1} more key(s))" if len(diff) > 1 else ""
-            raise _err(f"{meta_path.name}: drop_test.vehicle_config {cfg}: {key}", was,
-                       f"differs from {vehicle_name}'s {now!r}{more}: the drop was made with "
-                       f"the article its vehicle_config describes, and {vehicle_name} may "
-                       "change only the parameters jaxland fit calibrates; give a "
-                       f"{vehicle_name.split()[0]} of that article, or correct the drop's "
-                       "vehicle_config")
+        check_same_article(declared, vehicle, f"{meta_path.name}: drop_test.vehicle_config "
+                           f"{cfg}", vehicle_name)
     cols = _read_csv(csv_path)
     time_conv = {}
     if "time_ms" in cols:

@@ -30,7 +30,7 @@ import numpy as np
 import jaxland as jl
 from jaxland._files import json_text
 
-from ._data import CHANNELS, DropTest, article_differences, base_channel
+from ._data import CHANNELS, DropTest, base_channel, check_same_article
 from ._filter import filtfilt_np
 
 __all__ = ["Prediction", "predict", "PAPER_ERRORS", "read_fit_status"]
@@ -99,15 +99,11 @@ def predict(vehicle: jl.Vehicle, drop: DropTest, *, touchdown_time_s: float | No
             ) -> Prediction:
     """Simulate ``drop`` with ``vehicle`` and compare peaks, max and final stroke. A drop whose
     metadata names a ``vehicle_config`` is refused with a ``vehicle`` of another article
-    (``article_differences``: it may differ only in the calibrated parameters)."""
+    (``check_same_article``: it may differ only in the calibrated parameters)."""
     jl.validate_vehicle(vehicle)
-    diff = article_differences(drop.vehicle, vehicle) if drop.vehicle_config else []
-    if diff:
-        key, was, now = diff[0]
-        raise jl.ConfigError(f"{drop.name}: vehicle_config {drop.vehicle_config}: {key}", was,
-                             f"differs from the vehicle's {now!r}: the drop was made with the "
-                             "article its vehicle_config describes; the vehicle may change "
-                             "only the parameters jaxland fit calibrates")
+    if drop.vehicle_config:
+        check_same_article(drop.vehicle, vehicle,
+                           f"{drop.name}: vehicle_config {drop.vehicle_config}")
     t0 = drop.touchdown_time_s if touchdown_time_s is None else float(touchdown_time_s)
     tm, model = model_record(vehicle, drop, drop.time_s[-1] - t0)
     data = drop.corrected
@@ -177,7 +173,10 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         if line.strip() and not line.startswith("#"):
             break  # the header is the comment block before the first TOML line
         head.append(line.rstrip())
-    against = next((x[len(HEADER_FIT):] for x in head if x.startswith(HEADER_FIT)), None)
+    def after(prefix: str) -> str | None:  # the text of the header line with this prefix
+        return next((x[len(prefix):] for x in head if x.startswith(prefix)), None)
+
+    against = after(HEADER_FIT)
     if against is None:
         return {"from_fit": False}
     values_head = HEADER_VALUES.split("{interval}")
@@ -190,11 +189,8 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
             params[m["name"]] = dict(
                 value=v, std_error=se, unit=m["unit"], note=m["note"],
                 rel_std_error=None if se is None or not v else se / abs(v))
-    misfit = next((x[len(HEADER_MISFIT):] for x in head if x.startswith(HEADER_MISFIT)), None)
-    capped = next((x[len(HEADER_NOT_CONVERGED):] for x in head
-                   if x.startswith(HEADER_NOT_CONVERGED)), None)
-    unbounded = next((x[len(HEADER_NOT_BOUNDED):] for x in head
-                      if x.startswith(HEADER_NOT_BOUNDED)), None)
+    misfit, capped = after(HEADER_MISFIT), after(HEADER_NOT_CONVERGED)
+    unbounded = after(HEADER_NOT_BOUNDED)
     flags = (["MISFIT"] if misfit is not None else []) + (
         ["NOT CONVERGED"] if capped is not None else []) + (
         ["NO TRUSTED INTERVAL"] if unbounded is not None else []) + [
