@@ -1106,6 +1106,17 @@ def wants_peak_model_term(setting, misfit, names, vehicle: jl.Vehicle) -> bool:
 NESTED_CHI2_RTOL = 1e-6
 
 
+def _refit_outcome(future):
+    """A bias term's refit (a future, or None where none was started): its ``FitResult``, or
+    the error it failed with, which the term records."""
+    if future is None:
+        return None
+    try:
+        return future.result()
+    except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError) as err:
+        return err
+
+
 def _nested_term(result: FitResult, nested, *, own: str, other: str, worse: str) -> dict:
     """A bias term's record: ``nested`` (a fit whose model holds ``result``'s, or the
     exception it raised) and, where it reached its optimum, each value's shift to it, added
@@ -1776,21 +1787,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                 "them with an interval that assumes its shape, narrower than std_error_total and "
                 "too narrow where the record's peak has a shape outside the forms",
                 MisfitWarning, stacklevel=2)
-    with_peak = None
-    if peak_future is not None:
-        try:
-            with_peak = peak_future.result()
-        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError) as err:
-            with_peak = err
-            warn(f"the fit with the crush peak failed ({err}), so std_error_total leaves out "
-                 "how far the peak moves the values (misfit.peak_model_term.failed in the "
-                 "report)", MisfitWarning, stacklevel=2)
-    wider = None
-    if wider_future is not None:
-        try:
-            wider = wider_future.result()
-        except (jl.SimulationError, jl.ConfigError, np.linalg.LinAlgError) as err:
-            wider = err
+    with_peak, wider = _refit_outcome(peak_future), _refit_outcome(wider_future)
+    if isinstance(with_peak, Exception):
+        warn(f"the fit with the crush peak failed ({with_peak}), so std_error_total leaves out "
+             "how far the peak moves the values (misfit.peak_model_term.failed in the "
+             "report)", MisfitWarning, stacklevel=2)
     form_term = (np.array([mform["spread"][n] for n in names]) if mform is not None
                  else np.zeros_like(values))
     drops_rec, drops_term = None, np.zeros_like(values)
