@@ -318,10 +318,19 @@ def _step_below(limit: float) -> float:
     return DEFAULT_DT if safe >= DEFAULT_DT else 1e-4 / math.ceil(1e-4 / safe)
 
 
-def _refuse_stiffness(vehicle: Vehicle, dt: float, t_end: float) -> None:
-    """Refuse a vehicle whose own stability limit makes the default step take more than
-    ``MAX_STEPS`` steps, naming the stiffness (N/m) or mass (kg) furthest from the paper
-    vehicle's (a stiffness of 1e30 N/m, a foot of 1e-300 kg)."""
+def refuse_unsteppable(vehicle: Vehicle, limit: float, t_end: float) -> None:
+    """Refuse ``vehicle`` where its stability limit ``limit`` [s] (a float) would take a
+    landing of ``t_end`` [s] more than ``MAX_STEPS`` steps at ``STEP_SAFETY`` times it: a
+    step refused against such a limit is no mistake of the step's (``_refuse_stiffness``)."""
+    if not t_end <= STEP_SAFETY * limit * MAX_STEPS:
+        _refuse_stiffness(vehicle, limit, t_end)
+
+
+def _refuse_stiffness(vehicle: Vehicle, limit: float, t_end: float) -> None:
+    """Refuse a vehicle whose own stability limit ``limit`` [s] would take a landing of
+    ``t_end`` more than ``MAX_STEPS`` steps at ``STEP_SAFETY`` times it, naming the stiffness
+    (N/m) or mass (kg) furthest from the paper vehicle's (a stiffness of 1e30 N/m, a foot of
+    1e-300 kg)."""
     usual = {(s, f.name): float(getattr(m, f.name)) for s, m, f in
              vehicle_fields(paper_vehicle()) if f.metadata["unit"] in ("N/m", "kg")}
 
@@ -334,9 +343,10 @@ def _refuse_stiffness(vehicle: Vehicle, dt: float, t_end: float) -> None:
     section, mod, f = max(vehicle_fields(vehicle), key=lambda t: off_by(*t))
     val = np.asarray(getattr(mod, f.name), dtype=float)
     value = float(np.max(val) if f.metadata["unit"] == "N/m" else np.min(val))
+    steps = t_end / (STEP_SAFETY * limit) if limit > 0.0 else math.inf
     raise ConfigError(f"{section}.{f.metadata['toml']}", value, f"makes the vehicle's stable "
-                      f"step about {dt / STEP_SAFETY:.3g} s, so "
-                      f"t_end = {t_end:g} s would take {t_end / dt:.3g} steps (at most "
+                      f"step about {limit:.3g} s, so "
+                      f"t_end = {t_end:g} s would take {steps:.3g} steps (at most "
                       f"{MAX_STEPS:.0e}): its stiffest spring on its lightest mass is no "
                       "gear's; check the vehicle's stiffnesses and masses")
 
@@ -403,9 +413,14 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
-    if chosen and solver.n_steps > MAX_STEPS:
-        _refuse_stiffness(vehicle, dt, t_end)
     if not isinstance(method, Tsit5):
+        limit = float(stable_step(vehicle, method=method, model=mod))
+        if chosen and solver.n_steps > MAX_STEPS:
+            _refuse_stiffness(vehicle, limit, t_end)
+        # a vehicle no step can run is named before the step it makes too large; an impulse
+        # step beyond its own limit (limit 0) is the impulse's, named by check_step
+        if (chosen or solver.dt > limit) and not isinstance(method, Impulse):
+            refuse_unsteppable(vehicle, limit, t_end)
         check_step(solver, vehicle, mod)
     solver.validate()
     traj, summary = _landing_jit(vehicle, scene, solver, mod)

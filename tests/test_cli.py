@@ -140,6 +140,10 @@ def test_a_config_that_overflows_is_named_not_blamed_on_the_step(tmp_path, capsy
     ("[ground]\nk_N_per_m = 1e30\n", "ground.k_N_per_m = 1e+30: makes the vehicle's stable "
                                       "step about 1.41e-15 s, so t_end = 0.01 s would take"),
     ("[leg]\nk_a_N_per_m = 1e25\n", "leg.k_a_N_per_m = 1e+25: makes the vehicle's stable"),
+    ("[body]\nm_foot_kg = 1e-30\n", "body.m_foot_kg = 1e-30: makes the vehicle's stable step "
+                                    "about 1.47e-34 s"),
+    ("[body]\nm_foot_kg = 1e-300\n", "body.m_foot_kg = 1e-300: makes the vehicle's stable "
+                                     "step about 0 s"),
 ])
 def test_a_stiffness_no_gear_has_is_named_not_blamed_on_the_step(tmp_path, capsys, text,
                                                                 line):
@@ -152,6 +156,28 @@ def test_a_stiffness_no_gear_has_is_named_not_blamed_on_the_step(tmp_path, capsy
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"jaxland: error: {line}") and err.count("\n") == 1, err
+    # a step given by hand is too large for such a vehicle too, but the vehicle is the error
+    assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--dt", "1e-5",
+                 "--no-plots", "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.startswith(f"jaxland: error: {line}")
+
+
+@pytest.mark.parametrize("command,spec", [("montecarlo", "montecarlo_dispersed.toml"),
+                                          ("design", "design_paper_gear.toml")])
+def test_a_vehicle_no_step_can_run_is_named_by_montecarlo_and_design(tmp_path, capsys, command,
+                                                                    spec):
+    """A Monte Carlo's or a design's step is checked against the vehicle's stability limit;
+    where the vehicle itself leaves no step (a foot of 1e-300 kg: limit 0 s), the refusal names
+    the vehicle's field, not the spec's dt_s."""
+    cfg = tmp_path / "feather.toml"
+    cfg.write_text("[body]\nm_foot_kg = 1e-300\n")
+    examples = Path(__file__).parents[1] / "examples"
+    assert main([command, str(examples / spec), "--config", str(cfg),
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxland: error: body.m_foot_kg = 1e-300: makes the vehicle's "
+                          "stable step about 0 s") and err.count("\n") == 1, err
+    assert not (tmp_path / "o").exists()
 
 
 def test_simulate_refuses_bad_config_file(tmp_path, capsys):

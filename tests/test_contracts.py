@@ -2,6 +2,7 @@
 the default output interval, result codes (no touchdown is no "stable"), NaN derivatives of a
 failed landing, output folders as one consistent set, and refusals of bad files and specs."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -51,6 +52,20 @@ def test_stable_step_is_the_oscillator_limit_in_closed_form():
         assert float(jl.stable_step(VEH, method=method)) == pytest.approx(
             (np.sqrt(c_ground**2 + 4 * w2) - c_ground) / w2, rel=1e-12)
     assert float(jl.stable_step(VEH, method="tsit5")) == np.inf
+
+
+@pytest.mark.parametrize("m_foot", [1e-30, 1e-300])
+def test_stable_step_where_the_damping_dominates_is_the_dashpot_limit_not_zero(m_foot):
+    """On a feather of a foot the damping dominates (c^2 >> w^2) and the limit tends to the
+    pure dashpot's 2/c from below; a form that subtracts sqrt(c^2 + 4 w^2) - c rounds it to 0
+    (1e-30 kg) or, where w^2 overflows, to inf/inf (1e-300 kg)."""
+    veh = dataclasses.replace(VEH, m_foot=m_foot)
+    hc, gr = veh.honeycomb, veh.ground
+    c = (float(veh.leg.D_b) + float(gr.chi)) * float(hc.F2) / m_foot
+    limit = float(jl.stable_step(veh))
+    assert 0.0 <= limit <= 2.0 / c
+    if np.isfinite(c):
+        assert limit == pytest.approx(2.0 / c, rel=1e-6)
 
 
 def test_default_output_interval_is_a_whole_multiple_of_dt():

@@ -3,6 +3,7 @@ energy balance, constraints at the returned design, infeasible specs reported, m
 refused by name, and the CLI writing its files."""
 
 import copy
+import dataclasses
 import json
 import math
 import tomllib
@@ -382,6 +383,15 @@ def test_cell_bounds_that_allow_a_weak_secondary_name_a_bound_the_spec_gives():
         DesignProblem(design_spec_from_dict(spec))
     assert str(err.value).startswith("variables.secondary_foil_thickness_mm.low = 0.01: the "
                                      "cell bounds allow F2 = "), str(err.value)
+
+
+def test_a_vehicle_no_step_can_run_is_named_not_the_designs_step():
+    """No bound moves a 1e-300 kg foot's stability limit (0 s): the design refuses the
+    vehicle's field, not design.dt_s."""
+    feather = dataclasses.replace(jl.paper_vehicle(), m_foot=1e-300)
+    with pytest.raises(jl.ConfigError) as err:
+        DesignProblem(design_spec_from_dict(copy.deepcopy(ROBUST)), feather)
+    assert err.value.field == "body.m_foot_kg", str(err.value)
 
 
 @pytest.mark.parametrize("path,value,field,rule", BAD, ids=[".".join(b[0]) for b in BAD])

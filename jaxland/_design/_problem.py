@@ -21,7 +21,7 @@ from .._montecarlo import MonteCarloSpec
 from .._montecarlo._sample import check_fixed, draw, scene_fields
 from .._params import Vehicle
 from .._scene import Scene
-from .._simulate import landings
+from .._simulate import landings, refuse_unsteppable
 from .._solvers import Result, Solver, stable_step
 from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
 from ._spec import (
@@ -228,7 +228,7 @@ class DesignProblem:
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
                                       baseline_value(self.vehicle, v.name, self.cells))
                              for v in self.variables}, check=True)
-        self.check_step("design.dt_s", spec.dt, spec.method)
+        self.check_step("design.dt_s", spec.dt, spec.method, spec.t_end)
         self._fn = jax.jit(self._measures)
         self._jac = jax.jit(self._measures_and_jac)
         # the scenes' devices: the optimiser's path depends on their count through rounding
@@ -311,12 +311,15 @@ class DesignProblem:
                 for j, n in enumerate(self.names) if moves[j]})
         return self._stiffest[method]
 
-    def check_step(self, key: str, dt: float, method: str) -> None:
+    def check_step(self, key: str, dt: float, method: str, t_end: float) -> None:
         """Refuse a step ``dt`` [s] (the TOML ``key``) above ``method``'s stability limit
         for any design inside the bounds: the optimiser may go anywhere inside them, and
-        the verification runs the design it returns."""
+        the verification runs the design it returns. Where no bound moves that limit and no
+        step could run landings of ``t_end`` [s] on it, the vehicle is refused instead."""
         limit, at = self.stiffest_step(method)
         if dt > limit:
+            if not at:
+                refuse_unsteppable(self.vehicle, limit, t_end)
             where = ("the stiffest design inside the bounds ("
                      + ", ".join(f"{n} = {v:.4g}" for n, v in at.items())
                      + "): lower it, or narrow the bounds" if at else

@@ -193,7 +193,7 @@ def check_verification(problem: DesignProblem, n: int | None = None) -> None:
     vspec = _verification_spec(problem.spec, n, problem.spec.montecarlo.seed)
     check_run(vspec, problem.vehicle)
     check_touchdown_possible(vspec, problem.vehicle)
-    problem.check_step("montecarlo.dt_s", vspec.dt, vspec.method)
+    problem.check_step("montecarlo.dt_s", vspec.dt, vspec.method, vspec.t_end)
 
 
 def verify_design(result: DesignResult, *, n: int | None = None, seed: int | None = None,

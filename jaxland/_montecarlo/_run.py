@@ -23,7 +23,7 @@ from .._models import MODELS
 from .._params import Vehicle
 from .._progress import ProgressLine
 from .._scene import Scene
-from .._simulate import landings
+from .._simulate import landings, refuse_unsteppable
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec
@@ -214,6 +214,7 @@ def check_run(spec: MonteCarloSpec, vehicle: Vehicle) -> str:
     model = spec.resolved_model()
     limit = float(stable_step(vehicle, method=spec.method, model=MODELS[model]))
     if spec.dt > limit:
+        refuse_unsteppable(vehicle, limit, spec.t_end)
         raise ConfigError("montecarlo.dt_s", spec.dt,
                           f"exceeds the a-priori stability limit {limit:.3g} s of "
                           f"{spec.method}")

@@ -27,7 +27,9 @@ def _limit(osc: Oscillator, strut: bool):
     w2 = osc.stiffness / osc.mass
     c = ((osc.strut_damping * osc.strut_force if strut else 0.0)
          + osc.ground_damping * osc.ground_force) / osc.mass
-    return jnp.min((jnp.sqrt(c**2 + 4.0 * w2) - c) / w2)
+    # (sqrt(c^2 + 4 w^2) - c) / w^2, written without its cancellation: where the damping
+    # dominates (c^2 >> w^2) the difference rounds to 0, and an overflowing w^2 gives inf/inf
+    return jnp.min(4.0 / (jnp.sqrt(c**2 + 4.0 * w2) + c))
 
 
 class AbstractFixedStep(AbstractIntegrator):
@@ -63,7 +65,7 @@ class Euler(AbstractFixedStep):
     its limit (1.3e-4 s, against 4.5e-4 s for the springs)."""
 
     name: ClassVar[str] = "euler"
-    stability_reason: ClassVar[str] = "stiffest springs and the strut damping on the 1 kg foot"
+    stability_reason: ClassVar[str] = "stiffest springs and the strut damping on the foot"
 
     def stable_step(self, osc):
         return _limit(osc, strut=True)
@@ -79,7 +81,7 @@ class EulerImplicit(Euler):
     held): one evaluation per step, first order, stable to 2/omega of the springs."""
 
     name: ClassVar[str] = "euler_implicit"
-    stability_reason: ClassVar[str] = ("stiffest springs on the 1 kg foot; the strut damping is "
+    stability_reason: ClassVar[str] = ("stiffest springs on the foot; the strut damping is "
                                        "implicit")
 
     def stable_step(self, osc):

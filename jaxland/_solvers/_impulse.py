@@ -65,7 +65,7 @@ class Impulse(AbstractIntegrator):
 
     name: ClassVar[str] = "impulse"
     stability_reason: ClassVar[str] = (
-        "its explicit steps are capped at dt: stiffest springs on the 1 kg foot, and the strut "
+        "its explicit steps are capped at dt: stiffest springs on the foot, and the strut "
         "damping over one impulse step")
 
     def validate(self):
