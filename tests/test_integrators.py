@@ -8,6 +8,7 @@ per method); the boundaries below were measured on the paper drop and are pinned
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -187,6 +188,25 @@ def test_tsit5_refuses_to_be_differentiated(adjoint, diff):
     with pytest.raises(jl.ConfigError, match="tsit5.*cannot be differentiated"):
         diff(stroke)(1.0)
     assert np.isfinite(float(jax.jit(stroke)(1.0)))
+
+
+def test_impulse_forward_adjoint_refuses_grad_by_name_and_keeps_forward_mode():
+    """The impulse method's forward-mode while loop has no reverse-mode derivative: jax.grad
+    is refused naming solver.adjoint and the option that has one, not with JAX's message about
+    while loops; jacfwd, also under vmap, still runs (its values: the test above)."""
+    solver = jl.Solver(dt=1e-5, t_end=0.3, save_dt=1e-3, method=jl.integrator("impulse"))
+
+    def stroke(d_b):
+        veh = eqx.tree_at(lambda v: v.leg.D_b, VEH, VEH.leg.D_b * d_b)
+        return jl.landing(veh, SCENE, solver, "quarter")[1]["max_stroke_m"]
+
+    with pytest.raises(jl.ConfigError, match=r"solver\.adjoint = 'forward'.*jax\.grad.*"
+                                             r"Impulse\(adjoint='reverse'\)"):
+        jax.grad(stroke)(1.0)
+    batch = np.asarray(jax.jit(jax.vmap(jax.jacfwd(stroke)))(jnp.array([0.9, 1.1])))
+    alone = [float(jax.jit(jax.jacfwd(stroke))(d)) for d in (0.9, 1.1)]
+    assert np.all(batch != 0.0)
+    np.testing.assert_allclose(batch, alone, rtol=1e-12)
 
 
 def test_default_step_is_chosen_from_the_physics():

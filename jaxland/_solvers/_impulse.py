@@ -36,6 +36,10 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax
+import jax.extend.core
+import jax.interpreters.ad as ad
+import jax.interpreters.batching as batching
+import jax.interpreters.mlir as mlir
 import jax.numpy as jnp
 
 from .._errors import ConfigError
@@ -53,6 +57,32 @@ ADJOINTS = ("forward", "reverse")
 def check_adjoint(owner: str, adjoint: str) -> None:
     if adjoint not in ADJOINTS:
         raise ConfigError(f"{owner}.adjoint", adjoint, "must be 'forward' or 'reverse'")
+
+
+# The identity on a forward-mode landing's outputs: derivatives forward pass through it, and a
+# cotangent reaching it (jax.grad, jax.vjp) is refused by name before it reaches the while
+# loop, whose own refusal says nothing of the adjoint option
+_forward_only_p = jax.extend.core.Primitive("jaxland_forward_only")
+_forward_only_p.def_impl(lambda x: x)
+_forward_only_p.def_abstract_eval(lambda x: x)
+ad.primitive_jvps[_forward_only_p] = lambda p, t: (_forward_only(p[0]), _forward_only(t[0]))
+batching.primitive_batchers[_forward_only_p] = lambda x, axes: (_forward_only(x[0]), axes[0])
+mlir.register_lowering(_forward_only_p, mlir.lower_fun(lambda x: x, multiple_results=False))
+
+
+def _refuse_cotangent(ct, _):
+    if isinstance(ct, ad.Zero):  # an output the derivative does not use
+        return [ct]
+    raise ConfigError("solver.adjoint", "forward", "has no reverse-mode derivative (jax.grad, "
+                      "jax.vjp): its while loop differentiates forward only (jax.jacfwd, "
+                      "jax.jvp); for jax.grad use jaxland.Impulse(adjoint='reverse')")
+
+
+ad.primitive_transposes[_forward_only_p] = _refuse_cotangent
+
+
+def _forward_only(x):
+    return _forward_only_p.bind(x)
 
 
 class Impulse(AbstractIntegrator):
@@ -127,4 +157,5 @@ class Impulse(AbstractIntegrator):
         carry0 = (st.state0, Track.start(st.peaks0, solver.event_log))
         (s_end, track), traj = jax.lax.scan(save_block, carry0,
                                             jnp.arange(solver.n_saves, dtype=jnp.float64))
-        return traj, summary(model, s_end, track, st, scene)
+        out = traj, summary(model, s_end, track, st, scene)
+        return jax.tree.map(_forward_only, out) if kind == "lax" else out
