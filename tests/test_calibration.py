@@ -108,6 +108,8 @@ def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_t
     ("no_touchdown", "no touchdown found"),
     ("touchdown_at_start", "no touchdown found inside the record"),
     ("rate_mismatch", "does not match the time column"),
+    ("time_gap", "drop.csv: time_s = '0.0202 s between samples at 0.0998 s': is 101 x "),
+    ("time_rate_changes", "intervals off the uniform grid"),
     ("no_height", "missing: give drop_height_m"),
     ("height_and_speed", "give either touchdown_speed_mps or drop_height_m"),
     ("bad_height", "must be in [0, 50]"),
@@ -143,6 +145,12 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     elif case == "time_backwards":
         t = t.copy()
         t[300] = t[298]
+        cols = [t, f, x]
+    elif case == "time_gap":  # 20 ms missing after sample 499 (100 samples at 5 kHz)
+        t = t + np.where(np.arange(t.size) >= 500, 0.02, 0.0)
+        cols = [t, f, x]
+    elif case == "time_rate_changes":  # every interval 15 % long after sample 600
+        t = t + 0.15 * np.clip(np.arange(t.size) - 600, 0, None) / 5000.0
         cols = [t, f, x]
     elif case == "too_short":
         cols = [c[:30] for c in cols]
@@ -182,6 +190,59 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     with pytest.raises(jl.ConfigError) as err:
         cal.load_drop_test(path)
     assert needle in str(err.value), str(err.value)
+
+
+def test_a_gap_in_the_time_column_is_refused_in_one_line_naming_the_file_time_and_size(
+        tmp_path, capsys):
+    """A 10 kHz record missing 20 ms (200 samples) after 0.06 s: `jaxland fit` and `jaxland
+    predict` refuse it before any simulation (exit 2, one line, nothing written) naming the
+    file, where the gap is and how long, and the rule; a single dropped sample is refused
+    too, while an interval 24 % off 1/sample_rate_Hz (the rule's 25 %) loads."""
+    from jaxland.cli import main
+
+    rate = 10000.0
+    t, f, x = _trace(n=2000, onset=200, rate=rate)
+    meta = {"drop_height_m": 0.2, "sample_rate_Hz": rate}
+    keep = np.ones(t.size, bool)
+    keep[601:801] = False  # samples 601..800 missing: 0.0600 s is followed by 0.0801 s
+    path = _write(tmp_path, ["time_s", "normal_force_N", "stroke_m"],
+                  _rows(t[keep], f[keep], x[keep]), meta)
+    needle = ("drop.csv: time_s = '0.0201 s between samples at 0.06 s': is 201 x "
+              "1/sample_rate_Hz (0.0001 s)")
+    for cmd in (["fit", "--quiet", "--no-plots"],
+                ["predict", "--config", str(DATA / "truth_vehicle.toml"), "--no-plots"]):
+        out = tmp_path / cmd[0]
+        assert main([cmd[0], str(path), "--out", str(out), *cmd[1:]]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0] and "within 25%" in err[0], err
+        assert not out.exists()
+    one = np.ones(t.size, bool)
+    one[1000] = False
+    with pytest.raises(jl.ConfigError, match="about 1 sample.s. missing"):
+        cal.DropTest.from_arrays(t[one], {"normal_force_N": f[one], "stroke_m": x[one]},
+                                 sample_rate_Hz=rate, drop_height_m=0.2)
+    for shift, ok in ((0.24, True), (0.26, False)):
+        late = t.copy()
+        late[1000] += shift / rate
+        if ok:
+            cal.DropTest.from_arrays(late, {"normal_force_N": f, "stroke_m": x},
+                                     sample_rate_Hz=rate, drop_height_m=0.2)
+        else:
+            with pytest.raises(jl.ConfigError, match=r"(1\.26|0\.74) x 1/sample_rate_Hz"):
+                cal.DropTest.from_arrays(late, {"normal_force_N": f, "stroke_m": x},
+                                         sample_rate_Hz=rate, drop_height_m=0.2)
+
+
+def test_every_bundled_drop_record_loads():
+    """Each drop test under data/ and tests/data (every TOML with a [drop_test] table) passes
+    the loader's rules, the time column's uniformity among them."""
+    root = Path(__file__).resolve().parents[1]
+    paths = [p for d in ("data", "tests/data") for p in sorted((root / d).rglob("*.toml"))
+             if "[drop_test]" in p.read_text()]
+    assert len(paths) >= 4, paths
+    for p in paths:
+        d = cal.load_drop_test(p)
+        assert np.ptp(np.diff(d.time_s)) * d.sample_rate_Hz < 1e-3, p
 
 
 @pytest.mark.parametrize("case,needle", [
