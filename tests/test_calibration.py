@@ -546,6 +546,9 @@ def test_the_fit_report_records_its_inputs_and_versions(cli_fit):
     assert args["data"] == [str(meta)] and args["out"] == str(cli_fit) and args["quiet"]
     assert args["windows"] == ",".join(f"{w:g}" for w in cal.WINDOWS_S)
     assert args["refine_window_s"] == cal.REFINE_WINDOW_S and args["method"] == "lm"
+    assert rep["settings"]["refine_window_s"] == cal.REFINE_WINDOW_S
+    assert rep["settings"]["refine_window_default"] is True
+    assert rep["settings"]["refine_window_note"] is None  # the records reach 0.15 s
     assert args["params"] == ",".join(NAMES) and args["start"] is None
     assert args["robust"] > 0 and args["max_iter"] == 60 and args["dt"] == 1e-5
     assert rep["environment"] == dict(jaxland=jl.__version__, jax=jax.__version__)
@@ -817,6 +820,51 @@ def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_arg
     with pytest.raises(jl.ConfigError, match="longer than the record") as caught:
         cal.fit(cal.load_drop_test(toml))
     assert caught.value.field == "windows"
+
+
+def test_the_refine_window_is_used_as_given_or_refused_and_a_shortened_default_is_said(
+        tmp_path, capsys):
+    """A record that ends 60 ms after touchdown: `--refine-window-s` longer than it, or no
+    longer than the last of --windows, is refused in one line before the fit (exit 2, nothing
+    written), and a value that fits is used as given; the default 150 ms is shortened to the
+    record, in a line and in the report's settings, and the refit runs on that window."""
+    from calibration import _fit as cal_fit
+    from jaxland.cli import main
+
+    _, toml = vr.write_drop_test(tmp_path, 0.2, seed=1, duration_s=0.11, clean=True)
+    vr.write_nominal(tmp_path)
+    d = cal.load_drop_test(toml)
+    end = d.duration_after_touchdown_s
+    assert 0.055 < end < 0.065, end
+    base = ["fit", str(toml), "--params", "F1", "--no-plots", "--quiet",
+            "--no-peak-model-term", "--no-fixed-params-term"]
+    out = tmp_path / "out"
+    for flags, needle in (
+            (["--windows", "0.01", "--refine-window-s", "0.1"],
+             f"--refine-window-s = 0.1: is longer than the record {d.name} after touchdown "
+             f"({end:.4g} s)"),
+            (["--windows", "0.01,0.03", "--refine-window-s", "0.02"],
+             "--refine-window-s = 0.02: must be longer than the last window (0.03 s)")):
+        assert main([*base, *flags, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err
+        assert not out.exists()
+    assert cal_fit.check_fit([d], windows=(0.01,), refine_window_s=0.05).stages_w == [0.01,
+                                                                                    0.05]
+    with pytest.raises(jl.ConfigError, match="longer than the record") as caught:
+        cal_fit.check_fit([d], windows=(0.01,), refine_window_s=0.1)
+    assert caught.value.field == "refine_window_s"
+    assert main([*base, "--windows", "0.01", "--out", str(out)]) == 0
+    said = (f"jaxland fit: refine window {end:.4g} s, not the default 0.15 s: the record "
+            f"{d.name} ends {end:.4g} s after touchdown")
+    assert said in capsys.readouterr().err
+    rep = json.loads((out / "fit_report.json").read_text())
+    settings = rep["settings"]
+    assert settings["refine_window_s"] == pytest.approx(end, abs=1e-12)
+    assert settings["refine_window_requested_s"] == 0.15 and settings["refine_window_default"]
+    assert said.removeprefix("jaxland fit: ") == settings["refine_window_note"]
+    assert rep["stages"][-1]["stage"] == f"2/2 ({end * 1e3:g} ms)"
+    assert rep["inputs"]["arguments"]["refine_window_s"] == 0.15  # as parsed, default filled in
 
 
 def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,
