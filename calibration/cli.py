@@ -390,10 +390,11 @@ def _cmd_fit(args) -> int:
 
 def _cmd_predict(args) -> int:
     from ._data import load_drop_tests
-    from ._predict import predict, read_fit_status
+    from ._predict import check_model_step, predict, read_fit_status
 
     out = _out_dir(args.out, (args.config, *args.data))
     vehicle = jl.load_vehicle(args.config, "--config")
+    check_model_step(vehicle, f"--config {args.config}")  # the key in the user's file
     # what the fit said of the vehicle, if it is one, and whether the file still holds it
     status = read_fit_status(args.config, vehicle)
     # one vehicle, the drops' own article, different names

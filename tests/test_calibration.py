@@ -587,6 +587,38 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
 
 
+@pytest.mark.parametrize("section,key,value", [
+    ("honeycomb", "k_b1_N_per_m", 1.069e13),  # 1e6 x: N/mm read as N/um, say
+    ("ground", "k_N_per_m", 2e12),
+    ("body", "m_foot_kg", 1e-6),  # the foot in t read as kg, a million times too light
+])
+def test_predict_names_the_key_of_a_vehicle_too_stiff_for_its_step_not_the_step(
+        tmp_path, capsys, section, key, value):
+    """A --config with one stiffness 1e6 times the paper's (or the foot a millionth of its
+    mass): predict, which takes no step option, refuses it in one line naming that key of the
+    user's file and its value as written, not the solver's dt (exit 2, nothing written); in
+    Python, predict names the key under "vehicle"."""
+    import re
+
+    from jaxland.cli import main
+
+    text = (DATA / "nominal_vehicle.toml").read_text()
+    text, n = re.subn(rf"^{key} = [^ ]+", f"{key} = {value!r}", text, flags=re.M)
+    assert n == 1
+    cfg = tmp_path / "stiff.toml"
+    cfg.write_text(text)
+    out = tmp_path / "out"
+    assert main(["predict", "--config", str(cfg), str(DATA / "drop_h0.20m.toml"), "--out",
+                 str(out), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--config {cfg}: {section}.{key} = {value!r}: " in err[0], err
+    assert "solver.dt" not in err[0] and "check the value and its unit" in err[0], err
+    assert not out.exists()
+    with pytest.raises(jl.ConfigError) as caught:
+        cal.predict(jl.load_vehicle(cfg), cal.load_drop_test(DATA / "drop_h0.20m.toml"))
+    assert caught.value.field == f"vehicle: {section}.{key}" and caught.value.value == value
+
+
 def test_predict_says_what_the_fit_said_of_its_vehicle_and_its_errors(cli_fit, tmp_path,
                                                                      capsys):
     """predict reads fitted_vehicle.toml's header: the fit's flags (this fit's MISFIT) on
