@@ -142,7 +142,7 @@ __all__ = ["fit", "FitResult", "IdentifiabilityWarning", "MisfitWarning", "WINDO
 WINDOWS_S = (0.01, 0.03, 0.1)
 # The fitting integrator (``jaxland.Solver.method``) and, per integrator, the switch-smoothing
 # widths (smoothing_m [m], smoothing_N [N]) used when none are given. Chosen from
-# benchmarks/bench_fit.py (both variants side by side; docs/calibration.md).
+# benchmarks/bench_fit.py (both variants side by side; docs/calibration-validation.md).
 INTEGRATOR = "euler"
 SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0)}
 REFINE_WINDOW_S = 0.15
@@ -585,7 +585,7 @@ def misfit_location(problem: CalibrationProblem, res: np.ndarray, width_s: float
 # of its motion-only standard error. Over the peak-recovery study's 0.2 m drops (4 peak
 # shapes, 10 seeds each) the step kept 0.31 to 0.83 of the excess, 1.7 to 7.4 standard errors
 # off, where the peak sat on the force channels only (37 of 40 named), and 0.91 to 1.08,
-# within 2.0, where it was the honeycomb's (none named; docs/calibration.md, item 11).
+# within 2.0, where it was the honeycomb's (none named; docs/calibration-validation.md, item 11).
 PEAK_MOTION_CHANNELS, PEAK_FORCE_CHANNELS = ("stroke_m", "body_accel_mps2"), FORCE_CHANNELS
 PEAK_MOTION_RATIO, PEAK_MOTION_Z = 0.8, 2.0
 
