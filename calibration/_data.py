@@ -106,7 +106,8 @@ META_KEYS = {
     "sink_speed_mps": "downward speed at release [m/s], in [0, 30] (with drop_height_m)",
     "touchdown_speed_mps": "downward speed at touchdown [m/s], in (0, 30] (instead of "
                            "drop_height_m)",
-    "sample_rate_Hz": "sample rate of the traces [Hz]; must match the time column within 1 %",
+    "sample_rate_Hz": "sample rate of the traces [Hz]; must match the time column within 1 %, "
+                      "which must be sampled uniformly (INTERVAL_REL, GRID_REL)",
     "sensor_leg": "index of the leg (and foot) the sensors sit on, in [0, n_legs)",
     "vehicle_config": "vehicle TOML, relative to this file (default: the paper vehicle)",
     "touchdown_time_s": "time of touchdown on the record's time axis [s] (default: detected "
@@ -137,6 +138,15 @@ MIN_SAMPLES = 50
 # touchdown, and the simulator stops at 100 s)
 MIN_SAMPLE_RATE_HZ = 100.0
 MAX_RECORD_S = 60.0
+# the CFC filter, the noise estimates and the residuals' autocorrelation (error bars) count
+# samples, not seconds: a record must be sampled uniformly. Every interval between samples
+# must lie within INTERVAL_REL of 1/sample_rate_Hz (one dropped sample doubles an interval;
+# times printed to 7 digits over 60 s at 10 kHz, or held in float32 at 50 kHz, move one by
+# 10-20 %), and every sample within GRID_REL intervals of the uniform grid fitted through
+# them (a rate that changes along the record, each interval passing alone); a clock whose
+# rate is off by a constant factor is the sample rate's 1 % rule's
+INTERVAL_REL = 0.25
+GRID_REL = 0.5
 NOISE_FLOOR_REL = 1e-4  # noise floor, fraction of the channel's range (noise-free data)
 # the drop height that the free fall from release to touchdown implies must match the
 # metadata's within FREE_FALL_REL of it or FREE_FALL_ABS_M, whichever is larger (a release
@@ -718,6 +728,7 @@ def _check_time(t: np.ndarray, rate) -> None:
                    f"(sample_rate_Hz = {rate!r}); a drop record needs >= "
                    f"{MIN_SAMPLE_RATE_HZ:g} Hz, its impact lasting tens of ms: times in ms "
                    f"under a {TIME} header? (a time_ms column is converted)")
+    _check_uniform(t, float(rate))
     span = float(t[-1] - t[0])
     if span > MAX_RECORD_S:
         raise _err(TIME, f"{span:.6g} s from first to last sample", f"must be <= "
@@ -725,6 +736,38 @@ def _check_time(t: np.ndarray, rate) -> None:
                    "highest drop_height_m, 50 m, takes 3.2 s, and a landing settles within "
                    "one), and fit and predict simulate all of it after touchdown; times in ms "
                    f"under a {TIME} header, or trim the record")
+
+
+def _check_uniform(t: np.ndarray, rate: float) -> None:
+    """Refuse a time column that is not sampled uniformly (``INTERVAL_REL``, ``GRID_REL``),
+    naming the time and size of the worst interval, or of the sample furthest off the grid."""
+    step = 1.0 / rate
+    dt = np.diff(t)
+    off = np.abs(dt / step - 1.0)
+    i = int(np.argmax(off))
+    if off[i] > INTERVAL_REL:
+        ratio = float(dt[i] / step)
+        gap = ratio > 1.5
+        what = (f"a gap: about {round(ratio) - 1} sample(s) missing" if gap else
+                "a sample out of step, or a clock that changes its rate")
+        raise _err(TIME, f"{dt[i]:.6g} s between samples at {t[i]:.6g} s",
+                   f"is {ratio:.3g} x 1/sample_rate_Hz ({step:.6g} s) after sample {i} (data "
+                   f"row {i + 2}), {what}; every interval must be within "
+                   f"{INTERVAL_REL:.0%} of it: the record must be sampled uniformly (the CFC "
+                   "filter, the noise estimate and the error bars count samples); "
+                   + ("cut the record at the gap" if gap else "correct the time column"))
+    k = np.arange(t.size, dtype=np.float64)
+    slope, start = np.polyfit(k, t - t[0], 1)
+    dev = (t - t[0] - (start + slope * k)) / slope
+    j = int(np.argmax(np.abs(dev)))
+    if abs(dev[j]) > GRID_REL:
+        half = t.size // 2
+        early, late = float(np.median(dt[:half])), float(np.median(dt[half:]))
+        raise _err(TIME, f"{t[j]:.6g} s, {dev[j]:+.3g} intervals off the uniform grid",
+                   f"every sample must lie within {GRID_REL:g} intervals of the uniform grid "
+                   f"fitted through the time column (a uniformly sampled record): its rate "
+                   f"changes along the record ({1.0 / early:.6g} Hz in its first half, "
+                   f"{1.0 / late:.6g} Hz in its second; sample_rate_Hz = {rate:g})")
 
 
 def _num(key, val, lo, hi, lo_open=False):

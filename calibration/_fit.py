@@ -142,10 +142,14 @@ __all__ = ["fit", "FitResult", "IdentifiabilityWarning", "MisfitWarning", "WINDO
 WINDOWS_S = (0.01, 0.03, 0.1)
 # The fitting integrator (``jaxland.Solver.method``) and, per integrator, the switch-smoothing
 # widths (smoothing_m [m], smoothing_N [N]) used when none are given. Chosen from
-# benchmarks/bench_fit.py (both variants side by side; docs/calibration.md).
+# benchmarks/bench_fit.py (both variants side by side; docs/calibration-validation.md).
 INTEGRATOR = "euler"
 SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0)}
 REFINE_WINDOW_S = 0.15
+# fit's refine_window_s default: REFINE_WINDOW_S where every record reaches that far after its
+# touchdown, else shortened to the shortest record, and said so (``refine_window``); a window
+# given as a number is used as given or refused
+AUTO = "auto"
 ROBUST_K = 1.5
 # Alternative starts of the multi-start phase: (k factor, gamma value) applied to the start.
 # From 2x off, one start's continuation can end in a wrong basin of the contact oscillation
@@ -581,7 +585,7 @@ def misfit_location(problem: CalibrationProblem, res: np.ndarray, width_s: float
 # of its motion-only standard error. Over the peak-recovery study's 0.2 m drops (4 peak
 # shapes, 10 seeds each) the step kept 0.31 to 0.83 of the excess, 1.7 to 7.4 standard errors
 # off, where the peak sat on the force channels only (37 of 40 named), and 0.91 to 1.08,
-# within 2.0, where it was the honeycomb's (none named; docs/calibration.md, item 11).
+# within 2.0, where it was the honeycomb's (none named; docs/calibration-validation.md, item 11).
 PEAK_MOTION_CHANNELS, PEAK_FORCE_CHANNELS = ("stroke_m", "body_accel_mps2"), FORCE_CHANNELS
 PEAK_MOTION_RATIO, PEAK_MOTION_Z = 0.8, 2.0
 
@@ -1405,6 +1409,7 @@ class FitSettings:
     names: tuple
     windows: tuple  # the growing fit windows [s]
     stages_w: list  # the windows of every stage, the refit's included [s]
+    refine_note: str | None  # why the refit's window is not refine_window_s as given
     integrator: str
     smoothing_m: float
     smoothing_N: float
@@ -1441,8 +1446,52 @@ def _check_start_step(base, names, start: dict, dt: float, integrator: str, peak
                          f"vehicle's is {limit_of(None):.3g} s)")
 
 
+def refine_window(refine_window_s, windows, drops) -> tuple[float | None, str | None]:
+    """The refit's window [s] (None: no refit) and, where it is not ``refine_window_s`` as
+    given, why. A number is used as given, or refused by name where it is no longer than the
+    last of ``windows`` (the refit is on a longer window) or longer than a record after its
+    touchdown (the rule ``windows`` follow); None or 0: no refit. ``AUTO``:
+    ``REFINE_WINDOW_S``, shortened to the shortest record after touchdown where one ends
+    before it, and left out where that is no longer than the last window."""
+    if refine_window_s is None or (refine_window_s == 0 and not isinstance(refine_window_s,
+                                                                           bool)):
+        return None, None
+    last = windows[-1]
+    ends = {d.name: (d.duration_after_touchdown_s, 0.5 / d.sample_rate_Hz) for d in drops}
+    name = min(ends, key=lambda n: ends[n][0])
+    shortest, half = ends[name]
+    if refine_window_s == AUTO:
+        w = REFINE_WINDOW_S
+        if w <= last:
+            return None, (f"no refit on a longer window: the default refine window "
+                          f"({w:g} s) is not longer than the last window ({last:g} s)")
+        if shortest >= w - half:
+            return w, None
+        if shortest <= last:
+            return None, (f"no refit on a longer window: the record {name} ends "
+                          f"{shortest:.4g} s after touchdown, within the last window "
+                          f"({last:g} s), before the default refine window ({w:g} s)")
+        return shortest, (f"refine window {shortest:.4g} s, not the default {w:g} s: the "
+                          f"record {name} ends {shortest:.4g} s after touchdown")
+    if isinstance(refine_window_s, bool) or not isinstance(refine_window_s, (int, float)) \
+            or not (refine_window_s > 0 and math.isfinite(refine_window_s)):
+        raise jl.ConfigError("refine_window_s", refine_window_s, "must be a number > 0 s "
+                             "(None or 0: no refit)")
+    w = float(refine_window_s)
+    if w <= last:
+        raise jl.ConfigError("refine_window_s", refine_window_s, f"must be longer than the "
+                             f"last window ({last:g} s): the refit is on a longer window (0: "
+                             "no refit)")
+    if shortest < w - half:
+        raise jl.ConfigError("refine_window_s", refine_window_s, f"is longer than the record "
+                             f"{name} after touchdown ({shortest:.4g} s); give a refine window "
+                             f"that ends within every record (<= {shortest:.4g} s), or 0 for "
+                             "no refit")
+    return w, None
+
+
 def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, start=None,
-              windows=WINDOWS_S, refine_window_s: float | None = REFINE_WINDOW_S,
+              windows=WINDOWS_S, refine_window_s: float | str | None = AUTO,
               robust: float | None = ROBUST_K, method: str = "lm", max_iter: int = 60,
               dt: float = 1e-5, integrator: str = INTEGRATOR, smoothing_m: float | None = None,
               smoothing_N: float | None = None, peak_form: str | None = None,
@@ -1495,14 +1544,8 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
                                  f"({windows[-1]:g} s) is longer than the record {d.name} "
                                  f"after touchdown ({d.duration_after_touchdown_s:.4g} s); "
                                  "give windows that end within the record")
-    shortest = min(d.duration_after_touchdown_s for d in drops)
-    stages_w = list(windows)
-    if refine_window_s:
-        if not (refine_window_s > 0 and math.isfinite(refine_window_s)):
-            raise jl.ConfigError("refine_window_s", refine_window_s, "must be a number > 0 s")
-        refine = min(float(refine_window_s), shortest - 0.006)
-        if refine > windows[-1]:
-            stages_w.append(refine)
+    refine, refine_note = refine_window(refine_window_s, windows, drops)
+    stages_w = list(windows) + ([] if refine is None else [refine])
     if model_form not in ("auto", True, False):
         raise jl.ConfigError("model_form", model_form, "must be 'auto', True or False")
     if peak_model_term not in ("auto", False):
@@ -1511,12 +1554,13 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("model_form", model_form, "needs peak1 among the fitted "
                              "parameters (the term spans the crush peak's forms)")
     return FitSettings(drops=drops, names=names, windows=windows, stages_w=stages_w,
+                       refine_note=refine_note,
                        integrator=integrator, smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                        start_vehicle=start_vehicle, start_values=start_values)
 
 
 def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, start=None,
-        windows=WINDOWS_S, refine_window_s: float | None = REFINE_WINDOW_S,
+        windows=WINDOWS_S, refine_window_s: float | str | None = AUTO,
         robust: float | None = ROBUST_K, multistart: bool = True, method: str = "lm",
         max_iter: int = 60,
         dt: float = 1e-5, save_dt: float = 2e-5, integrator: str = INTEGRATOR,
@@ -1535,10 +1579,14 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     vehicle : the vehicle whose other parameters are kept (default: the drops' configuration)
     start : start values, a Vehicle or ``{name: value}`` (default: ``vehicle``'s values)
     windows : growing fit windows after touchdown [s] on the first impact
-    refine_window_s : one refit on this longer window [s] (None or 0: skip); clipped to the
-        shortest record. The default stays inside the first impact (exact gradients); longer
-        windows through lift-off and re-contact are allowed but their loss is jagged and
-        multimodal (see the module docstring)
+    refine_window_s : one refit on this window [s], longer than the last of ``windows``
+        (None or 0: skip); a number is used as given, or refused where a record ends before
+        it after touchdown. ``"auto"`` (default): ``REFINE_WINDOW_S`` (150 ms), shortened to
+        the shortest record after touchdown where one ends before, and skipped where that is
+        not longer than the last window (``settings.refine_window_note`` in the report says
+        so). The default stays inside the first impact (exact gradients); longer windows
+        through lift-off and re-contact are allowed but their loss is jagged and multimodal
+        (see the module docstring)
     robust : Huber threshold in robust standard deviations of the residuals (None: plain least
         squares). It keeps localised model errors (a honeycomb crush peak) from biasing the fit
     multistart : run the short windows (all but the last of ``windows``) from the start and
@@ -1871,7 +1919,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,
         theta=theta,
         settings=dict(windows_s=list(windows), refine_window_s=stages_w[-1]
-                      if len(stages_w) > len(windows) else None, robust_k=robust,
+                      if len(stages_w) > len(windows) else None,
+                      refine_window_requested_s=(REFINE_WINDOW_S if refine_window_s == AUTO
+                                                 else refine_window_s or None),
+                      refine_window_default=refine_window_s == AUTO,
+                      refine_window_note=checked.refine_note, robust_k=robust,
                       huber_c_final=huber_c, multistart=multistart_info, dt_s=dt,
                       model_save_dt_s=save_dt,
                       integrator=dict(method=integrator, dt_s=dt, smoothing_m=smoothing_m,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import re
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,9 +34,10 @@ from jaxland._files import json_text
 from ._data import CHANNELS, DropTest, base_channel, check_same_article
 from ._filter import filtfilt_np
 
-__all__ = ["Prediction", "predict", "PAPER_ERRORS", "read_fit_status"]
+__all__ = ["Prediction", "predict", "PAPER_ERRORS", "read_fit_status", "check_model_step"]
 
 FINAL_SPAN_S = 0.02
+MODEL_DT = 1e-5  # s: the model's step (euler), jaxland fit's default step
 MODEL_SAVE_DT = 1e-5
 PAPER_ERRORS = {"peak (paper, experiment vs simulation)": [0.099, 0.1972],
                 "steady stroke (paper)": 0.0028}
@@ -90,17 +92,60 @@ def model_record(vehicle: jl.Vehicle, drop: DropTest, t_end_s: float | None = No
     t_end = drop.duration_after_touchdown_s + 2 * MODEL_SAVE_DT if t_end_s is None else t_end_s
     t_end = round(t_end / MODEL_SAVE_DT) * MODEL_SAVE_DT + MODEL_SAVE_DT
     res = jl.simulate(jl.Scene.from_touchdown_speed(drop.touchdown_speed_mps), vehicle,
-                      dt=1e-5, t_end=t_end, save_dt=MODEL_SAVE_DT, model="quarter")
+                      dt=MODEL_DT, t_end=t_end, save_dt=MODEL_SAVE_DT, model="quarter")
     tr = res.trajectory
     return np.asarray(tr["time_s"]), {c: np.asarray(tr[CHANNELS[c][1]]) for c in CHANNELS}
+
+
+def check_model_step(vehicle: jl.Vehicle, where: str = "vehicle") -> None:
+    """Refuse a vehicle (named ``where``, e.g. ``--config FILE``) whose stability limit (euler,
+    quarter model: ``jaxland.stable_step``) lies below ``MODEL_DT``, the step predict simulates
+    at, naming its key (as its TOML writes it) that sets the limit: the one whose paper value
+    raises the limit most (a stiffness in N/mm under an _N_per_m key, a mass in t under a _kg
+    key). predict offers no step to change: the value is the one to check."""
+    limit = float(jl.stable_step(vehicle))
+    if limit >= MODEL_DT:
+        return
+    mine = tomllib.loads(jl.vehicle_to_toml(vehicle))
+    paper = tomllib.loads(jl.vehicle_to_toml(jl.paper_vehicle()))
+    best = None
+    for section, table in mine.items():
+        for key, val in table.items():
+            usual = paper.get(section, {}).get(key)
+            if isinstance(val, (bool, str, dict)) or usual is None or val == usual:
+                continue
+            trial = {sec: dict(tab) for sec, tab in mine.items()}
+            trial[section][key] = usual
+            try:
+                lim = float(jl.stable_step(jl.vehicle_from_dict(trial, validate=False)))
+            except (jl.ConfigError, ValueError, TypeError):
+                continue
+            if best is None or lim > best[0]:
+                best = (lim, section, key, val, usual)
+    step = (f"below the step {MODEL_DT:g} s predict simulates at (euler, the quarter model; "
+            "jaxland fit's default step)")
+    if best is None or best[0] <= limit:
+        raise jl.ConfigError(where, f"stability limit {limit:.3g} s", f"is {step}: check the "
+                             "vehicle's stiffnesses, masses and damping")
+    lim, section, key, val, usual = best
+    try:
+        times = f"{float(np.max(val)) / float(np.max(usual)):.3g} x "
+    except (TypeError, ValueError, ZeroDivisionError):
+        times = ""
+    raise jl.ConfigError(f"{where}: {section}.{key}", val, f"is {times}the paper vehicle's "
+                         f"{usual!r} and puts the vehicle's stability limit at {limit:.3g} s "
+                         f"(with the paper's value {lim:.3g} s), {step}: check the value and "
+                         "its unit")
 
 
 def predict(vehicle: jl.Vehicle, drop: DropTest, *, touchdown_time_s: float | None = None
             ) -> Prediction:
     """Simulate ``drop`` with ``vehicle`` and compare peaks, max and final stroke. A drop whose
     metadata names a ``vehicle_config`` is refused with a ``vehicle`` of another article
-    (``check_same_article``: it may differ only in the calibrated parameters)."""
+    (``check_same_article``: it may differ only in the calibrated parameters), and so is a
+    vehicle too stiff for the model's step (``check_model_step``)."""
     jl.validate_vehicle(vehicle)
+    check_model_step(vehicle)
     if drop.vehicle_config:
         check_same_article(drop.vehicle, vehicle,
                            f"{drop.name}: vehicle_config {drop.vehicle_config}")

@@ -175,6 +175,7 @@ def _cmd_fit(args) -> int:
     flags = {field: (flag, getattr(args, dest)) for field, flag, dest in (
         ("params", "--params", "params"), ("start", "--start", "start"),
         ("windows", "--windows", "windows"), ("dt", "--dt", "dt"),
+        ("refine_window_s", "--refine-window-s", "refine_window_s"),
         ("integrator", "--integrator", "integrator"),
         ("smoothing_m", "--smoothing-m", "smoothing_m"),
         ("smoothing_N", "--smoothing-n", "smoothing_n"),
@@ -189,13 +190,18 @@ def _cmd_fit(args) -> int:
     _out_dir(args.out, [f for d in drops for f in d.files])  # the files the metadata named
     windows = _floats("--windows", args.windows)
     for flag, v in (("--refine-window-s", args.refine_window_s), ("--robust", args.robust)):
-        if not (math.isfinite(v) and v >= 0.0):
+        if v is not None and not (math.isfinite(v) and v >= 0.0):
             raise jl.ConfigError(flag, v, "must be a finite number >= 0 (0: off)")
     if args.max_iter < 1:
         raise jl.ConfigError("--max-iter", args.max_iter, "must be at least 1")
     if not (math.isfinite(args.dt) and args.dt > 0.0):
         raise jl.ConfigError("--dt", args.dt, "must be a finite step > 0 [s]")
-    refine = args.refine_window_s if args.refine_window_s > 0 else None
+    # not given: the default, which fit shortens to the records where they end before it
+    # (and says so); the report's arguments hold it filled in, its settings the window used
+    refine = (_fit.AUTO if args.refine_window_s is None else
+              args.refine_window_s if args.refine_window_s > 0 else None)
+    if args.refine_window_s is None:
+        args.refine_window_s = _fit.REFINE_WINDOW_S
     robust = args.robust if args.robust > 0 else None
     with named_by_flags(flags):
         start = _start(args.start)
@@ -221,6 +227,9 @@ def _cmd_fit(args) -> int:
           f"parameters {', '.join(names)}, method {args.method}, integrator "
           f"{checked.integrator} (dt {args.dt:g} s, smoothing {checked.smoothing_m:g} m / "
           f"{checked.smoothing_N:g} N)", file=sys.stderr)
+    if checked.refine_note:
+        print(f"jaxland fit: {checked.refine_note} (settings.refine_window_note in the report;"
+              " --refine-window-s sets it)", file=sys.stderr)
     # the fit runs with the settings as checked (the integrator's default smoothing filled in)
     fit_kw.update(integrator=checked.integrator, smoothing_m=checked.smoothing_m,
                   smoothing_N=checked.smoothing_N, progress=_Progress(args.quiet),
@@ -381,10 +390,11 @@ def _cmd_fit(args) -> int:
 
 def _cmd_predict(args) -> int:
     from ._data import load_drop_tests
-    from ._predict import predict, read_fit_status
+    from ._predict import check_model_step, predict, read_fit_status
 
     out = _out_dir(args.out, (args.config, *args.data))
     vehicle = jl.load_vehicle(args.config, "--config")
+    check_model_step(vehicle, f"--config {args.config}")  # the key in the user's file
     # what the fit said of the vehicle, if it is one, and whether the file still holds it
     status = read_fit_status(args.config, vehicle)
     # one vehicle, the drops' own article, different names
@@ -482,9 +492,11 @@ def add_subcommands(subparsers) -> None:
     f.add_argument("--windows", default=",".join(f"{w:g}" for w in WINDOWS_S),
                    help="growing fit windows after touchdown [s] (default "
                         f"{','.join(f'{w:g}' for w in WINDOWS_S)})")
-    f.add_argument("--refine-window-s", type=float, default=REFINE_WINDOW_S,
-                   help=f"one refit on this longer window [s] (default {REFINE_WINDOW_S:g}; 0: "
-                        "skip)")
+    f.add_argument("--refine-window-s", type=float, default=None,
+                   help="one refit on this window after touchdown [s], longer than the last "
+                        "of --windows and within every record, or refused (0: skip; default "
+                        f"{REFINE_WINDOW_S:g}, shortened to the shortest record where one ends "
+                        "before, and said so)")
     f.add_argument("--robust", type=float, default=ROBUST_K,
                    help=f"Huber threshold in robust residual std (default {ROBUST_K:g}; 0: "
                         "plain least squares)")

@@ -108,6 +108,8 @@ def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_t
     ("no_touchdown", "no touchdown found"),
     ("touchdown_at_start", "no touchdown found inside the record"),
     ("rate_mismatch", "does not match the time column"),
+    ("time_gap", "drop.csv: time_s = '0.0202 s between samples at 0.0998 s': is 101 x "),
+    ("time_rate_changes", "intervals off the uniform grid"),
     ("no_height", "missing: give drop_height_m"),
     ("height_and_speed", "give either touchdown_speed_mps or drop_height_m"),
     ("bad_height", "must be in [0, 50]"),
@@ -143,6 +145,12 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     elif case == "time_backwards":
         t = t.copy()
         t[300] = t[298]
+        cols = [t, f, x]
+    elif case == "time_gap":  # 20 ms missing after sample 499 (100 samples at 5 kHz)
+        t = t + np.where(np.arange(t.size) >= 500, 0.02, 0.0)
+        cols = [t, f, x]
+    elif case == "time_rate_changes":  # every interval 15 % long after sample 600
+        t = t + 0.15 * np.clip(np.arange(t.size) - 600, 0, None) / 5000.0
         cols = [t, f, x]
     elif case == "too_short":
         cols = [c[:30] for c in cols]
@@ -182,6 +190,59 @@ def test_bad_data_is_rejected_with_field_value_and_rule(tmp_path, case, needle):
     with pytest.raises(jl.ConfigError) as err:
         cal.load_drop_test(path)
     assert needle in str(err.value), str(err.value)
+
+
+def test_a_gap_in_the_time_column_is_refused_in_one_line_naming_the_file_time_and_size(
+        tmp_path, capsys):
+    """A 10 kHz record missing 20 ms (200 samples) after 0.06 s: `jaxland fit` and `jaxland
+    predict` refuse it before any simulation (exit 2, one line, nothing written) naming the
+    file, where the gap is and how long, and the rule; a single dropped sample is refused
+    too, while an interval 24 % off 1/sample_rate_Hz (the rule's 25 %) loads."""
+    from jaxland.cli import main
+
+    rate = 10000.0
+    t, f, x = _trace(n=2000, onset=200, rate=rate)
+    meta = {"drop_height_m": 0.2, "sample_rate_Hz": rate}
+    keep = np.ones(t.size, bool)
+    keep[601:801] = False  # samples 601..800 missing: 0.0600 s is followed by 0.0801 s
+    path = _write(tmp_path, ["time_s", "normal_force_N", "stroke_m"],
+                  _rows(t[keep], f[keep], x[keep]), meta)
+    needle = ("drop.csv: time_s = '0.0201 s between samples at 0.06 s': is 201 x "
+              "1/sample_rate_Hz (0.0001 s)")
+    for cmd in (["fit", "--quiet", "--no-plots"],
+                ["predict", "--config", str(DATA / "truth_vehicle.toml"), "--no-plots"]):
+        out = tmp_path / cmd[0]
+        assert main([cmd[0], str(path), "--out", str(out), *cmd[1:]]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0] and "within 25%" in err[0], err
+        assert not out.exists()
+    one = np.ones(t.size, bool)
+    one[1000] = False
+    with pytest.raises(jl.ConfigError, match="about 1 sample.s. missing"):
+        cal.DropTest.from_arrays(t[one], {"normal_force_N": f[one], "stroke_m": x[one]},
+                                 sample_rate_Hz=rate, drop_height_m=0.2)
+    for shift, ok in ((0.24, True), (0.26, False)):
+        late = t.copy()
+        late[1000] += shift / rate
+        if ok:
+            cal.DropTest.from_arrays(late, {"normal_force_N": f, "stroke_m": x},
+                                     sample_rate_Hz=rate, drop_height_m=0.2)
+        else:
+            with pytest.raises(jl.ConfigError, match=r"(1\.26|0\.74) x 1/sample_rate_Hz"):
+                cal.DropTest.from_arrays(late, {"normal_force_N": f, "stroke_m": x},
+                                         sample_rate_Hz=rate, drop_height_m=0.2)
+
+
+def test_every_bundled_drop_record_loads():
+    """Each drop test under data/ and tests/data (every TOML with a [drop_test] table) passes
+    the loader's rules, the time column's uniformity among them."""
+    root = Path(__file__).resolve().parents[1]
+    paths = [p for d in ("data", "tests/data") for p in sorted((root / d).rglob("*.toml"))
+             if "[drop_test]" in p.read_text()]
+    assert len(paths) >= 4, paths
+    for p in paths:
+        d = cal.load_drop_test(p)
+        assert np.ptp(np.diff(d.time_s)) * d.sample_rate_Hz < 1e-3, p
 
 
 @pytest.mark.parametrize("case,needle", [
@@ -485,6 +546,9 @@ def test_the_fit_report_records_its_inputs_and_versions(cli_fit):
     assert args["data"] == [str(meta)] and args["out"] == str(cli_fit) and args["quiet"]
     assert args["windows"] == ",".join(f"{w:g}" for w in cal.WINDOWS_S)
     assert args["refine_window_s"] == cal.REFINE_WINDOW_S and args["method"] == "lm"
+    assert rep["settings"]["refine_window_s"] == cal.REFINE_WINDOW_S
+    assert rep["settings"]["refine_window_default"] is True
+    assert rep["settings"]["refine_window_note"] is None  # the records reach 0.15 s
     assert args["params"] == ",".join(NAMES) and args["start"] is None
     assert args["robust"] > 0 and args["max_iter"] == 60 and args["dt"] == 1e-5
     assert rep["environment"] == dict(jaxland=jl.__version__, jax=jax.__version__)
@@ -521,6 +585,38 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     # and each prediction names the files it came from
     assert rep["inputs"]["vehicle_config"] == str((cli_fit / "fitted_vehicle.toml").resolve())
     assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
+
+
+@pytest.mark.parametrize("section,key,value", [
+    ("honeycomb", "k_b1_N_per_m", 1.069e13),  # 1e6 x: N/mm read as N/um, say
+    ("ground", "k_N_per_m", 2e12),
+    ("body", "m_foot_kg", 1e-6),  # the foot in t read as kg, a million times too light
+])
+def test_predict_names_the_key_of_a_vehicle_too_stiff_for_its_step_not_the_step(
+        tmp_path, capsys, section, key, value):
+    """A --config with one stiffness 1e6 times the paper's (or the foot a millionth of its
+    mass): predict, which takes no step option, refuses it in one line naming that key of the
+    user's file and its value as written, not the solver's dt (exit 2, nothing written); in
+    Python, predict names the key under "vehicle"."""
+    import re
+
+    from jaxland.cli import main
+
+    text = (DATA / "nominal_vehicle.toml").read_text()
+    text, n = re.subn(rf"^{key} = [^ ]+", f"{key} = {value!r}", text, flags=re.M)
+    assert n == 1
+    cfg = tmp_path / "stiff.toml"
+    cfg.write_text(text)
+    out = tmp_path / "out"
+    assert main(["predict", "--config", str(cfg), str(DATA / "drop_h0.20m.toml"), "--out",
+                 str(out), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--config {cfg}: {section}.{key} = {value!r}: " in err[0], err
+    assert "solver.dt" not in err[0] and "check the value and its unit" in err[0], err
+    assert not out.exists()
+    with pytest.raises(jl.ConfigError) as caught:
+        cal.predict(jl.load_vehicle(cfg), cal.load_drop_test(DATA / "drop_h0.20m.toml"))
+    assert caught.value.field == f"vehicle: {section}.{key}" and caught.value.value == value
 
 
 def test_predict_says_what_the_fit_said_of_its_vehicle_and_its_errors(cli_fit, tmp_path,
@@ -756,6 +852,51 @@ def test_a_record_shorter_than_the_windows_names_the_flag_on_the_cli_and_the_arg
     with pytest.raises(jl.ConfigError, match="longer than the record") as caught:
         cal.fit(cal.load_drop_test(toml))
     assert caught.value.field == "windows"
+
+
+def test_the_refine_window_is_used_as_given_or_refused_and_a_shortened_default_is_said(
+        tmp_path, capsys):
+    """A record that ends 60 ms after touchdown: `--refine-window-s` longer than it, or no
+    longer than the last of --windows, is refused in one line before the fit (exit 2, nothing
+    written), and a value that fits is used as given; the default 150 ms is shortened to the
+    record, in a line and in the report's settings, and the refit runs on that window."""
+    from calibration import _fit as cal_fit
+    from jaxland.cli import main
+
+    _, toml = vr.write_drop_test(tmp_path, 0.2, seed=1, duration_s=0.11, clean=True)
+    vr.write_nominal(tmp_path)
+    d = cal.load_drop_test(toml)
+    end = d.duration_after_touchdown_s
+    assert 0.055 < end < 0.065, end
+    base = ["fit", str(toml), "--params", "F1", "--no-plots", "--quiet",
+            "--no-peak-model-term", "--no-fixed-params-term"]
+    out = tmp_path / "out"
+    for flags, needle in (
+            (["--windows", "0.01", "--refine-window-s", "0.1"],
+             f"--refine-window-s = 0.1: is longer than the record {d.name} after touchdown "
+             f"({end:.4g} s)"),
+            (["--windows", "0.01,0.03", "--refine-window-s", "0.02"],
+             "--refine-window-s = 0.02: must be longer than the last window (0.03 s)")):
+        assert main([*base, *flags, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err
+        assert not out.exists()
+    assert cal_fit.check_fit([d], windows=(0.01,), refine_window_s=0.05).stages_w == [0.01,
+                                                                                    0.05]
+    with pytest.raises(jl.ConfigError, match="longer than the record") as caught:
+        cal_fit.check_fit([d], windows=(0.01,), refine_window_s=0.1)
+    assert caught.value.field == "refine_window_s"
+    assert main([*base, "--windows", "0.01", "--out", str(out)]) == 0
+    said = (f"jaxland fit: refine window {end:.4g} s, not the default 0.15 s: the record "
+            f"{d.name} ends {end:.4g} s after touchdown")
+    assert said in capsys.readouterr().err
+    rep = json.loads((out / "fit_report.json").read_text())
+    settings = rep["settings"]
+    assert settings["refine_window_s"] == pytest.approx(end, abs=1e-12)
+    assert settings["refine_window_requested_s"] == 0.15 and settings["refine_window_default"]
+    assert said.removeprefix("jaxland fit: ") == settings["refine_window_note"]
+    assert rep["stages"][-1]["stage"] == f"2/2 ({end * 1e3:g} ms)"
+    assert rep["inputs"]["arguments"]["refine_window_s"] == 0.15  # as parsed, default filled in
 
 
 def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,

@@ -414,7 +414,7 @@ def test_parameters_left_fixed_widen_the_total_to_the_fit_with_them_freed(fixed_
     assert rep["interval_reported"] == "std_error_total" and rep["interval_bounded"]
     truth = dict(zip(("k_b1", "F1"), get_values(vr.truth_vehicle(), ("k_b1", "F1"))))
     # how many total standard errors from the truth, with the term and without it (the
-    # figures docs/calibration.md quotes)
+    # figures docs/calibration-validation.md quotes)
     quoted = {"k_b1": (0.92, 2.65), "F1": (1.01, 5.77)}
     for n, t in truth.items():
         p = rep["parameters"][n]
