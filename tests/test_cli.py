@@ -285,3 +285,32 @@ def test_compiled_programs_are_kept_between_runs(tmp_path):
     kept = run("on")
     assert kept.is_dir() and any(kept.iterdir())
     assert not run("off", JAXLAND_CACHE_DIR="").exists()
+
+
+def test_a_simulate_folder_reruns_its_landing_from_its_own_files(tmp_path, capsys):
+    """vehicle.toml and scene.toml fed back rerun the landing: the scene's mass, plateau and
+    friction scales act once (vehicle.toml held the scaled vehicle while scene.toml kept the
+    scales, so the rerun scaled twice: 1.5^2 the mass). The scaled vehicle is
+    effective_vehicle.toml, checked against the paper's values times the scales."""
+    scene = tmp_path / "s.toml"
+    scene.write_text("[scene]\ndrop_height_m = 0.0\nsink_speed_mps = 2.0\nmass_scale = 1.5\n"
+                     "plateau_scale = [0.8, 0.8, 0.8, 0.8]\nfriction = 0.5\n")
+    first, again = tmp_path / "r1", tmp_path / "r2"
+    assert main(["simulate", "--scene", str(scene), "--t-end", "0.1", "--no-plots",
+                 "--out", str(first)]) == 0
+    assert main(["simulate", "--config", str(first / "vehicle.toml"), "--scene",
+                 str(first / "scene.toml"), "--t-end", "0.1", "--no-plots",
+                 "--out", str(again)]) == 0
+    capsys.readouterr()
+    s1, s2 = (json.loads((d / "summary.json").read_text()) for d in (first, again))
+    assert s1["max_stroke_m"] > 0.01
+    assert s2 == s1
+    paper = jl.paper_vehicle()
+    assert jl.vehicle_to_toml(jl.load_vehicle(first / "vehicle.toml")) == jl.vehicle_to_toml(paper)
+    eff = jl.load_vehicle(first / "effective_vehicle.toml")
+    assert float(eff.m_body) == pytest.approx(1.5 * float(paper.m_body), rel=1e-12)
+    assert float(eff.I_xx) == pytest.approx(1.5 * float(paper.I_xx), rel=1e-12)
+    assert float(eff.honeycomb.F1) == pytest.approx(0.8 * float(paper.honeycomb.F1), rel=1e-12)
+    assert float(eff.honeycomb.F2) == pytest.approx(0.8 * float(paper.honeycomb.F2), rel=1e-12)
+    assert float(eff.ground.mu) == 0.5
+

@@ -126,7 +126,9 @@ def test_an_output_folder_is_one_set_and_records_its_inputs(tmp_path, capsys):
     assert marker["command"] == "simulate" and marker["jaxland_version"] == jl.__version__
     scene = jl.load_scene(out / "scene.toml")
     assert float(scene.drop_height) == 0.02 and float(scene.friction) == 0.3
-    assert float(jl.load_vehicle(out / "vehicle.toml").ground.mu) == 0.3  # the scene's mu
+    paper_mu = float(jl.paper_vehicle().ground.mu)  # vehicle.toml: as given, the paper's
+    assert float(jl.load_vehicle(out / "vehicle.toml").ground.mu) == paper_mu != 0.3
+    assert float(jl.load_vehicle(out / "effective_vehicle.toml").ground.mu) == 0.3  # as run
     summary = json.loads((out / "summary.json").read_text())
     assert summary["jaxland_version"] == jl.__version__ and summary["save_dt_s"] == 1e-4
     # a rerun without figures replaces the folder: no figure of the first run survives

@@ -134,9 +134,19 @@ def cmd_simulate(args) -> int:
         result.to_csv(staging / "trajectory.csv")
         result.to_json(staging / "summary.json")
         (staging / "scene.toml").write_text(scene_to_toml(scene))
-        head = ("# the vehicle as the scene ran it (scene friction and mass scale applied)\n"
-                + (f"# {note}\n" if note else ""))
-        (staging / "vehicle.toml").write_text(head + vehicle_to_toml(effective))
+        # vehicle.toml and scene.toml are the run's inputs: fed back (--config, --scene) they
+        # rerun it. The scene's friction, mass and plateau scales act on the vehicle, so the
+        # vehicle with them applied is written apart: beside scene.toml they would apply twice.
+        given = args.config or "the paper's vehicle"
+        (staging / "vehicle.toml").write_text(
+            f"# the vehicle given ({given}), before the scene's friction, mass_scale and "
+            "plateau_scale:\n# with scene.toml (--config vehicle.toml --scene scene.toml) it "
+            "reruns this landing\n" + vehicle_to_toml(vehicle))
+        (staging / "effective_vehicle.toml").write_text(
+            "# the vehicle as the landing ran it: vehicle.toml with scene.toml's friction, "
+            "mass_scale and plateau_scale\n# applied. For reading: beside scene.toml, which "
+            "applies them again, it runs another landing\n"
+            + (f"# {note}\n" if note else "") + vehicle_to_toml(effective))
         if not args.no_plots:
             if model == "quarter":
                 from .._plots import plot_landing
@@ -163,7 +173,8 @@ def cmd_simulate(args) -> int:
     _print_summary(result.outcomes)
     if "note" in result.outcomes:
         print(f"  note: {result.outcomes['note']}", file=sys.stderr)
-    print(f"wrote {out}/trajectory.csv, summary.json, scene.toml, vehicle.toml"
+    print(f"wrote {out}/trajectory.csv, summary.json, scene.toml, vehicle.toml, "
+          "effective_vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
 
