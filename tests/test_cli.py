@@ -314,3 +314,19 @@ def test_a_simulate_folder_reruns_its_landing_from_its_own_files(tmp_path, capsy
     assert float(eff.honeycomb.F2) == pytest.approx(0.8 * float(paper.honeycomb.F2), rel=1e-12)
     assert float(eff.ground.mu) == 0.5
 
+
+def test_the_stroke_figures_mark_the_breakpoints_of_the_honeycomb_run(tmp_path, capsys,
+                                                                      monkeypatch):
+    """x_L1 = F1 / k_b1 moves with a plateau scale: the stroke figures mark the honeycomb the
+    landing ran, not the one given before the scene scaled it."""
+    import jaxland._plots as plots
+
+    seen = {}
+    monkeypatch.setattr(plots, "plot_landing",
+                        lambda *a, breakpoints_m, **k: seen.update(breakpoints_m) or [])
+    assert main(["simulate", "--touchdown-speed", "2", "--plateau-scale", "0.8", "0.8", "0.8",
+                 "0.8", "--t-end", "0.05", "--out", str(tmp_path / "run")]) == 0
+    capsys.readouterr()
+    hc = jl.paper_vehicle().honeycomb
+    assert seen["x_L1"] == pytest.approx(0.8 * float(hc.F1) / float(hc.k_b1), rel=1e-12)
+    assert seen["x_L4"] == pytest.approx(float(hc.x_L4), rel=1e-12)

@@ -151,7 +151,7 @@ def cmd_simulate(args) -> int:
             if model == "quarter":
                 from .._plots import plot_landing
 
-                hc = vehicle.honeycomb
+                hc = effective.honeycomb  # x_L1 = F1 / k_b1 moves with the plateau scale
                 bps = {f"x_L{i}": float(getattr(hc, f"x_L{i}")) for i in (1, 2, 3, 4)}
                 plot_landing(result.trajectory, result.outcomes, staging / "figures",
                              breakpoints_m=bps)
