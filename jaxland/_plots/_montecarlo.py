@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .._montecarlo._stats import probability_text
+from .._solvers import FAILED_CODES, Result
 from ._landing import _save
 
 _OUTCOMES = (  # (label, function of (outputs) -> per-sample values, scale, unit)
@@ -32,6 +33,32 @@ def _input_column(result, name):
     return arr[:, int(leg.rstrip("]"))] if leg else arr
 
 
+def _kinds(result) -> list[tuple[str, np.ndarray, dict]]:
+    """The samples the tip-over map draws apart, as (label, mask, scatter style): successful
+    landings stable or tipped; numerical failures (``Result.failed``); landings that t_end cut
+    off (UNFINISHED: no final outcome, not tip-over-free) and landings without touchdown,
+    neither of them failures (the summary's ``n_unfinished`` and ``n_no_touchdown``)."""
+    code = np.asarray(result.failure)
+    ok = code == int(Result.SUCCESSFUL)
+    tipped = np.asarray(result.outputs["tipped_over"], dtype=bool)
+    return [
+        ("stable", ok & ~tipped, dict(s=10, c="C0")),
+        ("tipped", ok & tipped, dict(s=14, c="C3", marker="x")),
+        ("unfinished, no final outcome", code == int(Result.UNFINISHED),
+         dict(s=18, facecolors="none", edgecolors="C1", marker="o")),
+        ("no touchdown", code == int(Result.NO_TOUCHDOWN), dict(s=16, c="0.5", marker="v")),
+        ("failed", np.isin(code, FAILED_CODES), dict(s=14, c="k", marker="s")),
+    ]
+
+
+def _counts_text(s: dict) -> str:
+    """The landings by how they ended, as the summary counts them."""
+    extra = [f"{s[key]} {name}" for key, name in (("n_unfinished", "unfinished"),
+                                                  ("n_no_touchdown", "without touchdown"))
+             if s[key]]
+    return ", ".join([f"{s['n_succeeded']} successful", f"{s['n_failed']} failed", *extra])
+
+
 def plot_montecarlo(result, out_dir) -> list[Path]:
     """Write mc_histograms.png, mc_envelopes.png and (when the model can tip over and there
     are two or more dispersed inputs) mc_tipover_map.png into ``out_dir``."""
@@ -45,7 +72,7 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
     tippable = s["tip_over"].get("modelled", True)  # the quarter model cannot tip
     tip = (f"P(tip-over) = {probability_text(s['tip_over'])}" if tippable
            else "tip-over not modelled")
-    title = (f"{s['n']} landings ({s['model']} model), {s['n_failed']} failed; {tip}, "
+    title = (f"{s['n']} landings ({s['model']} model): {_counts_text(s)}; {tip}, "
              f"P(bottoming) = {probability_text(s['bottoming'])}")
     paths = []
 
@@ -54,7 +81,7 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
         x = np.asarray(fn(result.outputs), dtype=float)[ok] * scale
         ax.hist(x, bins=min(50, max(5, int(np.sqrt(x.size)))), color="C0")
         ax.set_xlabel(f"{label} [{unit}]")
-        ax.set_ylabel("landings")
+        ax.set_ylabel("successful landings")
         if unit == "m" and "margin" in label:
             ax.axvline(0.0, color="r", ls="--", label="tip-over")
             ax.legend()
@@ -69,7 +96,8 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
             ax.axhline(q, color="0.8", lw=0.8)
         ax.set_xlabel(f"{label} [{unit}]")
         ax.set_ylabel("fraction of landings below")
-    fig.suptitle("envelopes (empirical CDFs); lines at 5, 50, 95, 99 %")
+    fig.suptitle(f"envelopes (empirical CDFs) over the {s['n_succeeded']} successful "
+                 "landings; lines at 5, 50, 95, 99 %")
     paths.append(_save(fig, out_dir / "mc_envelopes.png"))
 
     ranking = s["sensitivity"]["ranking"]
@@ -78,15 +106,13 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
         xa, xb = _input_column(result, a), _input_column(result, b)
         fig = Figure(figsize=(6.5, 5), layout="constrained")
         ax = fig.subplots()
-        tipped = result.outputs["tipped_over"]
-        ax.scatter(xa[ok & ~tipped], xb[ok & ~tipped], s=10, c="C0", label="stable")
-        ax.scatter(xa[ok & tipped], xb[ok & tipped], s=14, c="C3", marker="x", label="tipped")
-        if (~ok).any():
-            ax.scatter(xa[~ok], xb[~ok], s=14, c="k", marker="s", label="failed")
+        for label, mask, style in _kinds(result):
+            if label in ("stable", "tipped") or mask.any():
+                ax.scatter(xa[mask], xb[mask], label=f"{label} ({int(mask.sum())})", **style)
         ax.set_xlabel(a)
         ax.set_ylabel(b)
         ax.set_title(f"tip-over map over the two most influential inputs\n(by effect on "
-                     f"{s['sensitivity']['target']})")
+                     f"{s['sensitivity']['target']})\n{s['n']} landings: {_counts_text(s)}")
         ax.legend()
         paths.append(_save(fig, out_dir / "mc_tipover_map.png"))
     return paths
