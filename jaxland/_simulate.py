@@ -222,6 +222,7 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
             out[k] = _py(v)
     if model == "full":
         out["min_stability_margin_m"] = -float(s["peak_margin_deficit_m"])
+    out["legs_off_ground_at_end"] = _legs_off_ground(s, traj)
     out["tipped_over"] = bool(s["tipped"])  # a symmetric vertical drop cannot tip
     out["tip_over_time_s"] = float(s["tip_over_time_s"]) if out["tipped_over"] else None
     code = int(s["result"])
@@ -443,4 +444,22 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
                             "peaks and checks stop there")
     elif outcomes["classification"] == "unfinished":
         outcomes["note"] = f"{Result.UNFINISHED.message}; rerun with a longer t_end"
+    elif outcomes["legs_off_ground_at_end"]:
+        legs = ", ".join(str(i) for i in outcomes["legs_off_ground_at_end"])
+        outcomes["note"] = (f"at t = {float(traj['time_s'][-1]):g} s, the last saved time, leg(s) "
+                            f"{legs} had left the ground after touching it: the landing still "
+                            "moves and comes down again, so its max stroke and peaks are those "
+                            "up to t_end, not final; a longer t_end shows whether they grow")
     return Landing(traj, outcomes, vehicle, scene, solver)
+
+
+def _legs_off_ground(summary: dict, traj: dict) -> list[int] | None:
+    """The legs (numbered from 0, as the per-leg columns) that touched the ground and are off
+    it at the last saved sample: a foot in the air on a rebound or a rocking vehicle lands again
+    and can crush further, which ``UNFINISHED`` (a leg still compressing) does not see. None
+    without a touchdown."""
+    if int(summary["n_contact_changes"]) == 0:
+        return None
+    touched = np.atleast_1d(np.asarray(summary["peak_normal_force_N"])) > 0.0
+    off = np.atleast_1d(np.asarray(traj["normal_force_N"])[-1]) <= 0.0
+    return np.flatnonzero(touched & off).tolist()

@@ -354,6 +354,20 @@ def test_a_landing_cut_off_during_its_impact_is_unfinished_not_stable():
     assert mc.summary["bottoming"]["n"] == codes.count(jl.Result.SUCCESSFUL)
 
 
+def test_a_landing_cut_off_on_its_rebound_says_its_outcomes_are_not_final():
+    """The paper drop cut at 0.37 s is on its rebound, the foot in the air: no leg is
+    compressing, so it is not UNFINISHED, but it lands again and crushes further (its max
+    stroke at 0.6 s is larger). The outcomes name the leg off the ground and the note says the
+    max stroke is not final; at 0.6 s the foot is down, nothing is named and no note is added."""
+    cut = jl.simulate(t_end=0.37).outcomes
+    later = jl.simulate(t_end=0.6).outcomes
+    assert cut["classification"] == "stable" and cut["legs_off_ground_at_end"] == [0]
+    assert "leg(s) 0 had left the ground" in cut["note"] and "not final" in cut["note"]
+    assert later["max_stroke_m"] > cut["max_stroke_m"] + 5e-4  # the note was true
+    assert later["legs_off_ground_at_end"] == [] and "note" not in later
+    assert jl.simulate(t_end=0.1).outcomes["legs_off_ground_at_end"] is None  # no touchdown
+
+
 def test_a_3d_landing_that_can_still_tip_over_is_unfinished_not_upright():
     """On a 20 deg slope this landing balances on its downhill foot after the impact and tips
     over at 1.02 s. Cut off at 0.3 s, its honeycombs are no longer crushing, but its kinetic

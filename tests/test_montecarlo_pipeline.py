@@ -59,3 +59,44 @@ def test_a_second_vehicle_reuses_the_compiled_chunk_with_its_own_outcomes():
     assert np.all(np.abs(a2 - a1) > 0.01 * a1)  # every sample saw the stiffer honeycomb
     for k, v in alone.outputs.items():  # up to how XLA compiles either program
         np.testing.assert_allclose(second.outputs[k], v, rtol=1e-9, atol=0, err_msg=k)
+
+
+def _drop_spec(t_end, **kw):
+    """Quarter landings from 0.2 m (touchdown at about 0.2 s), mass dispersed 3 %."""
+    return MonteCarloSpec(**{**dict(dispersion={"mass_scale": Distribution("normal", 1.0, 0.03)},
+                                    fixed={"drop_height_m": 0.2}, n=4, seed=3, t_end=t_end,
+                                    dt=1e-4), **kw})
+
+
+def test_the_t_end_check_measures_what_a_longer_run_adds():
+    """Cut at 0.37 s the landings are on their rebound, a foot in the air: UNFINISHED (a leg
+    still compressing at its largest stroke) does not catch them, but they land again and
+    crush further. The t_end check reruns them to 0.74 s and reports the growth of their max
+    stroke, which independent single landings to 0.37 s and 0.74 s give too; cut at 1 s the
+    same landings are over (nothing changes by 2 s)."""
+    from jaxland._montecarlo._sample import sample_scenes
+
+    spec = _drop_spec(0.37, t_end_check=3)
+    res = run_montecarlo(spec, progress=False)
+    assert np.all(res.failure == 0)
+    c = res.summary["t_end_check"]
+    assert (c["n_checked"], c["t_end_s"], c["n_rerun_failed"]) == (3, 0.74, 0)
+    scenes, _ = sample_scenes(spec, 0, 3, 4)
+    stroke = [np.asarray(jl.landings(jl.paper_vehicle(), scenes, jl.Solver(
+        dt=1e-4, t_end=t, save_dt=t, method="euler"), "quarter")[1]["max_stroke_m"])
+        for t in (0.37, 0.74)]
+    growth = stroke[1] - stroke[0]
+    assert growth.max() > 5e-4  # the second impact crushes by most of a millimetre
+    assert c["max_stroke_growth_m"] == pytest.approx(growth.max(), rel=1e-6)
+    assert c["changed_samples"] == np.flatnonzero(growth > 1e-3 * stroke[0]).tolist()
+    assert c["n_changed"] == c["n_max_stroke_grew"] == len(c["changed_samples"]) >= 1
+    over = run_montecarlo(_drop_spec(1.0, t_end_check=4), progress=False).summary["t_end_check"]
+    assert (over["n_checked"], over["n_changed"]) == (4, 0)
+
+
+def test_the_t_end_check_spec_key():
+    assert MonteCarloSpec(dispersion={}).t_end_check == 32
+    assert run_montecarlo(_drop_spec(0.37, n=2, t_end_check=0),
+                          progress=False).summary["t_end_check"] is None
+    with pytest.raises(jl.ConfigError, match=r"montecarlo\.t_end_check = -1"):
+        montecarlo_spec_from_dict({"montecarlo": {"t_end_check": -1}})

@@ -341,7 +341,82 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
+    summary["t_end_check"] = check_t_end(spec, vehicle, model, outputs, failure, line)
     return MonteCarloResult(inputs, outputs, failure, summary, vehicle=vehicle)
+
+
+T_END_CHECK_FACTOR = 2.0  # the t_end check's landings run to this multiple of t_end_s
+# a max stroke growing by more than this fraction after t_end_s counts as changed: the
+# Monte Carlo's accuracy target (docs/montecarlo.md, choosing the step)
+T_END_CHECK_TOL = 1e-3
+
+
+def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict,
+                failure: np.ndarray, line=None) -> dict | None:
+    """Whether the outcomes at ``t_end_s`` are final, measured: the first ``t_end_check``
+    landings called finished (SUCCESSFUL; with early stop, those that did not settle) run
+    again, each with the method and step it ended with, to ``T_END_CHECK_FACTOR`` x t_end_s,
+    saving the state at t_end_s. A landing has changed where, after t_end_s in that same run,
+    a leg's max stroke grew by more than ``T_END_CHECK_TOL`` of it, or it tipped over or
+    bottomed out. ``UNFINISHED`` catches a leg still compressing at t_end; a vehicle rocking
+    on its legs or a foot in the air comes down and crushes again later, which this counts.
+    The changed fraction's 95 % Wilson interval estimates it over all the finished landings.
+    None where the check is off or no landing finished."""
+    ok = failure == int(Result.SUCCESSFUL)
+    if "settled_time_s" in outputs:  # a settled landing's outcomes are final (the bound)
+        ok &= ~np.isfinite(outputs["settled_time_s"])
+    idx = np.flatnonzero(ok)[:spec.t_end_check]
+    if idx.size == 0:
+        return None
+    t_check = T_END_CHECK_FACTOR * spec.t_end
+    methods = np.where(outputs["retried"][idx], retry_method(spec.method), spec.method)
+    steps = outputs["dt_s"][idx]
+    at_end = np.zeros((idx.size, vehicle.n_legs))  # max stroke at t_end_s and at t_check
+    later = np.zeros((idx.size, vehicle.n_legs))
+    tipped = np.zeros(idx.size, bool)
+    result = np.zeros(idx.size, int)
+    if line is not None:
+        line(f"t_end check: {idx.size} landing(s) to {t_check:g} s")
+    for method, dt in sorted(set(zip(methods.tolist(), steps.tolist()))):
+        sel = (methods == method) & (steps == dt)
+        solver = Solver(dt=dt, t_end=t_check, save_dt=spec.t_end, method=method,
+                        peaks=REPORTED_PEAKS[model], event_log=0,
+                        ledger_every=max(1, round(ledger_check_s(spec, model) / dt))).validate()
+        size = 8 * -(-int(sel.sum()) // 8)  # padded with the last landing: fewer compilations
+        rows = np.concatenate([idx[sel], np.full(size - sel.sum(), idx[sel][-1])])
+        scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=rows)
+        traj, s = jax.device_get(_t_end_program(solver, model)(vehicle, scenes))
+        k = int(sel.sum())
+        shape = (k, vehicle.n_legs)
+        at_end[sel] = np.broadcast_to(np.asarray(traj["stroke_max_m"])[:k, -1].reshape(k, -1),
+                                      shape)
+        later[sel] = np.broadcast_to(np.asarray(s["max_stroke_m"])[:k].reshape(k, -1), shape)
+        tipped[sel] = np.asarray(s["tipped"])[:k] & (np.asarray(s["tip_over_time_s"])[:k]
+                                                     > spec.t_end)
+        result[sel] = np.asarray(s["result"])[:k]
+    if line is not None:
+        line.close()
+    ran = ~np.isin(result, FAILED_CODES)  # a rerun that failed numerically judges nothing
+    growth = (later - at_end).max(axis=1)
+    x_l4 = float(vehicle.honeycomb.x_L4)
+    bottomed = (later.max(axis=1) > x_l4) & ~(at_end.max(axis=1) > x_l4)
+    grew = (later - at_end > T_END_CHECK_TOL * np.maximum(at_end, 1e-3)).any(axis=1)
+    changed = ran & (grew | tipped | bottomed)
+    return dict(
+        n_checked=int(ran.sum()), t_end_s=t_check, tolerance=T_END_CHECK_TOL,
+        n_changed=int(changed.sum()), changed=proportion(changed[ran]),
+        changed_samples=idx[changed].tolist(),
+        n_max_stroke_grew=int((ran & grew).sum()),
+        max_stroke_growth_m=float(growth[ran].max()) if ran.any() else None,
+        n_tipped_later=int((ran & tipped).sum()), n_bottomed_later=int((ran & bottomed).sum()),
+        n_rerun_failed=int((~ran).sum()))
+
+
+@functools.lru_cache(maxsize=2)
+def _t_end_program(solver, model):
+    """The t_end check's landings with their trajectory (the state at t_end_s), the vehicle an
+    argument."""
+    return jax.jit(lambda vehicle, scenes: landings(vehicle, scenes, solver, MODELS[model]))
 
 
 RETRIED = (Result.NONFINITE, Result.LEDGER, Result.CLOSURE, Result.STEP_ABOVE_LIMIT)

@@ -204,6 +204,9 @@ class MonteCarloSpec:
     # energy_closure_rel is the worst over the checks (docs/montecarlo.md). Peaks are maxima
     # over every step regardless.
     ledger_check: float | None = spec_field(None, toml="ledger_check_s", check=_ledger_check)
+    # rerun this many landings called finished at t_end_s to twice t_end_s and count those
+    # whose max stroke, tip-over or bottoming still changed (0: off; docs/montecarlo.md)
+    t_end_check: int = spec_field(32, toml="t_end_check", check=Number(integer=True, lo=0))
 
     def __post_init__(self):
         for table, keys in (("dispersion", self.dispersion), ("fixed", self.fixed)):

@@ -149,6 +149,8 @@ def cmd_montecarlo(args) -> int:
             print(f"  {name:<30s} min {env['min']:.4g}  p01 {env['p01']:.4g}  p50 {env['p50']:.4g}")
         else:
             print(f"  {name:<30s} p50 {env['p50']:.4g}  p99 {env['p99']:.4g}  max {env['max']:.4g}")
+    if s.get("t_end_check"):
+        print(f"  t_end check         {_t_end_check_text(s)}")
     if s["sensitivity"]["ranking"]:
         top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g})"
                         for r in s["sensitivity"]["ranking"][:3])
@@ -162,3 +164,19 @@ def cmd_montecarlo(args) -> int:
     return 0
 
 
+def _t_end_check_text(s: dict) -> str:
+    """The t_end check's line: how many landings called finished at t_end_s still changed by
+    the check's end (``jaxland._montecarlo._run.check_t_end``)."""
+    c = s["t_end_check"]
+    head = (f"{c['n_changed']} of {c['n_checked']} landings called finished at t_end_s = "
+            f"{s['t_end_s']:g} s still changed before {c['t_end_s']:g} s")
+    if not c["n_changed"]:
+        return head + f" (max stroke within {c['tolerance']:g}): outcomes final at t_end_s"
+    lo, hi = c["changed"]["ci95_wilson"]
+    what = [f"max stroke grew on {c['n_max_stroke_grew']} (up to "
+            f"{c['max_stroke_growth_m'] * 1e3:.3g} mm)"]
+    what += [f"{c[k]} {name}" for k, name in (("n_tipped_later", "tipped over later"),
+                                               ("n_bottomed_later", "bottomed out later"))
+             if c[k]]
+    return (head + f": {', '.join(what)}. For {lo:.0%} to {hi:.0%} of the landings (95 % "
+            "CI) the outcomes above are not final at t_end_s: raise t_end_s")
