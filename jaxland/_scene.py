@@ -63,6 +63,10 @@ OPTIONAL_LIMITS = {"friction": (0.0, 2.0), "mass_scale": (0.5, 2.0), "plateau_sc
                    "com_offset": (-0.3, 0.3)}
 
 
+# the unit a TOML key's suffix names, as a message prints it
+_UNIT_OF_SUFFIX = {"m": "m", "mps": "m/s", "deg": "deg", "degps": "deg/s"}
+
+
 def _number(name: str, default, optional: bool = False):
     """A Scene field converted to float64 (None stays None where ``optional``); a flag, a text
     or no number is refused by the field's name."""
@@ -178,7 +182,7 @@ class Scene(eqx.Module):
                 shown = float(arr[bad].flat[0]) / to_si
                 raise ConfigError(f"scene.{key}", shown, f"must be finite and in "
                                   f"[{lo / to_si:.4g}, {hi / to_si:.4g}] "
-                                  f"{key.rsplit('_', 1)[-1]}")
+                                  f"{_UNIT_OF_SUFFIX[key.rsplit('_', 1)[-1]]}")
         fr = concrete(self.friction)
         lo, hi = OPTIONAL_LIMITS["friction"]
         if fr is not None and np.any(~np.isfinite(fr) | (fr < lo) | (fr > hi)):

@@ -428,6 +428,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     retried = None
     if chosen and Result(int(summary["result"])).failed and not isinstance(method, Tsit5):
         again = retry_step(vehicle, scene, method, mod)
+        if save_dt is not None:  # a whole fraction of the output interval the user gave
+            again = save_dt / math.ceil(save_dt / again - 1e-9)
         if again < solver.dt:
             retried = solver.dt
             solver = Solver(dt=again, t_end=t_end, save_dt=save_dt, method=method, **smoothing)

@@ -330,3 +330,15 @@ def test_the_stroke_figures_mark_the_breakpoints_of_the_honeycomb_run(tmp_path, 
     hc = jl.paper_vehicle().honeycomb
     assert seen["x_L1"] == pytest.approx(0.8 * float(hc.F1) / float(hc.k_b1), rel=1e-12)
     assert seen["x_L4"] == pytest.approx(float(hc.x_L4), rel=1e-12)
+
+
+def test_a_t_end_beyond_its_rule_is_named_before_the_vehicle_is_blamed(tmp_path, capsys):
+    """A t_end of 1e9 s would take more steps than a run may, at any step: the refusal is
+    t_end's own rule, not the paper vehicle's stiffness; a scene speed outside its envelope
+    prints its unit as written in the TOML key's suffix (m/s)."""
+    assert main(["simulate", "--t-end", "1e9", "--no-plots", "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err == ("jaxland: error: --t-end = 1000000000.0: must be <= 100 s "
+                                       "(a landing settles within seconds)\n")
+    assert main(["simulate", "--touchdown-speed", "40", "--no-plots",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.rstrip().endswith("must be finite and in [0, 30] m/s")

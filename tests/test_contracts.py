@@ -368,6 +368,17 @@ def test_a_landing_cut_off_on_its_rebound_says_its_outcomes_are_not_final():
     assert jl.simulate(t_end=0.1).outcomes["legs_off_ground_at_end"] is None  # no touchdown
 
 
+def test_a_retried_landing_keeps_the_output_interval_it_was_given():
+    """A 14 m/s touchdown fails at the default step and is run again at the retry step; with
+    save_dt = 5e-5 s given, that step is a whole fraction of it (the run returns, sampled
+    every 5e-5 s), not refused after the first run for not dividing it."""
+    out = jl.simulate(jl.Scene(drop_height=0.0, sink_speed=14.0), t_end=0.05, save_dt=5e-5)
+    assert out.outcomes["retried_from_dt_s"] == 1e-5
+    dt = out.outcomes["dt_s"]
+    assert dt < 1e-5 and 5e-5 / dt == pytest.approx(round(5e-5 / dt), abs=1e-9)
+    np.testing.assert_allclose(np.diff(out.trajectory["time_s"]), 5e-5, rtol=1e-6)
+
+
 def test_a_3d_landing_that_can_still_tip_over_is_unfinished_not_upright():
     """On a 20 deg slope this landing balances on its downhill foot after the impact and tips
     over at 1.02 s. Cut off at 0.3 s, its honeycombs are no longer crushing, but its kinetic

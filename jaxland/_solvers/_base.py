@@ -196,6 +196,9 @@ class Solver(eqx.Module):
             positive("solver", name, getattr(self, name), f" {name[-1]}", zero_ok=True)
         for name in ("dt", "t_end", "save_dt"):
             positive("solver", name, getattr(self, name), " s")
+        if self.t_end > T_END_MAX:
+            raise ConfigError("solver.t_end", self.t_end, f"must be <= {T_END_MAX:g} s (a "
+                              "landing settles within seconds)")
         if not isinstance(self.method, AbstractIntegrator):
             raise ConfigError("solver.method", self.method, "must be an integrator or its name")
         self.method.validate()
@@ -223,9 +226,6 @@ class Solver(eqx.Module):
         if not _whole_steps(self.save_dt, self.dt):
             raise ConfigError("solver.save_dt", self.save_dt,
                               f"must be a whole multiple of dt = {self.dt} s")
-        if self.t_end > T_END_MAX:
-            raise ConfigError("solver.t_end", self.t_end, f"must be <= {T_END_MAX:g} s (a "
-                              "landing settles within seconds)")
         if self.n_saves > SAVES_MAX:
             raise ConfigError("solver.save_dt", self.save_dt,
                               f"gives {self.n_saves} saved samples over t_end = {self.t_end:g} s;"
