@@ -17,7 +17,9 @@ SPEC = dict(
                 learning_rate=0.3, verify_rounds=2, reoptimise_iterations=6, verify_add=3),
     objective=dict(measure="max"),
     variables={"F1_N": dict(low=2000.0, high=8000.0), "x_L2_mm": dict(low=20.0, high=150.0)},
-    constraints=dict(stroke=dict(margin_mm=100.0, measure="max")),
+    # 32 fresh landings without a violation bound its probability by 0.107 (95 % Wilson): the
+    # tolerance lets a clean verification of that size meet the constraint
+    constraints=dict(stroke=dict(margin_mm=100.0, measure="max", violation_tolerance=0.15)),
     montecarlo=dict(n=32, seed=4, dt_s=2e-5, t_end_s=0.15),
     fixed=dict(drop_height_m=0.0),
     dispersion={"sink_speed_mps": dict(dist="uniform", low=1.6, high=2.6),
@@ -180,7 +182,9 @@ def test_too_few_verification_landings_meet_no_constraint(measure):
     from jaxland._design._spec import Constraint
     from jaxland._design._verify import MIN_JUDGED
 
-    c = Constraint("stroke", 0.02, measure=measure, level=0.9, scale=1.0)
+    # max: 20 landings without a violation bound its probability by 0.161 (95 % Wilson)
+    c = Constraint("stroke", 0.02, measure=measure, level=0.9, scale=1.0,
+                   violation_tolerance=0.2)
     well_inside = -5.0 + 0.1 * np.random.default_rng(1).standard_normal(MIN_JUDGED)
     few = _check(c, well_inside[:MIN_JUDGED - 1], np.arange(MIN_JUDGED - 1), 3)
     assert not few["met"] and few["ci95"] == [None, None] and few["g"] < 0
@@ -226,3 +230,130 @@ def test_one_unfinished_landing_among_enough_judged_ones_fails_the_verification(
     cut = judged(int(Result.UNFINISHED))
     assert cut["constraints"]["stroke"]["met"] and cut["n_unfinished"] == 1
     assert not cut["met"]
+
+
+def _wilson_upper(k, n, z=1.959963984540054):
+    """The 95 % Wilson upper bound from its definition: the larger root p of
+    (k/n - p)^2 = z^2 p (1 - p) / n (1 at k = n)."""
+    if k == n:
+        return 1.0
+    p_hat, a = k / n, z * z / n
+    roots = np.roots([1.0 + a, -(2.0 * p_hat + a), p_hat * p_hat])
+    return float(np.max(roots.real))
+
+
+def test_a_max_constraint_without_violations_in_too_few_landings_is_not_judged():
+    """The bootstrap interval of a sample maximum never exceeds the largest value observed, so
+    it called 40 clean landings "met"; their violation probability is only bounded by 8.8 %
+    (95 % Wilson). Judged by the bound against violation_tolerance (default 1 %): not judged,
+    the bound and the landings needed stated; through the loop, not verified, saying why."""
+    from jaxland._design._spec import Constraint
+
+    g = -5.0 + 0.1 * np.random.default_rng(2).standard_normal(40)
+    ch = _check(Constraint("stroke", 0.02, measure="max", scale=1.0), g, np.arange(40), 3)
+    assert ch["ci95"][1] <= 0.0  # what the bootstrap alone would have called met
+    assert not ch["met"] and not ch["judged"] and ch["judged_by"] == "violation bound"
+    assert ch["n_violating"] == 0 and ch["violation_tolerance"] == 0.01
+    assert ch["p_violation_upper95"] == pytest.approx(_wilson_upper(0, 40), rel=1e-12)
+    assert ch["p_violation_upper95"] == pytest.approx(0.0876, abs=5e-5)
+    assert ch["g"] == pytest.approx(g.max(), rel=1e-12)  # the observed maximum
+    assert "0 of 40 landings violate it" in ch["verdict"] and "0.0876" in ch["verdict"]
+    assert "needs 381 landings" in ch["verdict"]
+
+    spec = copy.deepcopy(SPEC)
+    spec["design"].update(iterations=0, verify_rounds=2)
+    spec["montecarlo"].update(n=40)
+    spec["constraints"]["stroke"] = dict(margin_mm=10.0, measure="max")  # default tolerance
+    res = jl.design_verified(jl.design_spec_from_dict(spec))
+    v = res.verification
+    stroke = v["after"]["constraints"]["stroke"]
+    assert stroke["n_violating"] == 0 and v["after"]["constraint_violations"]["stroke"][
+        "count"] == 0
+    assert not v["verified"] and len(v["rounds"]) == 1 and v["added_landings"] == []
+    assert ("no violation in 40 verification landings" in v["reason"]
+            and "0.0876" in v["reason"] and "violation_tolerance = 0.01" in v["reason"]
+            and "381" in v["reason"] and "montecarlo.n" in v["reason"])
+    assert v["rounds"][0]["judged_by"]["stroke"] == "violation bound"
+
+
+def test_a_max_constraint_is_met_by_enough_clean_landings_and_broken_by_one_violation():
+    """At violation_tolerance 1 %, 381 landings without a violation bound the probability by
+    0.998 % (met), 380 by 1.0005 % (not judged); one violation in 1000 is not met, whatever
+    its bound (0.56 %): a maximum past the limit was observed."""
+    from jaxland._design._spec import Constraint
+    from jaxland._design._verify import clean_landings_needed
+
+    c = Constraint("stroke", 0.02, measure="max", scale=1.0)
+    g = -5.0 + 0.1 * np.random.default_rng(3).standard_normal(1000)
+    met = _check(c, g[:381], np.arange(381), 3)
+    assert met["met"] and met["judged"] and met["p_violation_upper95"] <= 0.01
+    short = _check(c, g[:380], np.arange(380), 3)
+    assert not short["met"] and not short["judged"] and short["p_violation_upper95"] > 0.01
+    # the fewest clean landings for a tolerance, against a direct search of the definition
+    for tol in (0.2, 0.05, 0.01, 0.003):
+        first = next(n for n in range(1, 10**5) if _wilson_upper(0, n) <= tol)
+        assert clean_landings_needed(tol) == first, tol
+    assert clean_landings_needed(0.01) == 381
+    one = g.copy()
+    one[17] = 0.4
+    broken = _check(c, one, np.arange(1000), 3)
+    assert not broken["met"] and broken["judged"] and broken["n_violating"] == 1
+    assert broken["p_violation_upper95"] == pytest.approx(_wilson_upper(1, 1000), rel=1e-9)
+    assert broken["violators"] == [17] and broken["g"] == pytest.approx(0.4)
+
+
+@pytest.mark.parametrize("k,n", [(0, 20), (0, 300), (3, 40), (12, 50), (50, 50)])
+def test_the_violation_bound_is_the_wilson_upper_bound(k, n):
+    from jaxland._design._spec import Constraint
+
+    g = np.full(n, -1.0)
+    g[:k] = 0.5
+    ch = _check(Constraint("stroke", 0.02, measure="max", scale=1.0), g, np.arange(n), 3)
+    assert ch["n_violating"] == k
+    assert ch["p_violation_upper95"] == pytest.approx(_wilson_upper(k, n), rel=1e-9, abs=1e-15)
+    if k == 0:  # the closed form at no violation, z^2 / (n + z^2)
+        z2 = 1.959963984540054**2
+        assert ch["p_violation_upper95"] == pytest.approx(z2 / (n + z2), rel=1e-12)
+
+
+@pytest.mark.parametrize("extra,line", [
+    ("violation_tolerance = 0.0", "constraints.stroke.violation_tolerance = 0.0: must be in "
+                                  "(0, 1)"),
+    ("violation_tolerance = 1.0", "constraints.stroke.violation_tolerance = 1.0: must be in "
+                                  "(0, 1)"),
+    ('violation_tolerance = "1%"', "constraints.stroke.violation_tolerance = '1%': must be a "
+                                   "finite number"),
+    ('violation_tolerance = 0.05\nmeasure = "cvar"',
+     'constraints.stroke.violation_tolerance = 0.05: applies to measure = "max" only'),
+])
+def test_a_bad_violation_tolerance_exits_2_in_one_line(tmp_path, capsys, extra, line):
+    from jaxland.cli import main
+
+    path = tmp_path / "spec.toml"
+    path.write_text(f"""
+[design]
+n_scenes = 2
+scene_seed = 3
+t_end_s = 0.15
+[variables.F1_N]
+low = 2000.0
+high = 8000.0
+[constraints.stroke]
+margin_mm = 10.0
+{extra}
+[montecarlo]
+seed = 4
+t_end_s = 0.15
+[fixed]
+drop_height_m = 0.0
+[dispersion.sink_speed_mps]
+dist = "uniform"
+low = 1.6
+high = 2.6
+""")
+    assert main(["design", str(path), "--out", str(tmp_path / "o"), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and line in err, err
+    good = copy.deepcopy(SPEC)
+    good["constraints"]["stroke"]["violation_tolerance"] = 0.05
+    assert jl.design_spec_from_dict(good).constraints[0].violation_tolerance == 0.05

@@ -115,16 +115,26 @@ class Objective:
     mass_weight: float = 0.0
 
 
+# The largest violation probability the verification accepts for a measure = "max" constraint
+# (its violation_tolerance): met when no verification landing violates it and the 95 % Wilson
+# upper bound on the probability, 3.84 / (n + 3.84) at none in n, is at most this. At 1 % that
+# takes 381 landings, within montecarlo.n's default of 1000.
+VIOLATION_TOLERANCE = 0.01
+
+
 @dataclass(frozen=True)
 class Constraint:
     """``name`` in ``CONSTRAINTS``; ``threshold`` in SI; risk measure over the scenes;
-    ``scale`` [SI] normalises the constraint for the augmented Lagrangian."""
+    ``scale`` [SI] normalises the constraint for the augmented Lagrangian;
+    ``violation_tolerance``: for ``measure = "max"``, the largest violation probability whose
+    95 % upper bound the verification accepts (``VIOLATION_TOLERANCE``)."""
 
     name: str
     threshold: float
     measure: str = "max"
     level: float = 0.9
     scale: float = 0.01
+    violation_tolerance: float = VIOLATION_TOLERANCE
 
     def badness(self, per: dict, x_L4):
         """Per-scene violation (positive = violated, SI) from the per-scene outcomes ``per``
@@ -245,7 +255,8 @@ def _variable(name: str, t) -> DesignVariable:
 def _constraint(name: str, t) -> Constraint:
     info = CONSTRAINTS[name]
     skey = "scale_" + info.key.rsplit("_")[-1]
-    known_keys(f"constraints.{name}", t, [info.key, "measure", "level", skey])
+    known_keys(f"constraints.{name}", t, [info.key, "measure", "level", skey,
+                                          "violation_tolerance"])
     if info.key not in t:
         raise ConfigError(f"constraints.{name}.{info.key}", None, "is required")
     check = NON_NEGATIVE if name in ("stroke", "slip") else Number()
@@ -253,7 +264,17 @@ def _constraint(name: str, t) -> Constraint:
     measure, level = _measure(f"constraints.{name}", t)
     scale = (POSITIVE(f"constraints.{name}.{skey}", t[skey]) * info.to_si if skey in t
              else info.scale)
-    return Constraint(name, float(thr) * info.to_si, measure, level, float(scale))
+    tol = VIOLATION_TOLERANCE
+    if "violation_tolerance" in t:
+        key = f"constraints.{name}.violation_tolerance"
+        tol = Number()(key, t["violation_tolerance"])
+        if not 0.0 < tol < 1.0:
+            raise ConfigError(key, tol, "must be in (0, 1): the largest violation probability "
+                              "the verification accepts")
+        if measure != "max":
+            raise ConfigError(key, tol, f'applies to measure = "max" only (measure = '
+                              f'"{measure}" is judged by its 95 % bootstrap interval)')
+    return Constraint(name, float(thr) * info.to_si, measure, level, float(scale), float(tol))
 
 
 # [montecarlo] keys of a Monte Carlo spec that the verification sets itself, and why

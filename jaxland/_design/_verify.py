@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import statistics
 import time
 
@@ -12,7 +13,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import ConfigError
-from .._montecarlo import MonteCarloSpec, percentiles, proportion, run_montecarlo
+from .._montecarlo import (
+    MonteCarloSpec,
+    percentiles,
+    proportion,
+    run_montecarlo,
+    wilson_interval,
+)
 from .._montecarlo._run import (
     _per_sample,
     _summarise,
@@ -23,7 +30,7 @@ from .._montecarlo._run import (
     retry_method,
 )
 from .._montecarlo._sample import sample_scenes
-from .._montecarlo._stats import tip_over_of
+from .._montecarlo._stats import Z95, tip_over_of
 from .._params import Vehicle
 from .._solvers import Result
 from ._optimise import DesignResult, _summaries, optimise_design
@@ -153,26 +160,63 @@ def _risk_rows(values: np.ndarray, measure: str, level: float) -> np.ndarray:
     return (-np.sort(-values, axis=-1) * w).sum(axis=-1)
 
 
+def clean_landings_needed(tolerance: float) -> int:
+    """The fewest verification landings, none violating, whose 95 % Wilson upper bound on the
+    violation probability, z^2 / (n + z^2) at none in n, is at most ``tolerance``."""
+    n = math.ceil(Z95 * Z95 * (1.0 - tolerance) / tolerance - 1e-9)
+    while wilson_interval(0, n)[1] > tolerance:  # round-off at the boundary
+        n += 1
+    return n
+
+
 def _check(c, bad: np.ndarray, index: np.ndarray, seed: int) -> dict:
     """One constraint judged on the verification landings with the optimiser's own risk
     measure (normalised like g: <= 0 is met), its 95 % bootstrap percentile interval, and the
-    violating samples (Monte Carlo indices, the worst first). The constraint is met when the
-    interval's upper end is <= 0: the fresh landings show it holds, not only that they do not
-    show it fails."""
+    violating samples (Monte Carlo indices, the worst first).
+
+    ``judged_by`` names the rule. "bootstrap" (mean, cvar, normal): met when the interval's
+    upper end is <= 0, so the fresh landings show it holds, not only that they do not show it
+    fails. "violation bound" (max): the bootstrap of a sample maximum never exceeds the largest
+    value observed, so its interval shows nothing beyond "no violation seen"; met when no
+    landing violates it and the 95 % Wilson upper bound on the violation probability is at
+    most ``c.violation_tolerance``. With no violation but a bound above the tolerance the
+    landings are too few to judge it (``judged`` false; ``landings_needed`` would do)."""
     g = bad / c.scale
+    common = dict(measure=c.measure, level=c.level, n=int(g.size))
     if g.size < MIN_JUDGED:  # no interval to judge it by (MIN_JUDGED)
         est = float(_risk_rows(g[None, :], c.measure, c.level)[0]) if g.size else None
-        return dict(measure=c.measure, level=c.level, g=est,
-                    value_si=None if est is None else est * c.scale, ci95=[None, None],
-                    met=False, violators=[int(index[i]) for i in np.argsort(-g) if g[i] > 0])
+        return dict(common, g=est, value_si=None if est is None else est * c.scale,
+                    ci95=[None, None], met=False, judged=False, judged_by=None,
+                    verdict=f"not judged: {g.size} landing(s), a 95 % interval needs "
+                            f"{MIN_JUDGED}",
+                    violators=[int(index[i]) for i in np.argsort(-g) if g[i] > 0])
     rng = np.random.default_rng([int(seed), 0x5EED])
     boot = _risk_rows(g[rng.integers(0, g.size, (BOOTSTRAP, g.size))], c.measure, c.level)
     lo, hi = (float(x) for x in np.quantile(boot, [0.025, 0.975]))
     est = float(_risk_rows(g[None, :], c.measure, c.level)[0])
     order = np.argsort(-g)
-    return dict(measure=c.measure, level=c.level, g=est, value_si=est * c.scale,
-                ci95=[lo, hi], met=bool(hi <= 0.0),
-                violators=[int(index[i]) for i in order if g[i] > 0])
+    out = dict(common, g=est, value_si=est * c.scale, ci95=[lo, hi],
+               violators=[int(index[i]) for i in order if g[i] > 0])
+    if c.measure != "max":
+        met = bool(hi <= 0.0)
+        return dict(out, met=met, judged=True, judged_by="bootstrap",
+                    verdict=f"{'met' if met else 'not met'} by the 95 % bootstrap interval: "
+                            f"g = {est:+.4g}, up to {hi:+.4g} (met: <= 0)")
+    k = int(np.sum(g > 0))
+    bound = wilson_interval(k, g.size)[1]
+    tol = c.violation_tolerance
+    met = bool(k == 0 and bound <= tol)
+    judged = bool(k > 0 or met)
+    needed = clean_landings_needed(tol)
+    state = ("met" if met else "not met" if judged
+             else f"not judged: needs {needed} landings without a violation")
+    return dict(out, met=met, judged=judged, judged_by="violation bound", n_violating=k,
+                p_violation_upper95=bound, violation_tolerance=tol, landings_needed=needed,
+                verdict=(f"{state}: worst landing g = {est:+.4g} ({est * c.scale:+.4g} m, > 0 "
+                         f"past the limit), {k} of {g.size} landings violate it, 95 % Wilson "
+                         f"upper bound on the violation probability {bound:.3g} "
+                         f"({'<=' if bound <= tol else '>'} violation_tolerance {tol:g}; met: "
+                         "none violates and the bound is within it)"))
 
 
 def _verification_spec(spec: DesignSpec, n, seed) -> MonteCarloSpec:
@@ -229,6 +273,9 @@ def verify_design(result: DesignResult, *, n: int | None = None, seed: int | Non
 def _unmet_text(name: str, ch: dict) -> str:
     if ch["ci95"][1] is None:
         return f"{name} (too few landings to judge it on)"
+    if ch["judged_by"] == "violation bound":
+        return (f"{name} (max) {ch['n_violating']} of {ch['n']} landings violate it (95 % "
+                f"upper bound on the violation probability {ch['p_violation_upper95']:.3g})")
     return f"{name} g = {ch['g']:+.3g} (95 % up to {ch['ci95'][1]:+.3g})"
 
 
@@ -291,13 +338,25 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         log.append(dict(round=r - 1, seed=seed, unmet=unmet, n_failed=after["n_failed"],
                         design=dict(result.values),
                         g={k: ch["g"] for k, ch in after["constraints"].items()},
-                        ci95={k: ch["ci95"] for k, ch in after["constraints"].items()}))
+                        ci95={k: ch["ci95"] for k, ch in after["constraints"].items()},
+                        judged_by={k: ch["judged_by"] for k, ch in after["constraints"].items()},
+                        p_violation_upper95={k: ch.get("p_violation_upper95")
+                                             for k, ch in after["constraints"].items()}))
         if after["n_unfinished"]:  # no outcome to judge them on: re-optimising cannot help
             reason = _unfinished_text(after, spec)
             break
         if after["n_ok"] < MIN_JUDGED:
             reason = (f"{after['n_ok']} verification landing(s) to judge the constraints on: "
                       f"a 95 % interval needs at least {MIN_JUDGED}; raise montecarlo.n")
+            break
+        short = {k: ch for k, ch in after["constraints"].items() if not ch["judged"]}
+        if short:  # a max constraint no violation breaks that these landings cannot confirm
+            reason = "; ".join(
+                f"{k}: no violation in {ch['n']} verification landings, but the 95 % upper "
+                f"bound on its violation probability, {ch['p_violation_upper95']:.3g}, is "
+                f"above constraints.{k}.violation_tolerance = {ch['violation_tolerance']:g}: "
+                f"a max constraint needs {ch['landings_needed']} landings without a violation; "
+                "raise montecarlo.n or the tolerance" for k, ch in short.items())
             break
         if not unmet:
             break

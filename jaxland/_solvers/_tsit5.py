@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import ClassVar
 
 import equinox as eqx
@@ -60,7 +62,10 @@ class Tsit5(AbstractIntegrator):
     def integrate(self, model, vehicle, scene, solver):
         """The first touchdown, found in closed form from the free fall, is a jump time of the
         controller so no step straddles it; later contact changes are found by step rejection.
-        Peaks, the event log and the ledger are read at the save points."""
+        Peaks, the event log and the ledger are taken at every accepted step
+        (``_tracked_class``), as the fixed-step methods take them at every step; the save
+        points only sample the trajectory. The step is capped at the foot's time scale
+        (``step_cap``), whatever the output interval, so that no step passes over a contact."""
         import diffrax
 
         vehicle, scene = _no_derivatives((vehicle, scene))
@@ -73,25 +78,29 @@ class Tsit5(AbstractIntegrator):
         term = diffrax.ODETerm(lambda t, y, args: model.ode_rates(veh, t, y, scene, derived))
         controller = diffrax.ClipStepSizeController(
             diffrax.PIDController(rtol=self.rtol, atol=self.atol, pcoeff=0.0, icoeff=1.0,
-                                  dtmax=solver.save_dt),
+                                  dtmax=step_cap(model, veh)),
             jump_ts=jnp.reshape(t_touch, (1,)))
-        adjoint = (diffrax.ForwardMode() if self.adjoint == "forward"
-                   else diffrax.RecursiveCheckpointAdjoint())
+        forward = self.adjoint == "forward"
+        adjoint = diffrax.ForwardMode() if forward else diffrax.RecursiveCheckpointAdjoint()
+
+        def update(t, y, track):  # the bookkeeping of one accepted step's end state
+            s = model.from_ode(t, y)
+            return track.update(model, s, model.evaluate(veh, s, scene, derived), st.energy0,
+                                st.energy_scale)
+
+        tracked = _tracked_class()(diffrax.Tsit5(scan_kind="lax" if forward else None), update,
+                                   Track.start(st.peaks0, solver.event_log))
         sol = diffrax.diffeqsolve(
-            term, diffrax.Tsit5(), 0.0, t1, solver.dt, model.ode_state(st.state0),
-            saveat=diffrax.SaveAt(ts=jnp.append(ts, t1)), stepsize_controller=controller,
-            max_steps=self.max_steps, throw=False, adjoint=adjoint)
+            term, tracked, 0.0, t1, solver.dt, model.ode_state(st.state0),
+            saveat=diffrax.SaveAt(ts=jnp.append(ts, t1), solver_state=True),
+            stepsize_controller=controller, max_steps=self.max_steps, throw=False,
+            adjoint=adjoint)
         ok = sol.result == diffrax.RESULTS.successful
-        states = jax.vmap(model.from_ode)(sol.ts, sol.ys)
-
-        def look(track, s):  # one evaluation per saved state, for the bookkeeping and record
-            ev = model.evaluate(veh, s, scene, derived)
-            return (track.update(model, s, ev, st.energy0, st.energy_scale),
-                    record(model, s, ev, st.energy0))
-
-        track, traj = jax.lax.scan(look, Track.start(st.peaks0, solver.event_log), states)
-        traj = jax.tree.map(lambda x: x[:-1], traj)  # the last state, at t1, is not saved
-        s_end = jax.tree.map(lambda x: x[-1], states)
+        track = sol.solver_state[1]
+        states = jax.vmap(model.from_ode)(sol.ts[:-1], jax.tree.map(lambda x: x[:-1], sol.ys))
+        traj = jax.vmap(lambda s: record(model, s, model.evaluate(veh, s, scene, derived),
+                                         st.energy0))(states)
+        s_end = model.from_ode(sol.ts[-1], jax.tree.map(lambda x: x[-1], sol.ys))
         out = summary(model, s_end, track, st, scene)
         # a solver that stopped early leaves the save points it never reached at inf
         reached = jnp.isfinite(sol.ts)
@@ -107,6 +116,74 @@ class Tsit5(AbstractIntegrator):
                    result=jnp.where(ok, out["result"],
                                     int(Result.SOLVER_STOPPED)).astype(jnp.int32))
         return traj, out
+
+
+def step_cap(model, vehicle):
+    """The largest step [s]: 1 / omega of the model's stiffest, lightest oscillator (the foot
+    on its stiffest springs, ``AbstractModel.oscillator``). A contact of that foot lasts about
+    half a period, pi / omega (longer on the ground spring alone); Tsit5's stages lie at most
+    0.57 of a step apart, so a step of 1 / omega puts a stage inside such a contact and the
+    error estimate sees it."""
+    osc = model.oscillator(vehicle)
+    return jnp.min(jnp.sqrt(osc.mass / osc.stiffness))
+
+
+@functools.cache
+def _tracked_class():
+    """``_Tracked``, built on first use: diffrax is imported only when tsit5 runs."""
+    import diffrax
+
+    class _Tracked(diffrax.AbstractWrappedSolver):
+        """A diffrax solver that carries the landing's ``Track`` in its solver state and
+        updates it with the end state of every step. diffrax keeps a step's new solver state
+        only when the controller accepts the step, so the track sees exactly the accepted
+        steps, at whatever interval the output is saved."""
+
+        solver: diffrax.AbstractSolver
+        update: Callable  # (t, y, track) -> track
+        track0: Track
+
+        @property
+        def scan_kind(self):
+            # diffrax's ForwardMode reads it (the wrapper passes for a Runge-Kutta method) and
+            # needs "lax": it is set on the wrapped solver, as ForwardMode cannot set it here
+            return self.solver.scan_kind
+
+        @property
+        def term_structure(self):
+            return self.solver.term_structure
+
+        @property
+        def interpolation_cls(self):
+            return self.solver.interpolation_cls
+
+        @property
+        def term_compatible_contr_kwargs(self):
+            return self.solver.term_compatible_contr_kwargs
+
+        def order(self, terms):
+            return self.solver.order(terms)
+
+        def strong_order(self, terms):
+            return self.solver.strong_order(terms)
+
+        def error_order(self, terms):
+            return self.solver.error_order(terms)
+
+        def init(self, terms, t0, t1, y0, args):
+            return (self.solver.init(terms, t0, t1, y0, args),
+                    self.update(t0, y0, self.track0))
+
+        def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+            inner, track = solver_state
+            y1, y_error, dense_info, inner, result = self.solver.step(
+                terms, t0, t1, y0, args, inner, made_jump)
+            return y1, y_error, dense_info, (inner, self.update(t1, y1, track)), result
+
+        def func(self, terms, t0, y0, args):
+            return self.solver.func(terms, t0, y0, args)
+
+    return _Tracked
 
 
 @jax.custom_jvp
