@@ -357,3 +357,16 @@ high = 2.6
     good = copy.deepcopy(SPEC)
     good["constraints"]["stroke"]["violation_tolerance"] = 0.05
     assert jl.design_spec_from_dict(good).constraints[0].violation_tolerance == 0.05
+
+
+def test_the_verification_records_whether_its_outcomes_at_t_end_are_final(closed):
+    """The verification Monte Carlo's t_end check (run_montecarlo: finished landings rerun to
+    twice t_end_s) is kept in each side's judgement, across the continuation of the unfinished
+    landings, so the command can say when the constraints were judged on outcomes that still
+    change after t_end_s."""
+    res, _ = closed
+    for side in ("before", "after"):
+        check = res.verification[side]["t_end_check"]
+        assert check is not None and check["t_end_s"] == pytest.approx(2 * 0.15)
+        assert 0 < check["n_checked"] <= 32 and check["n_rerun_failed"] == 0
+        assert check["n_changed"] == len(check["changed_samples"])

@@ -95,7 +95,8 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
                 f"{t_end:g} s: {left} still unfinished")
     s = res.summary
     res.summary = {**_summarise(vspec, model, res.inputs, res.outputs, res.failure,
-                                s["wall_s"], s["devices"], s["chunk"]), "continued": log}
+                                s["wall_s"], s["devices"], s["chunk"]), "continued": log,
+                   "t_end_check": s.get("t_end_check")}
     return log
 
 
@@ -111,6 +112,8 @@ def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
                failures=res.summary["failures"],
                n_unfinished=res.summary["n_unfinished"],
                continued=res.summary.get("continued", []),
+               # whether outcomes called final at t_end_s still change (run_montecarlo)
+               t_end_check=res.summary.get("t_end_check"),
                seed=res.summary["seed"], model=res.summary["model"],
                peak_body_accel_mps2=percentiles(accel),
                objective_measure_mps2=float(risk_measure(jnp.asarray(accel),
@@ -226,7 +229,7 @@ def _verification_spec(spec: DesignSpec, n, seed) -> MonteCarloSpec:
     mc = spec.montecarlo
     return MonteCarloSpec(dispersion=mc.dispersion, fixed=mc.fixed,
                           n=mc.n if n is None else int(n), seed=seed, dt=mc.dt, t_end=mc.t_end,
-                          model=spec.resolved_model())
+                          model=spec.resolved_model(), t_end_check=mc.t_end_check)
 
 
 def check_verification(problem: DesignProblem, n: int | None = None) -> None:
