@@ -174,7 +174,10 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
     t = traj["time_s"]
     first_end = impacts[0][1] if impacts and impacts[0][1] is not None else None
     stroke = np.asarray(traj["stroke_m"])
-    if first_end is not None:
+    if first_end is not None and not np.any((t >= impacts[0][0]) & (t <= first_end)):
+        # no saved sample inside the first impact (save_dt longer than it): nothing to read
+        stroke_first, foot_v = None, None
+    elif first_end is not None:
         i_end = min(int(np.searchsorted(t, first_end)), len(t) - 1)
         stroke_first = np.max(stroke[: i_end + 1], axis=0)
         foot_v = traj["foot_vz_mps"][max(i_end - 1, 0)] if "foot_vz_mps" in traj else None
@@ -208,7 +211,7 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         # these
         "n_contact_changes_logged": int(min(s["n_contact_changes"],
                                             s["event_times_s"].shape[-1])),
-        "first_impact_stroke_m": _py(stroke_first),
+        "first_impact_stroke_m": None if stroke_first is None else _py(stroke_first),
         "secondary_honeycomb_engaged": bool(max_stroke > float(hc.x_L2)),
         "bottomed_out": bottomed,
     }

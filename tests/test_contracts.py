@@ -379,6 +379,19 @@ def test_a_retried_landing_keeps_the_output_interval_it_was_given():
     np.testing.assert_allclose(np.diff(out.trajectory["time_s"]), 5e-5, rtol=1e-6)
 
 
+def test_a_first_impact_between_two_saved_samples_has_no_first_impact_stroke():
+    """The first-impact stroke and the foot's velocity at its end are read from the saved
+    samples: with save_dt = 0.5 s no sample lies inside the paper drop's first impact (0.2 to
+    0.27 s), and they are unknown (None), not the 0 of the sample before touchdown; the max
+    stroke, a running maximum over every step, is the same as at a fine save_dt."""
+    coarse = jl.simulate(t_end=0.5, save_dt=0.5, method="verlet").outcomes
+    fine = jl.simulate(t_end=0.5, method="verlet").outcomes
+    assert coarse["first_impact_stroke_m"] is None
+    assert coarse["foot_vz_end_first_impact_mps"] is None
+    assert fine["first_impact_stroke_m"] == pytest.approx(0.0665, abs=5e-4)
+    assert coarse["max_stroke_m"] == pytest.approx(fine["max_stroke_m"], rel=1e-12)
+
+
 def test_a_3d_landing_that_can_still_tip_over_is_unfinished_not_upright():
     """On a 20 deg slope this landing balances on its downhill foot after the impact and tips
     over at 1.02 s. Cut off at 0.3 s, its honeycombs are no longer crushing, but its kinetic

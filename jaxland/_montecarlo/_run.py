@@ -26,7 +26,7 @@ from .._scene import Scene
 from .._simulate import landings, refuse_unsteppable
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
-from ._spec import LEDGER_CHECK_S, MonteCarloSpec
+from ._spec import LEDGER_CHECK_S, MonteCarloSpec, montecarlo_spec_to_toml
 from ._stats import (
     percentiles,
     proportion,
@@ -127,6 +127,7 @@ class MonteCarloResult:
     summary: dict
     reasons: dict = field(default_factory=lambda: {int(r): r.message for r in Result})
     vehicle: Vehicle | None = None  # the vehicle the landings ran (save: vehicle.toml)
+    spec: MonteCarloSpec | None = None  # the spec run (save: spec.toml)
 
     def columns(self) -> dict:
         """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names."""
@@ -135,7 +136,8 @@ class MonteCarloResult:
 
     def save(self, out_dir, plots: bool = True) -> list[Path]:
         """Write samples.csv and samples.npz (every sample with its inputs), summary.json,
-        vehicle.toml (the vehicle run, where known) and the figures (``plots``) into
+        vehicle.toml (the vehicle run, where known), spec.toml (the spec run, where known)
+        and the figures (``plots``) into
         ``out_dir``, all through a staging folder."""
         out = Path(out_dir)
         with staged(out, "montecarlo") as staging:
@@ -143,6 +145,11 @@ class MonteCarloResult:
                 (staging / "vehicle.toml").write_text(
                     "# the vehicle the landings ran, before each sample's dispersions\n"
                     + vehicle_to_toml(self.vehicle))
+            if self.spec is not None:
+                (staging / "spec.toml").write_text(
+                    "# the spec as run (--n and --seed applied, defaults filled in): "
+                    "jaxland montecarlo spec.toml --config vehicle.toml runs these landings "
+                    "again\n" + montecarlo_spec_to_toml(self.spec))
             cols = self.columns()
             atomic_write_csv(staging / "samples.csv", cols)
             np.savez_compressed(staging / "samples.npz", **cols)
@@ -342,7 +349,8 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
     summary["t_end_check"] = check_t_end(spec, vehicle, model, outputs, failure, line)
-    return MonteCarloResult(inputs, outputs, failure, summary, vehicle=vehicle)
+    return MonteCarloResult(inputs, outputs, failure, summary, vehicle=vehicle,
+                            spec=dataclasses.replace(spec))
 
 
 T_END_CHECK_FACTOR = 2.0  # the t_end check's landings run to this multiple of t_end_s

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -296,6 +297,31 @@ def montecarlo_spec_from_dict(data: dict, *, keys_excluded: dict | None = None,
         disp[name] = Distribution.from_dict(name, table)
     return MonteCarloSpec(dispersion=disp, fixed=dict(data.get("fixed", {})),
                           **{**kwargs, **overrides})
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(float(v)) if isinstance(v, float) else repr(int(v))
+
+
+def montecarlo_spec_to_toml(spec: MonteCarloSpec) -> str:
+    """``spec`` as a spec file that ``load_montecarlo_spec`` reads back to the same spec: every
+    ``[montecarlo]`` key (the defaults filled in), ``[fixed]`` and ``[dispersion.*]``."""
+    lines = ["[montecarlo]"]
+    for f in dataclasses.fields(spec):
+        if "toml" in f.metadata and getattr(spec, f.name) is not None:
+            lines.append(f"{f.metadata['toml']} = {_toml_value(getattr(spec, f.name))}")
+    if spec.fixed:
+        lines += ["", "[fixed]"] + [f"{k} = {_toml_value(v)}" for k, v in spec.fixed.items()]
+    for key, dist in spec.dispersion.items():
+        lines += ["", f"[dispersion.{key}]"] + [f"{k} = {_toml_value(v)}"
+                                                 for k, v in dist.table().items()]
+    return "\n".join(lines) + "\n"
 
 
 def check_disperses_something(spec: MonteCarloSpec) -> None:

@@ -109,7 +109,7 @@ class Impulse(AbstractIntegrator):
                 "solver.method", self.name,
                 f"is available for the quarter model only ({model.name}: its feet each have "
                 "their own normal impulse, so the paper's single primary impulse is undefined); "
-                "use one of euler, euler_implicit, verlet")
+                "use one of euler, euler_implicit, verlet, leapfrog")
 
     def stable_step(self, osc):
         """Steps dt = min(dI / F, cap) with explicit forces, and the damping grows with the same

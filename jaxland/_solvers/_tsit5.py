@@ -54,7 +54,8 @@ class Tsit5(AbstractIntegrator):
             raise ConfigError(
                 "solver.method", self.name,
                 f"is available for the quarter model only ({model.name}: its per-foot "
-                "memories have no ODE form yet); use one of euler, euler_implicit, verlet")
+                "memories have no ODE form yet); use one of euler, euler_implicit, verlet, "
+                "leapfrog")
 
     def stable_step(self, osc):
         return jnp.asarray(jnp.inf)
@@ -196,4 +197,4 @@ def _no_derivatives(x):
 def _no_derivatives_jvp(primals, tangents):
     raise ConfigError("solver.method", "tsit5", "cannot be differentiated: its sensitivities "
                       "miss the jumps of the contact switches (errors of order one); use "
-                      "euler, euler_implicit or verlet for gradients")
+                      "euler, euler_implicit, verlet or leapfrog for gradients")

@@ -159,7 +159,7 @@ def cmd_montecarlo(args) -> int:
         print(f"  drivers of {s['sensitivity']['target']}: not estimated ({s['n_succeeded']} "
               "successful landings; the regression needs more than one per dispersed input "
               "and leg)")
-    print(f"wrote {out}/samples.csv, samples.npz, summary.json, vehicle.toml"
+    print(f"wrote {out}/samples.csv, samples.npz, summary.json, spec.toml, vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
 
