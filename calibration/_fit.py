@@ -146,6 +146,10 @@ WINDOWS_S = (0.01, 0.03, 0.1)
 INTEGRATOR = "euler"
 SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0)}
 REFINE_WINDOW_S = 0.15
+# s: the default refine window, shortened to a record, stops this far before its end, where a
+# zero-phase (forward-backward) filter's backward pass starts: 5.5 ms to settle at CFC 180
+# (_filter.settle_time_s)
+REFINE_END_MARGIN_S = 0.006
 # fit's refine_window_s default: REFINE_WINDOW_S where every record reaches that far after its
 # touchdown, else shortened to the shortest record, and said so (``refine_window``); a window
 # given as a number is used as given or refused
@@ -1465,14 +1469,18 @@ def refine_window(refine_window_s, windows, drops) -> tuple[float | None, str | 
         if w <= last:
             return None, (f"no refit on a longer window: the default refine window "
                           f"({w:g} s) is not longer than the last window ({last:g} s)")
-        if shortest >= w - half:
+        if shortest - REFINE_END_MARGIN_S >= w - half:
             return w, None
-        if shortest <= last:
+        cut = shortest - REFINE_END_MARGIN_S
+        if cut <= last:
             return None, (f"no refit on a longer window: the record {name} ends "
                           f"{shortest:.4g} s after touchdown, within the last window "
-                          f"({last:g} s), before the default refine window ({w:g} s)")
-        return shortest, (f"refine window {shortest:.4g} s, not the default {w:g} s: the "
-                          f"record {name} ends {shortest:.4g} s after touchdown")
+                          f"({last:g} s) and {REFINE_END_MARGIN_S * 1e3:g} ms, before the "
+                          f"default refine window ({w:g} s)")
+        return cut, (f"refine window {cut:.4g} s, not the default {w:g} s: the record {name} "
+                     f"ends {shortest:.4g} s after touchdown, and the window stops "
+                     f"{REFINE_END_MARGIN_S * 1e3:g} ms before its end (the filter's end "
+                     "transient)")
     if isinstance(refine_window_s, bool) or not isinstance(refine_window_s, (int, float)) \
             or not (refine_window_s > 0 and math.isfinite(refine_window_s)):
         raise jl.ConfigError("refine_window_s", refine_window_s, "must be a number > 0 s "

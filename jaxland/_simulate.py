@@ -225,7 +225,7 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
             out[k] = _py(v)
     if model == "full":
         out["min_stability_margin_m"] = -float(s["peak_margin_deficit_m"])
-    out["legs_off_ground_at_end"] = _legs_off_ground(s, traj)
+    out["legs_off_ground_at_end"] = _legs_off_ground(s)
     out["tipped_over"] = bool(s["tipped"])  # a symmetric vertical drop cannot tip
     out["tip_over_time_s"] = float(s["tip_over_time_s"]) if out["tipped_over"] else None
     code = int(s["result"])
@@ -348,8 +348,9 @@ def _refuse_stiffness(vehicle: Vehicle, limit: float, t_end: float) -> None:
     val = np.asarray(getattr(mod, f.name), dtype=float)
     value = float(np.max(val) if f.metadata["unit"] == "N/m" else np.min(val))
     steps = t_end / (STEP_SAFETY * limit) if limit > 0.0 else math.inf
+    about = f"about {limit:.3g} s" if limit > 0.0 else "below the smallest number, 0 s"
     raise ConfigError(f"{section}.{f.metadata['toml']}", value, f"makes the vehicle's stable "
-                      f"step about {limit:.3g} s, so "
+                      f"step {about}, so "
                       f"t_end = {t_end:g} s would take {steps:.3g} steps (at most "
                       f"{MAX_STEPS:.0e}): its stiffest spring on its lightest mass is no "
                       "gear's; check the vehicle's stiffnesses and masses")
@@ -417,12 +418,17 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
+    if isinstance(method, (Impulse, Tsit5)):
+        # their steps follow the springs (tsit5's cap is 1/omega of the foot, the impulse's
+        # cap is a spring limit): a vehicle whose springs leave no step is named, before an
+        # impulse step beyond its own limit (check_step) or a stalled tsit5
+        refuse_unsteppable(vehicle, float(stable_step(vehicle, method="verlet", model=mod)),
+                           t_end)
     if not isinstance(method, Tsit5):
         limit = float(stable_step(vehicle, method=method, model=mod))
         if chosen and solver.n_steps > MAX_STEPS:
             _refuse_stiffness(vehicle, limit, t_end)
-        # a vehicle no step can run is named before the step it makes too large; an impulse
-        # step beyond its own limit (limit 0) is the impulse's, named by check_step
+        # a vehicle no step can run is named before the step it makes too large
         if (chosen or solver.dt > limit) and not isinstance(method, Impulse):
             refuse_unsteppable(vehicle, limit, t_end)
         check_step(solver, vehicle, mod)
@@ -451,20 +457,20 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         outcomes["note"] = f"{Result.UNFINISHED.message}; rerun with a longer t_end"
     elif outcomes["legs_off_ground_at_end"]:
         legs = ", ".join(str(i) for i in outcomes["legs_off_ground_at_end"])
-        outcomes["note"] = (f"at t = {float(traj['time_s'][-1]):g} s, the last saved time, leg(s) "
-                            f"{legs} had left the ground after touching it: the landing still "
-                            "moves and comes down again, so its max stroke and peaks are those "
-                            "up to t_end, not final; a longer t_end shows whether they grow")
+        outcomes["note"] = (f"at t_end leg(s) {legs} had left the ground after touching it: the "
+                            "landing still moves and comes down again, so its max stroke and "
+                            "peaks are those up to t_end, not final; a longer t_end shows "
+                            "whether they grow")
     return Landing(traj, outcomes, vehicle, scene, solver)
 
 
-def _legs_off_ground(summary: dict, traj: dict) -> list[int] | None:
+def _legs_off_ground(summary: dict) -> list[int] | None:
     """The legs (numbered from 0, as the per-leg columns) that touched the ground and are off
-    it at the last saved sample: a foot in the air on a rebound or a rocking vehicle lands again
-    and can crush further, which ``UNFINISHED`` (a leg still compressing) does not see. None
-    without a touchdown."""
+    it at t_end: a foot in the air on a rebound or a rocking vehicle lands again and can crush
+    further, which ``UNFINISHED`` (a leg still compressing) does not see. None without a
+    touchdown."""
     if int(summary["n_contact_changes"]) == 0:
         return None
     touched = np.atleast_1d(np.asarray(summary["peak_normal_force_N"])) > 0.0
-    off = np.atleast_1d(np.asarray(traj["normal_force_N"])[-1]) <= 0.0
+    off = np.atleast_1d(np.asarray(summary["final_normal_force_N"])) <= 0.0
     return np.flatnonzero(touched & off).tolist()

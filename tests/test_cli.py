@@ -143,7 +143,7 @@ def test_a_config_that_overflows_is_named_not_blamed_on_the_step(tmp_path, capsy
     ("[body]\nm_foot_kg = 1e-30\n", "body.m_foot_kg = 1e-30: makes the vehicle's stable step "
                                     "about 1.47e-34 s"),
     ("[body]\nm_foot_kg = 1e-300\n", "body.m_foot_kg = 1e-300: makes the vehicle's stable "
-                                     "step about 0 s"),
+                                     "step below the smallest number, 0 s"),
 ])
 def test_a_stiffness_no_gear_has_is_named_not_blamed_on_the_step(tmp_path, capsys, text,
                                                                 line):
@@ -160,6 +160,12 @@ def test_a_stiffness_no_gear_has_is_named_not_blamed_on_the_step(tmp_path, capsy
     assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--dt", "1e-5",
                  "--no-plots", "--out", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.startswith(f"jaxland: error: {line}")
+    for method in ("impulse", "tsit5"):  # steps set by the springs: the vehicle is named too
+        assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--method", method,
+                     "--model", "quarter", "--no-plots", "--out", str(tmp_path / "o")]) == 2
+        field = line.split(": makes")[0]  # its limit is the springs', not euler's
+        assert capsys.readouterr().err.startswith(
+            f"jaxland: error: {field}: makes the vehicle's stable step"), method
 
 
 @pytest.mark.parametrize("command,spec", [("montecarlo", "montecarlo_dispersed.toml"),
@@ -176,7 +182,7 @@ def test_a_vehicle_no_step_can_run_is_named_by_montecarlo_and_design(tmp_path, c
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("jaxland: error: body.m_foot_kg = 1e-300: makes the vehicle's "
-                          "stable step about 0 s") and err.count("\n") == 1, err
+                          "stable step below the smallest number") and err.count("\n") == 1, err
     assert not (tmp_path / "o").exists()
 
 

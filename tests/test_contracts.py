@@ -363,6 +363,9 @@ def test_a_landing_cut_off_on_its_rebound_says_its_outcomes_are_not_final():
     later = jl.simulate(t_end=0.6).outcomes
     assert cut["classification"] == "stable" and cut["legs_off_ground_at_end"] == [0]
     assert "leg(s) 0 had left the ground" in cut["note"] and "not final" in cut["note"]
+    # read at t_end, not at the last saved sample (here t = 0, before the touchdown)
+    assert jl.simulate(t_end=0.37, save_dt=0.37).outcomes["legs_off_ground_at_end"] == [0]
+    assert jl.simulate(t_end=0.6, save_dt=0.6).outcomes["legs_off_ground_at_end"] == []
     assert later["max_stroke_m"] > cut["max_stroke_m"] + 5e-4  # the note was true
     assert later["legs_off_ground_at_end"] == [] and "note" not in later
     assert jl.simulate(t_end=0.1).outcomes["legs_off_ground_at_end"] is None  # no touchdown

@@ -392,6 +392,12 @@ def test_a_vehicle_no_step_can_run_is_named_not_the_designs_step():
     with pytest.raises(jl.ConfigError) as err:
         DesignProblem(design_spec_from_dict(copy.deepcopy(ROBUST)), feather)
     assert err.value.field == "body.m_foot_kg", str(err.value)
+    # a bound (F1_N) moves the limit, but the vehicle's own k_b1 leaves no step either
+    stiff = dataclasses.replace(jl.paper_vehicle(), honeycomb=dataclasses.replace(
+        jl.paper_vehicle().honeycomb, k_b1=1e30))
+    with pytest.raises(jl.ConfigError) as err:
+        DesignProblem(design_spec_from_dict(copy.deepcopy(ROBUST)), stiff)
+    assert err.value.field == "honeycomb.k_b1_N_per_m", str(err.value)
 
 
 @pytest.mark.parametrize("path,value,field,rule", BAD, ids=[".".join(b[0]) for b in BAD])

@@ -278,7 +278,7 @@ def test_the_cli_can_skip_the_figures_and_the_progress_line(tmp_path, capsys):
     assert main(["montecarlo", str(spec), "--no-plots", "--quiet", "--out", str(out)]) == 0
     printed = capsys.readouterr()
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [
-        "samples.csv", "samples.npz", "summary.json", "vehicle.toml"]
+        "samples.csv", "samples.npz", "spec.toml", "summary.json", "vehicle.toml"]
     assert "montecarlo:" not in printed.err and "figures" not in printed.out
     assert "not estimated (3 successful landings" in printed.out
     assert "retried" not in printed.out  # none was: no line

@@ -100,3 +100,33 @@ def test_the_t_end_check_spec_key():
                           progress=False).summary["t_end_check"] is None
     with pytest.raises(jl.ConfigError, match=r"montecarlo\.t_end_check = -1"):
         montecarlo_spec_from_dict({"montecarlo": {"t_end_check": -1}})
+
+
+def test_the_t_end_check_is_skipped_by_name_beyond_the_longest_run():
+    """Twice a t_end_s of 60 s is beyond the longest run a solver takes (100 s): the check is
+    skipped and says why, instead of failing the whole run after its landings."""
+    res = run_montecarlo(_drop_spec(60.0, n=2, t_end_check=2), progress=False)
+    c = res.summary["t_end_check"]
+    assert c["n_checked"] == 0 and "beyond the longest run (100 s)" in c["skipped"]
+
+
+def test_the_t_end_check_line_says_what_was_checked():
+    """The command's line names what changed, and claims no final outcome from a check whose
+    reruns all failed."""
+    from jaxland._montecarlo._stats import proportion
+    from jaxland.cli._montecarlo import _t_end_check_text
+
+    none = dict(n_checked=0, of="finished landings", t_end_s=2.0, tolerance=1e-3, n_changed=0,
+                changed=proportion(np.zeros(0, bool)), n_max_stroke_grew=0,
+                max_stroke_growth_m=None, n_tipped_later=0, n_bottomed_later=0,
+                n_rerun_failed=32)
+    line = _t_end_check_text({"t_end_s": 1.0, "t_end_check": none})
+    assert line.startswith("no landing could be checked") and "final" not in line
+    tipped = dict(none, n_checked=30, n_rerun_failed=0, n_changed=2, n_tipped_later=2,
+                  max_stroke_growth_m=0.0,
+                  changed=proportion(np.r_[np.ones(2, bool), np.zeros(28, bool)]))
+    line = _t_end_check_text({"t_end_s": 1.0, "t_end_check": tipped})
+    assert "2 tipped over later" in line and "max stroke grew" not in line
+    assert "raise t_end_s" in line
+    calm = dict(tipped, n_changed=0, n_tipped_later=0, changed=proportion(np.zeros(30, bool)))
+    assert "within 0.1% of itself" in _t_end_check_text({"t_end_s": 1.0, "t_end_check": calm})

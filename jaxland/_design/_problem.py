@@ -314,12 +314,17 @@ class DesignProblem:
     def check_step(self, key: str, dt: float, method: str, t_end: float) -> None:
         """Refuse a step ``dt`` [s] (the TOML ``key``) above ``method``'s stability limit
         for any design inside the bounds: the optimiser may go anywhere inside them, and
-        the verification runs the design it returns. Where no bound moves that limit and no
-        step could run landings of ``t_end`` [s] on it, the vehicle is refused instead."""
+        the verification runs the design it returns. Where the vehicle itself leaves no
+        step that could run landings of ``t_end`` [s], its field is refused instead: no step
+        and no bound would help."""
         limit, at = self.stiffest_step(method)
         if dt > limit:
-            if not at:
-                refuse_unsteppable(self.vehicle, limit, t_end)
+            if at:  # bounds move the limit: is it the bounds, or the vehicle they start from?
+                limit_of_vehicle = float(stable_step(self.vehicle, method=method,
+                                                     model=MODELS[self.model]))
+            else:
+                limit_of_vehicle = limit
+            refuse_unsteppable(self.vehicle, limit_of_vehicle, t_end)
             where = ("the stiffest design inside the bounds ("
                      + ", ".join(f"{n} = {v:.4g}" for n, v in at.items())
                      + "): lower it, or narrow the bounds" if at else

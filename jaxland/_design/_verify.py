@@ -217,7 +217,7 @@ def _check(c, bad: np.ndarray, index: np.ndarray, seed: int) -> dict:
                 p_violation_upper95=bound, violation_tolerance=tol, landings_needed=needed,
                 verdict=(f"{state}: worst landing g = {est:+.4g} ({est * c.scale:+.4g} m, > 0 "
                          f"past the limit), {k} of {g.size} landings violate it, 95 % Wilson "
-                         f"upper bound on the violation probability {bound:.3g} "
+                         f"upper bound on the violation probability {bound:.4g} "
                          f"({'<=' if bound <= tol else '>'} violation_tolerance {tol:g}; met: "
                          "none violates and the bound is within it)"))
 

@@ -495,6 +495,7 @@ class FullModel(AbstractModel):
             max_stroke_m=s.x_max,
             final_stroke_m=record["stroke_m"],
             final_pit_depth_m=record["pit_depth_m"],
+            final_normal_force_N=record["normal_force_N"],
             slip_distance_m=s.slip_distance,
             final_tilt_deg=record["tilt_deg"],
             final_stability_margin_m=record["stability_margin_m"],

@@ -279,6 +279,7 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
             final_stroke_m=record["stroke_m"],
             final_plastic_set_m=record["plastic_set_m"],
             final_pit_depth_m=record["pit_depth_m"],
+            final_normal_force_N=record["normal_force_N"],
             slip_distance_m=s.slip_distance,
         )
 

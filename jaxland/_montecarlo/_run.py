@@ -25,6 +25,7 @@ from .._progress import ProgressLine
 from .._scene import Scene
 from .._simulate import landings, refuse_unsteppable
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
+from .._solvers._base import T_END_MAX
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec, montecarlo_spec_to_toml
 from ._stats import (
@@ -49,12 +50,16 @@ def ledger_check_s(spec: MonteCarloSpec, model: str) -> float:
     return LEDGER_CHECK_S[model] if spec.ledger_check is None else float(spec.ledger_check)
 
 
-def mc_solver(spec: MonteCarloSpec, model: str, dt: float, method: str) -> Solver:
+def mc_solver(spec: MonteCarloSpec, model: str, dt: float, method: str, *,
+              t_end: float | None = None) -> Solver:
     """The run settings of a Monte Carlo's landings: without a trajectory, the reported peaks
     only, no contact event times (their count decides touchdown), the ledger checked every
-    ``ledger_check_s`` seconds."""
-    return Solver(dt=dt, t_end=spec.t_end, save_dt=spec.t_end, method=method,
-                  early_stop=spec.early_stop, peaks=REPORTED_PEAKS[model], event_log=0,
+    ``ledger_check_s`` seconds. ``t_end`` (the t_end check's longer run): to that time,
+    saving the state at ``spec.t_end``, without early stop."""
+    longer = t_end is not None
+    return Solver(dt=dt, t_end=t_end if longer else spec.t_end, save_dt=spec.t_end,
+                  method=method, early_stop=spec.early_stop and not longer,
+                  peaks=REPORTED_PEAKS[model], event_log=0,
                   ledger_every=max(1, round(ledger_check_s(spec, model) / dt))).validate()
 
 
@@ -368,15 +373,22 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
     a leg's max stroke grew by more than ``T_END_CHECK_TOL`` of it, or it tipped over or
     bottomed out. ``UNFINISHED`` catches a leg still compressing at t_end; a vehicle rocking
     on its legs or a foot in the air comes down and crushes again later, which this counts.
-    The changed fraction's 95 % Wilson interval estimates it over all the finished landings.
-    None where the check is off or no landing finished."""
+    The changed fraction's 95 % Wilson interval estimates it over the landings it was drawn
+    from (``of``: the finished ones, or with early stop those that did not settle). None where
+    the check is off or no landing finished; where twice t_end_s is beyond the longest run
+    (``T_END_MAX``), a dict saying it was ``skipped``."""
     ok = failure == int(Result.SUCCESSFUL)
+    of = "finished landings"
     if "settled_time_s" in outputs:  # a settled landing's outcomes are final (the bound)
         ok &= ~np.isfinite(outputs["settled_time_s"])
+        of = "finished landings that did not settle"
     idx = np.flatnonzero(ok)[:spec.t_end_check]
     if idx.size == 0:
         return None
     t_check = T_END_CHECK_FACTOR * spec.t_end
+    if t_check > T_END_MAX:
+        return dict(n_checked=0, t_end_s=t_check, skipped=(
+            f"twice t_end_s ({t_check:g} s) is beyond the longest run ({T_END_MAX:g} s)"))
     t0 = time.perf_counter()
     methods = np.where(outputs["retried"][idx], retry_method(spec.method), spec.method)
     steps = outputs["dt_s"][idx]
@@ -388,9 +400,7 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
         line(f"t_end check: {idx.size} landing(s) to {t_check:g} s")
     for method, dt in sorted(set(zip(methods.tolist(), steps.tolist()))):
         sel = (methods == method) & (steps == dt)
-        solver = Solver(dt=dt, t_end=t_check, save_dt=spec.t_end, method=method,
-                        peaks=REPORTED_PEAKS[model], event_log=0,
-                        ledger_every=max(1, round(ledger_check_s(spec, model) / dt))).validate()
+        solver = mc_solver(spec, model, dt, method, t_end=t_check)
         size = 8 * -(-int(sel.sum()) // 8)  # padded with the last landing: fewer compilations
         rows = np.concatenate([idx[sel], np.full(size - sel.sum(), idx[sel][-1])])
         scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=rows)
@@ -406,12 +416,12 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
         line.close()
     ran = ~np.isin(result, FAILED_CODES)  # a rerun that failed numerically judges nothing
     growth = (later - at_end).max(axis=1)
-    x_l4 = float(vehicle.honeycomb.x_L4)
-    bottomed = (later.max(axis=1) > x_l4) & ~(at_end.max(axis=1) > x_l4)
+    bottomed = (bottomed_out({"max_stroke_m": later}, vehicle)
+                & ~bottomed_out({"max_stroke_m": at_end}, vehicle))
     grew = (later - at_end > T_END_CHECK_TOL * np.maximum(at_end, 1e-3)).any(axis=1)
     changed = ran & (grew | tipped | bottomed)
     return dict(
-        n_checked=int(ran.sum()), t_end_s=t_check, tolerance=T_END_CHECK_TOL,
+        n_checked=int(ran.sum()), of=of, t_end_s=t_check, tolerance=T_END_CHECK_TOL,
         n_changed=int(changed.sum()), changed=proportion(changed[ran]),
         changed_samples=idx[changed].tolist(),
         n_max_stroke_grew=int((ran & grew).sum()),

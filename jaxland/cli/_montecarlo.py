@@ -168,15 +168,22 @@ def _t_end_check_text(s: dict) -> str:
     """The t_end check's line: how many landings called finished at t_end_s still changed by
     the check's end (``jaxland._montecarlo._run.check_t_end``)."""
     c = s["t_end_check"]
-    head = (f"{c['n_changed']} of {c['n_checked']} landings called finished at t_end_s = "
-            f"{s['t_end_s']:g} s still changed before {c['t_end_s']:g} s")
+    if c.get("skipped"):
+        return f"skipped: {c['skipped']}"
+    failed = (f"; {c['n_rerun_failed']} rerun(s) failed numerically and judge nothing"
+              if c["n_rerun_failed"] else "")
+    if not c["n_checked"]:
+        return f"no landing could be checked{failed}"
+    head = (f"{c['n_changed']} of {c['n_checked']} {c['of']} at t_end_s = {s['t_end_s']:g} s "
+            f"still changed before {c['t_end_s']:g} s")
     if not c["n_changed"]:
-        return head + f" (max stroke within {c['tolerance']:g}): outcomes final at t_end_s"
+        return (head + f" (each max stroke within {c['tolerance']:.1%} of itself){failed}: "
+                "outcomes final at t_end_s")
     lo, hi = c["changed"]["ci95_wilson"]
-    what = [f"max stroke grew on {c['n_max_stroke_grew']} (up to "
-            f"{c['max_stroke_growth_m'] * 1e3:.3g} mm)"]
+    what = ([f"max stroke grew on {c['n_max_stroke_grew']} (up to "
+             f"{c['max_stroke_growth_m'] * 1e3:.3g} mm)"] if c["n_max_stroke_grew"] else [])
     what += [f"{c[k]} {name}" for k, name in (("n_tipped_later", "tipped over later"),
                                                ("n_bottomed_later", "bottomed out later"))
              if c[k]]
-    return (head + f": {', '.join(what)}. For {lo:.0%} to {hi:.0%} of the landings (95 % "
-            "CI) the outcomes above are not final at t_end_s: raise t_end_s")
+    return (head + f": {', '.join(what)}{failed}. For {lo:.0%} to {hi:.0%} of the {c['of']} "
+            "(95 % CI) the outcomes above are not final at t_end_s: raise t_end_s")
