@@ -418,6 +418,7 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
     growth = (later - at_end).max(axis=1)
     bottomed = (bottomed_out({"max_stroke_m": later}, vehicle)
                 & ~bottomed_out({"max_stroke_m": at_end}, vehicle))
+    # relative to the stroke, and at least 1 um on a leg that barely crushed (under 1 mm)
     grew = (later - at_end > T_END_CHECK_TOL * np.maximum(at_end, 1e-3)).any(axis=1)
     changed = ran & (grew | tipped | bottomed)
     return dict(
