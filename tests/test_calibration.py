@@ -990,3 +990,22 @@ def test_fit_progress_is_one_stderr_line_per_iteration(capsys):
     _Progress(True)(dict(stage="1/4 (10 ms)", iteration=4, loss=12.0, lambda_=1e-3, wall_s=0.5))
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "iter   3" in err and "loss 1.250000e+01" in err
+
+
+def test_the_guides_worked_example_prints_what_the_fit_computes(cli_fit):
+    """docs/calibration.md quotes one run of its worked example (the fit of the bundled 0.2 m
+    drop with the defaults): each value and total standard error it shows is the one this fit
+    reports (to 1e-4 and 10 %: another CPU rounds the fit differently), so the guide cannot
+    drift from the code."""
+    import re
+
+    text = (Path(__file__).parents[1] / "docs" / "calibration.md").read_text()
+    block = text[text.index("## A worked example"):]
+    block = block[block.index("```text"):block.index("```", block.index("```text") + 7)]
+    shown = dict((m[0], (float(m[1]), float(m[2]))) for m in re.findall(
+        r"^  (\w+)\s+= (\S+) \+/- (\S+) \S+ \(std_error_total", block, flags=re.M))
+    assert set(shown) == set(NAMES)
+    rep = json.loads((cli_fit / "fit_report.json").read_text())["parameters"]
+    for name, (value, se) in shown.items():
+        assert rep[name]["value"] == pytest.approx(value, rel=1e-4), name
+        assert rep[name]["std_error_total"] == pytest.approx(se, rel=0.1), name
