@@ -18,7 +18,7 @@ import numpy as np
 
 from ._errors import ConfigError
 from ._params import _f64, _opt_f64, concrete
-from ._toml import read_toml
+from ._toml import read_toml, toml_value
 
 __all__ = ["Scene", "load_scene", "scene_from_dict", "is_symmetric", "batch_axes"]
 
@@ -292,15 +292,12 @@ def scene_to_toml(scene: Scene) -> str:
     lines = ["# jaxland scene (units in the keys; angles in degrees)", "[scene]"]
     for name, f in SCENE_FIELDS.items():
         val = float(np.asarray(getattr(scene, name))) / f.to_si
-        lines.append(f"{f.toml} = {val!r}  # {f.doc}")
+        lines.append(f"{f.toml} = {toml_value(val)}  # {f.doc}")
     for name, key in (("friction", "friction"), ("mass_scale", "mass_scale"),
                       ("plateau_scale", "plateau_scale"), ("com_offset", "com_offset_m")):
         val = getattr(scene, name)
         if val is not None:
-            val = np.asarray(val, dtype=float)
-            shown = repr(float(val)) if val.ndim == 0 else "[" + ", ".join(
-                repr(float(x)) for x in val) + "]"
-            lines.append(f"{key} = {shown}")
+            lines.append(f"{key} = {toml_value(np.asarray(val, dtype=float).tolist())}")
     return "\n".join(lines) + "\n"
 
 

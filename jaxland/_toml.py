@@ -1,7 +1,9 @@
-"""Reading input files with errors that name the file and what is wrong."""
+"""Reading input files with errors that name the file and what is wrong, and writing TOML values
+that read back exactly."""
 
 from __future__ import annotations
 
+import json
 import tomllib
 from pathlib import Path
 
@@ -34,3 +36,15 @@ def read_toml(path, what: str) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(what, str(path), f"is not valid TOML: {err}") from None
+
+
+def toml_value(v) -> str:
+    """``v`` (a flag, text, number, or a list of them) as TOML that reads back to the same
+    value: floats by ``repr``, the shortest text that round-trips."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    return repr(float(v)) if isinstance(v, float) else repr(int(v))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -15,7 +14,7 @@ from .._checks import FLAG, NON_NEGATIVE, POSITIVE, Choice, Number, parse_table,
 from .._errors import ConfigError
 from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS, Scene
 from .._solvers import FIXED_STEP_METHODS, check_whole_steps
-from .._toml import read_toml
+from .._toml import read_toml, toml_value
 
 
 class Dispersible(NamedTuple):
@@ -299,27 +298,17 @@ def montecarlo_spec_from_dict(data: dict, *, keys_excluded: dict | None = None,
                           **{**kwargs, **overrides})
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    return repr(float(v)) if isinstance(v, float) else repr(int(v))
-
-
 def montecarlo_spec_to_toml(spec: MonteCarloSpec) -> str:
     """``spec`` as a spec file that ``load_montecarlo_spec`` reads back to the same spec: every
     ``[montecarlo]`` key (the defaults filled in), ``[fixed]`` and ``[dispersion.*]``."""
     lines = ["[montecarlo]"]
     for f in dataclasses.fields(spec):
         if "toml" in f.metadata and getattr(spec, f.name) is not None:
-            lines.append(f"{f.metadata['toml']} = {_toml_value(getattr(spec, f.name))}")
+            lines.append(f"{f.metadata['toml']} = {toml_value(getattr(spec, f.name))}")
     if spec.fixed:
-        lines += ["", "[fixed]"] + [f"{k} = {_toml_value(v)}" for k, v in spec.fixed.items()]
+        lines += ["", "[fixed]"] + [f"{k} = {toml_value(v)}" for k, v in spec.fixed.items()]
     for key, dist in spec.dispersion.items():
-        lines += ["", f"[dispersion.{key}]"] + [f"{k} = {_toml_value(v)}"
+        lines += ["", f"[dispersion.{key}]"] + [f"{k} = {toml_value(v)}"
                                                  for k, v in dist.table().items()]
     return "\n".join(lines) + "\n"
 
