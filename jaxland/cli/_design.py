@@ -20,6 +20,7 @@ from .._files import staged
 from .._montecarlo._stats import probability_text
 from .._progress import ProgressLine
 from ._common import out_dir, use_cpu_cores
+from ._montecarlo import _t_end_check_text
 
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE", "EXIT_UNVERIFIED"]
 
@@ -153,15 +154,9 @@ def _cmd_design(args) -> int:
                      else ": those left have no final outcome, and the verification is not met"),
                   file=sys.stderr)
         check = v["after"].get("t_end_check")
-        if check and check.get("n_changed"):
-            lo, hi = check["changed"]["ci95_wilson"]
-            print(f"  note: t_end check: {check['n_changed']} of {check['n_checked']} "
-                  f"verification landings of the design called finished at t_end_s = "
-                  f"{spec.montecarlo.t_end:g} s still changed before {check['t_end_s']:g} s "
-                  f"(max stroke up to +{check['max_stroke_growth_m'] * 1e3:.3g} mm): the "
-                  f"constraints are judged on outcomes up to t_end_s, not final for {lo:.0%} "
-                  f"to {hi:.0%} of the {check['of']} (95 % CI); raise montecarlo.t_end_s",
-                  file=sys.stderr)
+        if check and check.get("n_changed"):  # the constraints were judged on these outcomes
+            print("  note: the t_end check of the design's verification: " + _t_end_check_text(
+                {"t_end_s": spec.montecarlo.t_end, "t_end_check": check}), file=sys.stderr)
     if result.status != "feasible":
         for name, c in result.violated.items():
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
