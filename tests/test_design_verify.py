@@ -157,6 +157,37 @@ def test_cut_off_verification_landings_are_continued_to_their_final_outcomes():
     assert np.all(res.failure == longest.failure)
 
 
+def test_the_t_end_checks_landings_are_judged_on_their_longer_run():
+    """A landing called finished at t_end_s may crush further later: cut at 0.37 s, 0.2 m
+    drops are on their rebound, a foot in the air. The verification judges the t_end check's
+    landings (here 3 of 4) on their outcomes at twice t_end_s, sample by sample those of a
+    Monte Carlo run that long from the start; the unchecked landing keeps its own."""
+    import dataclasses
+
+    from jaxland._design._verify import _continue_unfinished
+    from jaxland._montecarlo import run_montecarlo
+
+    spec = jl.MonteCarloSpec(dispersion={"mass_scale": jl.Distribution("normal", 1.0, 0.03)},
+                             fixed={"drop_height_m": 0.2}, n=4, seed=3, t_end=0.37, dt=1e-4,
+                             t_end_check=3, model="quarter")
+    res = run_montecarlo(spec, progress=False, share_program=True)
+    assert res.summary["t_end_check"]["changed_samples"] == [0, 1, 2]
+    at_t_end = {k: v.copy() for k, v in res.outputs.items()}
+    assert _continue_unfinished(spec, res) == []  # none unfinished at 0.74 s
+    longer = run_montecarlo(dataclasses.replace(spec, t_end=0.74, t_end_check=0),
+                            progress=False)
+    np.testing.assert_array_equal(res.outputs["t_end_s"], [0.74, 0.74, 0.74, 0.37])
+    assert np.all(res.outputs["max_stroke_m"][:3] > at_t_end["max_stroke_m"][:3])
+    for key, v in longer.outputs.items():
+        np.testing.assert_allclose(res.outputs[key][:3], v[:3], rtol=1e-9, err_msg=key)
+        np.testing.assert_array_equal(res.outputs[key][3], at_t_end[key][3], err_msg=key)
+    np.testing.assert_array_equal(res.failure, longer.failure)
+    key = "max_stroke_m (any leg)"  # the summary is made again from the outcomes judged
+    assert res.summary["envelopes"][key]["max"] == pytest.approx(
+        res.outputs["max_stroke_m"].max(), rel=1e-12)
+    assert res.summary["envelopes"][key]["max"] > at_t_end["max_stroke_m"].max()
+
+
 def test_a_landing_no_continuation_finishes_fails_the_verification(monkeypatch):
     """Without the continuations the cut-off landings stay unfinished: their numbers are not
     judged as outcomes, and the verification is not met, for a reason that says so."""

@@ -52,14 +52,27 @@ def _continued_program(solver, model):
 
 
 def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
-    """Run the unfinished landings of ``res`` (a verification Monte Carlo of ``vspec``) again,
-    from touchdown, to ``CONTINUE_FACTORS`` x t_end_s, each with the method and step it ended
-    with (a retried landing: the retry's), and keep their outcomes in place (``res.failure``,
-    ``res.outputs``; ``res.outputs["t_end_s"]``: each landing's end) with the summary made
-    again from them. Returns, per continuation, its t_end_s and how many it ran and left."""
+    """The verification Monte Carlo ``res`` (of ``vspec``) with each landing's latest known
+    outcomes, kept in place (``res.failure``, ``res.outputs``; ``res.outputs["t_end_s"]``:
+    each landing's end) with the summary made again from them. The t_end check's landings take
+    their outcomes at the check's end (twice t_end_s): a landing that crushes further,
+    bottoms out or tips over after t_end_s is judged so. Then the unfinished landings run
+    again, from touchdown, to ``CONTINUE_FACTORS`` x t_end_s, each with the method and step
+    it ended with (a retried landing: the retry's). Returns, per continuation, its t_end_s and
+    how many it ran and left."""
     vehicle, model = res.vehicle, res.summary["model"]
     n = res.failure.size
     res.outputs["t_end_s"] = np.full(n, float(vspec.t_end))
+    longer = res.t_end_longer
+    if longer is not None and longer["samples"].size:
+        idx = longer["samples"]
+        out = dict(longer["outputs"])
+        res.failure[idx] = out.pop("result").astype(int)
+        for k, v in out.items():
+            if k in res.outputs:
+                res.outputs[k][idx] = v.astype(res.outputs[k].dtype)
+        res.outputs["bottomed_out"][idx] = bottomed_out(out, vehicle)
+        res.outputs["t_end_s"][idx] = longer["t_end_s"]
     log = []
     for factor in CONTINUE_FACTORS:
         todo = np.flatnonzero(res.failure == int(Result.UNFINISHED))

@@ -64,9 +64,13 @@ def mc_solver(spec: MonteCarloSpec, model: str, dt: float, method: str, *,
 
 
 def _per_sample(vehicle, solver, model, scenes):
-    mod = MODELS[model]
-    traj, s = landings(vehicle, scenes, solver, mod)
+    traj, s = landings(vehicle, scenes, solver, MODELS[model])
     del traj
+    return _outcomes(s, vehicle, model)
+
+
+def _outcomes(s: dict, vehicle, model: str) -> dict:
+    """A Monte Carlo's outcomes per sample from the landings' summary ``s``."""
     n = vehicle.n_legs
 
     def legs(x):
@@ -133,6 +137,9 @@ class MonteCarloResult:
     reasons: dict = field(default_factory=lambda: {int(r): r.message for r in Result})
     vehicle: Vehicle | None = None  # the vehicle the landings ran (save: vehicle.toml)
     spec: MonteCarloSpec | None = None  # the spec run (save: spec.toml)
+    # the t_end check's landings run to its end (check_t_end): "samples" (indices), "t_end_s"
+    # and "outputs" (as ``outputs``, with "result"); None where no check ran
+    t_end_longer: dict | None = None
 
     def columns(self) -> dict:
         """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names."""
@@ -353,9 +360,9 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
     outputs["bottomed_out"] = bottomed
     outputs["tipped_over"] = outputs["tipped_over"].astype(bool)
     summary = _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk)
-    summary["t_end_check"] = check_t_end(spec, vehicle, model, outputs, failure, line)
+    summary["t_end_check"], longer = check_t_end(spec, vehicle, model, outputs, failure, line)
     return MonteCarloResult(inputs, outputs, failure, summary, vehicle=vehicle,
-                            spec=dataclasses.replace(spec))
+                            spec=dataclasses.replace(spec), t_end_longer=longer)
 
 
 T_END_CHECK_FACTOR = 2.0  # the t_end check's landings run to this multiple of t_end_s
@@ -365,7 +372,7 @@ T_END_CHECK_TOL = 1e-3
 
 
 def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict,
-                failure: np.ndarray, line=None) -> dict | None:
+                failure: np.ndarray, line=None) -> tuple[dict | None, dict | None]:
     """Whether the outcomes at ``t_end_s`` are final, measured: the first ``t_end_check``
     landings called finished (SUCCESSFUL; with early stop, those that did not settle) run
     again, each with the method and step it ended with, to ``T_END_CHECK_FACTOR`` x t_end_s,
@@ -376,7 +383,11 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
     The changed fraction's 95 % Wilson interval estimates it over the landings it was drawn
     from (``of``: the finished ones, or with early stop those that did not settle). None where
     the check is off or no landing finished; where twice t_end_s is beyond the longest run
-    (``T_END_MAX``), a dict saying it was ``skipped``."""
+    (``T_END_MAX``), a dict saying it was ``skipped``.
+
+    Also returns the checked landings' outcomes at the check's end (``MonteCarloResult.
+    t_end_longer``; those whose rerun failed numerically left out), or None: a design's
+    verification judges them on these."""
     ok = failure == int(Result.SUCCESSFUL)
     of = "finished landings"
     if "settled_time_s" in outputs:  # a settled landing's outcomes are final (the bound)
@@ -384,18 +395,17 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
         of = "finished landings that did not settle"
     idx = np.flatnonzero(ok)[:spec.t_end_check]
     if idx.size == 0:
-        return None
+        return None, None
     t_check = T_END_CHECK_FACTOR * spec.t_end
     if t_check > T_END_MAX:
         return dict(n_checked=0, t_end_s=t_check, skipped=(
-            f"twice t_end_s ({t_check:g} s) is beyond the longest run ({T_END_MAX:g} s)"))
+            f"twice t_end_s ({t_check:g} s) is beyond the longest run ({T_END_MAX:g} s)")), None
     t0 = time.perf_counter()
     methods = np.where(outputs["retried"][idx], retry_method(spec.method), spec.method)
     steps = outputs["dt_s"][idx]
-    at_end = np.zeros((idx.size, vehicle.n_legs))  # max stroke at t_end_s and at t_check
-    later = np.zeros((idx.size, vehicle.n_legs))
-    tipped = np.zeros(idx.size, bool)
-    result = np.zeros(idx.size, int)
+    at_end = np.zeros((idx.size, vehicle.n_legs))  # max stroke at t_end_s
+    tip_time = np.zeros(idx.size)
+    longer: dict = {}  # the outcomes at t_check
     if line is not None:
         line(f"t_end check: {idx.size} landing(s) to {t_check:g} s")
     for method, dt in sorted(set(zip(methods.tolist(), steps.tolist()))):
@@ -406,14 +416,16 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
         scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=rows)
         s = jax.device_get(_t_end_program(solver, model)(vehicle, scenes))
         k = int(sel.sum())
-        shape = (k, vehicle.n_legs)
-        at_end[sel] = np.broadcast_to(np.asarray(s["at_t_end"])[:k].reshape(k, -1), shape)
-        later[sel] = np.broadcast_to(np.asarray(s["max_stroke_m"])[:k].reshape(k, -1), shape)
-        tipped[sel] = np.asarray(s["tipped"])[:k] & (np.asarray(s["tip_over_time_s"])[:k]
-                                                     > spec.t_end)
-        result[sel] = np.asarray(s["result"])[:k]
+        at_end[sel] = np.broadcast_to(np.asarray(s.pop("at_t_end"))[:k].reshape(k, -1),
+                                      (k, vehicle.n_legs))
+        tip_time[sel] = np.asarray(s.pop("tip_over_time_s"))[:k]
+        for key, v in s.items():
+            v = np.asarray(v)[:k]
+            longer.setdefault(key, np.zeros((idx.size, *v.shape[1:]), v.dtype))[sel] = v
     if line is not None:
         line.close()
+    later, result = longer["max_stroke_m"], longer["result"]
+    tipped = longer["tipped_over"].astype(bool) & (tip_time > spec.t_end)
     ran = ~np.isin(result, FAILED_CODES)  # a rerun that failed numerically judges nothing
     growth = (later - at_end).max(axis=1)
     bottomed = (bottomed_out({"max_stroke_m": later}, vehicle)
@@ -430,19 +442,20 @@ def check_t_end(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dic
         n_tipped_later=int((ran & tipped).sum()), n_bottomed_later=int((ran & bottomed).sum()),
         n_rerun_failed=int((~ran).sum()),
         # not in the run's wall_s: the check's compilation and landings
-        wall_s=time.perf_counter() - t0)
+        wall_s=time.perf_counter() - t0), dict(
+        samples=idx[ran], t_end_s=t_check, outputs={k: v[ran] for k, v in longer.items()})
 
 
 @functools.lru_cache(maxsize=2)
 def _t_end_program(solver, model):
     """The t_end check's landings, the vehicle an argument: the max stroke at t_end_s (the
-    trajectory's last saved state) and what the check reads at the end. Only these leave the
-    program, so XLA compiles none of the rest of the record (a third of its compilation)."""
+    trajectory's last saved state), the tip-over time and the Monte Carlo's outcomes at the
+    end. Of the trajectory only the max stroke leaves the program, so XLA compiles none of the
+    rest of the record (a third of its compilation)."""
     def run(vehicle, scenes):
         traj, s = landings(vehicle, scenes, solver, MODELS[model])
-        return dict(at_t_end=traj["stroke_max_m"][:, -1], max_stroke_m=s["max_stroke_m"],
-                    tipped=s["tipped"], tip_over_time_s=s["tip_over_time_s"],
-                    result=s["result"])
+        return dict(_outcomes(s, vehicle, model), at_t_end=traj["stroke_max_m"][:, -1],
+                    tip_over_time_s=s["tip_over_time_s"])
     return jax.jit(run)
 
 

@@ -154,9 +154,11 @@ def _cmd_design(args) -> int:
                      else ": those left have no final outcome, and the verification is not met"),
                   file=sys.stderr)
         check = v["after"].get("t_end_check")
-        if check and check.get("n_changed"):  # the constraints were judged on these outcomes
+        if check and check.get("n_changed"):
             print("  note: the t_end check of the design's verification: " + _t_end_check_text(
-                {"t_end_s": spec.montecarlo.t_end, "t_end_check": check}), file=sys.stderr)
+                {"t_end_s": spec.montecarlo.t_end, "t_end_check": check})
+                + f" (montecarlo.t_end_s); the constraints judged the checked landings on "
+                f"their outcomes at {check['t_end_s']:g} s", file=sys.stderr)
     if result.status != "feasible":
         for name, c in result.violated.items():
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
