@@ -182,6 +182,24 @@ def load_vehicle(path, what: str = "config") -> Vehicle:
     return vehicle_from_dict(data)
 
 
+def _breakpoint_error(hc: Honeycomb, names: tuple[str, ...], rule: str):
+    """Raise the honeycomb breakpoint rule ``rule`` naming, of the fields it involves
+    (``names``, all positive by their own rules), the one furthest from the paper vehicle's
+    value by ratio either way: the likeliest slip (a stiffness typed in the wrong unit), not a
+    field the user left alone. A tie names the first."""
+    paper = paper_vehicle().honeycomb
+    info = {f.name: f for f in field_info(Honeycomb)}
+
+    def off(name):
+        val = np.asarray(concrete(getattr(hc, name)), dtype=float)
+        return float(np.max(np.abs(np.log(val / float(getattr(paper, name))))))
+
+    name = max(names, key=off)
+    f = info[name]
+    val = np.asarray(concrete(getattr(hc, name)), dtype=float).flat[0] / f.metadata["to_si"]
+    raise ConfigError(f"honeycomb.{f.metadata['toml']}", float(f"{val:.12g}"), rule)
+
+
 def paper_vehicle() -> Vehicle:
     """The paper's vehicle (Tables 1-2) with our documented choices for what it leaves open."""
     return vehicle_from_dict({})
@@ -278,13 +296,15 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
                               f"must exceed F1_N = {float(np.min(F1))} (the secondary stage "
                               "crushes after the primary)")
         if np.any(~(x1 < x2)):
-            raise ConfigError("honeycomb.x_L2_mm", float(np.min(x2)) * 1e3,
+            _breakpoint_error(hc, ("x_L2", "F1", "k_b1"),
                               f"breakpoints must increase: x_L1 = F1/k_b1 = "
-                              f"{float(np.max(x1)) * 1e3:.4g} mm must be < x_L2")
+                              f"{float(np.max(x1)) * 1e3:.4g} mm must be < x_L2 = "
+                              f"{float(np.min(x2)) * 1e3:.4g} mm")
         if np.any(~(x3 < x4)):
-            raise ConfigError("honeycomb.x_L4_mm", float(np.min(x4)) * 1e3,
+            _breakpoint_error(hc, ("x_L4", "x_L2", "F1", "F2", "k_b3"),
                               f"breakpoints must increase: x_L3 = x_L2 + (F2-F1)/k_b3 = "
-                              f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4")
+                              f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4 = "
+                              f"{float(np.min(x4)) * 1e3:.4g} mm")
         _check_peaks_and_unloading(hc, veh.ground, F1, F2, k1, k3, x2, x4)
     inertia = [concrete(x) for x in (veh.I_xx, veh.I_yy, veh.I_zz)]
     if all(x is not None for x in inertia):

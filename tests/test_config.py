@@ -52,6 +52,11 @@ BAD = [
     ({"leg": {"L_h0_m": 1.6}}, "leg.L_h0_m", "1.6", "below the auxiliary joint"),
     ({"honeycomb": {"x_L2_mm": 0.3}}, "honeycomb.x_L2_mm", "0.3", "breakpoints must increase"),
     ({"honeycomb": {"x_L4_mm": 58.0}}, "honeycomb.x_L4_mm", "58", "breakpoints must increase"),
+    # a cross-field rule names the field furthest from the paper's (a stiffness in kN/m)
+    ({"honeycomb": {"k_b1_N_per_m": 8.552}}, "honeycomb.k_b1_N_per_m", "8.552",
+     "x_L1 = F1/k_b1 = 5.875e+05 mm must be < x_L2 = 57.6 mm"),
+    ({"honeycomb": {"k_b3_N_per_m": 50.0}}, "honeycomb.k_b3_N_per_m", "50.0",
+     "must be < x_L4"),
     ({"honeycomb": {"F2_N": 4000.0}}, "honeycomb.F2_N", "4000", "must exceed F1_N"),
     ({"honeycomb": {"bonded": 1}}, "honeycomb.bonded", "1", "true or false"),
     ({"honeycomb": {"F1_N": 5000.0, "cells": {"flow_stress_Pa": 3e8}}}, "honeycomb.cells", "",
