@@ -121,13 +121,16 @@ MARKER = ".jaxland-output.json"  # in every output folder jaxland publishes
 
 
 def check_out(out, inputs=()) -> Path:
-    """Refuse an output folder that jaxland may not replace: a file, a path below a file, the
-    current folder or one holding it, a folder holding one of the run's ``inputs`` (paths;
-    None skipped), or a non-empty folder without jaxland's marker (someone else's files,
-    hidden ones included). Call it before any long computation."""
+    """Refuse an output folder that jaxland may not replace: a file, a symbolic link, a path
+    below a file, the current folder or one holding it, a folder holding one of the run's
+    ``inputs`` (paths; None skipped), or a non-empty folder without jaxland's marker (someone
+    else's files, hidden ones included). Call it before any long computation."""
     from ._errors import ConfigError
 
     out = Path(out)
+    if out.is_symlink():  # the folder's replacement would replace the link, not its target
+        raise ConfigError("--out", str(out), f"is a symbolic link (to {os.readlink(out)}): "
+                          "give the folder itself, since the whole folder is replaced")
     for p in (out, *out.parents):
         if p.exists():
             if not p.is_dir():

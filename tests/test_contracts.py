@@ -145,6 +145,13 @@ def test_a_foreign_folder_is_refused_before_running(tmp_path, capsys):
     below = tmp_path / "notes.txt" / "out"
     assert _simulate(below) == 2
     assert "lies below" in capsys.readouterr().err
+    # a link to a folder jaxland wrote: replacing the folder would replace the link instead
+    target, link = tmp_path / "target", tmp_path / "link"
+    assert _simulate(target) == 0
+    link.symlink_to(target)
+    assert _simulate(link) == 2
+    assert "is a symbolic link" in capsys.readouterr().err
+    assert link.is_symlink() and not list(tmp_path.glob(".link.*"))
 
 
 def test_staging_debris_of_a_killed_run_is_cleaned(tmp_path):
