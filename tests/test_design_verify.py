@@ -188,6 +188,41 @@ def test_the_t_end_checks_landings_are_judged_on_their_longer_run():
     assert res.summary["envelopes"][key]["max"] > at_t_end["max_stroke_m"].max()
 
 
+def test_a_continuation_that_fails_numerically_is_retried(monkeypatch):
+    """A continued landing that fails numerically is rerun as the Monte Carlo reruns its own
+    failures (with the damping implicit): its outcomes are those of a Monte Carlo of that
+    method and step run as long from the start, not a failure of the verification."""
+    import dataclasses
+
+    from jaxland._design import _verify
+    from jaxland._montecarlo import run_montecarlo
+
+    program, calls = _verify._continued_program, []
+
+    def failing_first(solver, model):  # the first landing of the first continuation "fails"
+        run = program(solver, model)
+
+        def wrapped(vehicle, scenes):
+            out = dict(run(vehicle, scenes))
+            if not calls:
+                out["result"] = out["result"].at[0].set(int(jl.Result.NONFINITE))
+            calls.append(1)
+            return out
+        return wrapped
+
+    monkeypatch.setattr(_verify, "_continued_program", failing_first)
+    short = _cut_short_verification(0.04)
+    res = run_montecarlo(short, progress=False, share_program=True)
+    log = _verify._continue_unfinished(short, res)
+    assert log[0]["n_retried"] == 1 and np.all(res.failure == int(jl.Result.SUCCESSFUL))
+    assert res.outputs["retried"][0] and not res.outputs["retried"][1:].any()
+    t_end, dt = float(res.outputs["t_end_s"][0]), float(res.outputs["dt_s"][0])
+    alone = run_montecarlo(dataclasses.replace(short, t_end=t_end, dt=dt,
+                                               method="euler_implicit"), progress=False)
+    for key in ("max_stroke_m", "peak_body_accel_mps2", "peak_strut_force_N"):
+        assert res.outputs[key][0] == pytest.approx(alone.outputs[key][0], rel=1e-9), key
+
+
 def test_a_landing_no_continuation_finishes_fails_the_verification(monkeypatch):
     """Without the continuations the cut-off landings stay unfinished: their numbers are not
     judged as outcomes, and the verification is not met, for a reason that says so."""

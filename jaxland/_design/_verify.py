@@ -22,6 +22,7 @@ from .._montecarlo import (
 )
 from .._montecarlo._run import (
     _per_sample,
+    _retry,
     _summarise,
     bottomed_out,
     check_run,
@@ -32,6 +33,7 @@ from .._montecarlo._run import (
 from .._montecarlo._sample import sample_scenes
 from .._montecarlo._stats import Z95, tip_over_of
 from .._params import Vehicle
+from .._progress import ProgressLine
 from .._solvers import Result
 from ._optimise import DesignResult, _summaries, optimise_design
 from ._problem import DesignProblem, risk_measure
@@ -58,8 +60,9 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
     their outcomes at the check's end (twice t_end_s): a landing that crushes further,
     bottoms out or tips over after t_end_s is judged so. Then the unfinished landings run
     again, from touchdown, to ``CONTINUE_FACTORS`` x t_end_s, each with the method and step
-    it ended with (a retried landing: the retry's). Returns, per continuation, its t_end_s and
-    how many it ran and left."""
+    it ended with (a retried landing: the retry's); one that fails numerically is retried as
+    the Monte Carlo retries its own. Returns, per continuation, its t_end_s and how many it
+    ran, retried and left."""
     vehicle, model = res.vehicle, res.summary["model"]
     n = res.failure.size
     res.outputs["t_end_s"] = np.full(n, float(vspec.t_end))
@@ -80,8 +83,8 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
             break
         t_end = float(vspec.t_end) * factor
         t0 = time.perf_counter()
-        methods = np.where(res.outputs["retried"][todo], retry_method(vspec.method),
-                           vspec.method)
+        was_retried = res.outputs["retried"][todo].copy()
+        methods = np.where(was_retried, retry_method(vspec.method), vspec.method)
         steps = res.outputs["dt_s"][todo]
         for method, dt in sorted(set(zip(methods.tolist(), steps.tolist()))):
             idx = todo[(methods == method) & (steps == dt)]
@@ -98,14 +101,22 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
             for k, v in out.items():
                 if k in res.outputs:
                     res.outputs[k][idx] = v.astype(res.outputs[k].dtype)
-            res.outputs["bottomed_out"][idx] = bottomed_out(out, vehicle)
             res.outputs["t_end_s"][idx] = t_end
+        # a continuation that fails numerically is retried as the Monte Carlo retries its own
+        # (the arrays are shared: the retry writes its outcomes into res)
+        _retry(dataclasses.replace(vspec, t_end=t_end), vehicle, model,
+               dict(res.outputs, result=res.failure), ProgressLine("", quiet=True), only=todo)
+        res.outputs["bottomed_out"][todo] = bottomed_out(
+            {"max_stroke_m": res.outputs["max_stroke_m"][todo]}, vehicle)
         left = int((res.failure[todo] == int(Result.UNFINISHED)).sum())
+        retried = int((res.outputs["retried"][todo] & ~was_retried).sum())
         log.append(dict(t_end_s=t_end, n=int(todo.size), n_unfinished_after=left,
-                        wall_s=time.perf_counter() - t0))
+                        n_retried=retried, wall_s=time.perf_counter() - t0))
         if say is not None:
             say(f"continued {todo.size} unfinished verification landing(s) to t_end_s = "
-                f"{t_end:g} s: {left} still unfinished")
+                f"{t_end:g} s: {left} still unfinished"
+                + (f" ({retried} rerun with {retry_method(vspec.method)} after failing "
+                   "numerically)" if retried else ""))
     s = res.summary
     res.summary = {**_summarise(vspec, model, res.inputs, res.outputs, res.failure,
                                 s["wall_s"], s["devices"], s["chunk"]), "continued": log,

@@ -472,20 +472,24 @@ def retry_method(method: str) -> str:
     return "euler_implicit" if method == "euler" else method
 
 
-def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, line) -> None:
-    """Run the samples that failed numerically again and keep the new outcomes with the step
-    used (``dt_s``; ``retried``). Explicit Euler's failures on hard landings come from its
-    explicit strut damping, which grows with the force: they are rerun with the damping
-    implicit (``euler_implicit``, whose limit does not depend on the force); a method that
-    already takes it implicitly is rerun at ``retry_step``, the limit at the forces the
-    samples' energy can reach. Samples still failing are rerun at a quarter of that step, up
-    to ``RETRY_STEPS`` tries. Every process runs the same retries (same results)."""
+def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, line,
+           only: np.ndarray | None = None) -> None:
+    """Run the samples that failed numerically again (of ``only``, sample indices, if given)
+    and keep the new outcomes with the step used (``dt_s``; ``retried``). Explicit Euler's
+    failures on hard landings come from its explicit strut damping, which grows with the
+    force: they are rerun with the damping implicit (``euler_implicit``, whose limit does not
+    depend on the force); a method that already takes it implicitly is rerun at
+    ``retry_step``, the limit at the forces the samples' energy can reach. Samples still
+    failing are rerun at a quarter of that step, up to ``RETRY_STEPS`` tries. Every process
+    runs the same retries (same results)."""
     from .._simulate import retry_step
 
     method = retry_method(spec.method)
     dt = None
     for attempt in range(RETRY_STEPS):
         failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]))
+        if only is not None:
+            failed = np.intersect1d(failed, only)
         if failed.size == 0:
             break
         scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=failed)
