@@ -92,6 +92,15 @@ def test_an_output_folder_that_cannot_be_written_is_refused_before_the_run(capsy
     assert len(err) == 1 and "--out = '/proc/jaxland-out': cannot be written" in err[0], err
 
 
+@pytest.mark.parametrize("dt,t_end", [(4e-6, 0.05), (1e-4 / 13, 0.4), (1e-6, 0.01)])
+def test_a_t_end_on_a_save_point_runs_exactly_to_it(dt, t_end):
+    """A save interval of dt x save_every that rounds to a hair below 1e-4 s (9.999999999999999e-05)
+    filled t_end to rounding and ran one interval more (0.0501 s for 0.05 s)."""
+    solver = jl.Solver(dt=dt, t_end=t_end)
+    assert solver.n_steps * dt == pytest.approx(t_end, rel=1e-9)
+    assert solver.n_saves * solver.save_dt == pytest.approx(t_end, rel=1e-9)
+
+
 def test_a_t_end_between_save_points_is_recorded_as_the_time_reached(tmp_path, capsys):
     """A run ends on a whole save interval: 1.5 steps of 1e-4 s run 2. The summary records
     the time reached beside the request, and the command says so."""

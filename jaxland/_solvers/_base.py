@@ -180,7 +180,11 @@ class Solver(eqx.Module):
 
     @property
     def n_saves(self) -> int:
-        return int(math.ceil(self.t_end / (self.dt * self.save_every)))
+        # whole save intervals to reach t_end; one that t_end fills to rounding (a step of
+        # 1e-4/13 s saves every 9.999999999999999e-05 s) is not one more interval
+        interval = self.dt * self.save_every
+        ratio = self.t_end / interval
+        return int(round(ratio)) if _whole_steps(self.t_end, interval) else int(math.ceil(ratio))
 
     @property
     def n_steps(self) -> int:
