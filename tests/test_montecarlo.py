@@ -350,6 +350,26 @@ def test_wilson_interval_covers_a_known_probability():
     assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
 
 
+def test_a_probability_with_failed_landings_lies_in_its_stated_range():
+    """Touchdowns of 4-9 m/s at euler 1.25e-4 s without retries: the hardest landings fail
+    numerically, and the probability of bottoming over the others, none of which bottoms,
+    is 0. Over all 8 (the same landings with retries, none failed) it is 0.5, inside the
+    range the run states with its failed landings counted as not, then as all bottoming."""
+    disp = {"sink_speed_mps": Distribution("uniform", low=4.0, high=9.0)}
+    runs = {retry: run_montecarlo(MonteCarloSpec(dispersion=disp, fixed={"drop_height_m": 0.0},
+                                                 n=8, seed=1, t_end=0.5, dt=1.25e-4,
+                                                 retry=retry, t_end_check=0), progress=False)
+            for retry in (False, True)}
+    bare, retried = runs[False].summary, runs[True].summary
+    assert retried["n_failed"] == 0 and bare["n_failed"] > 0 and bare["n_unfinished"] == 0
+    p = retried["bottoming"]["probability"]
+    cut = bare["bottoming"]
+    assert cut["probability"] == 0.0 < p  # the failed hard landings are no sample of all
+    lo, hi = cut["all_landings"]["range"]
+    assert cut["all_landings"]["n"] == 8 and cut["all_landings"]["n_failed"] == bare["n_failed"]
+    assert lo <= p <= hi and hi - lo == pytest.approx(bare["n_failed"] / 8, abs=1e-12)
+
+
 def test_a_probability_with_unfinished_landings_lies_in_its_stated_range():
     """Touchdowns of 6-11 m/s cut off at 0.1 s: the 28 finished ones all bottomed out (the
     hard ones finish first), so the probability over them, 1, is biased; over all 40 the

@@ -563,12 +563,12 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         n_succeeded=int(ok.sum()),
         # over the successful landings; None where there is none (0/0 is no probability).
         # The quarter model cannot tip: no probability, not a computed-looking 0
-        # (all_landings: where it lies with the unfinished landings, which could still
-        # tip or bottom out)
+        # (all_landings: where it lies with the unfinished and the failed landings, which
+        # could still tip or bottom out)
         tip_over=with_unfinished(tip_over_of(model, outputs["tipped_over"][ok]),
-                                 outputs["tipped_over"][unfinished]),
+                                 outputs["tipped_over"][unfinished], int(failed.sum())),
         bottoming=with_unfinished(proportion(outputs["bottomed_out"][ok]),
-                                  outputs["bottomed_out"][unfinished]),
+                                  outputs["bottomed_out"][unfinished], int(failed.sum())),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
             "peak_body_accel_mps2": percentiles(outputs["peak_body_accel_mps2"][ok]),

@@ -51,21 +51,23 @@ def tip_over_of(model: str, tipped) -> dict:
     return not_modelled(np.size(tipped), TIP_OVER_NOT_MODELLED)
 
 
-def with_unfinished(p: dict, flags_unfinished) -> dict:
+def with_unfinished(p: dict, flags_unfinished, n_failed: int = 0) -> dict:
     """``p`` (a ``proportion`` over the successful landings) with ``all_landings``: where the
-    probability over them and the unfinished ones lies (``flags_unfinished``: the flag each
-    unfinished landing carries so far; one it has may stay, one it lacks may still come).
-    The unfinished landings are no sample of all (those still in an impact or able to tip),
-    so the probability over the finished ones alone is biased, either way. ``range`` [-]
-    counts them as flagged as far as they are, then as all flagged; ``ci95_wilson`` widens
-    it by the Wilson intervals of both ends."""
+    probability over them, the unfinished ones and the ``n_failed`` that failed numerically
+    lies (``flags_unfinished``: the flag each unfinished landing carries so far; one it has
+    may stay, one it lacks may still come; a failed landing's flags are unknown). Neither is
+    a sample of all (the unfinished are those still in an impact or able to tip, the failed
+    the hard landings a step is too large for), so the probability over the successful ones
+    alone is biased, either way. ``range`` [-] counts the unfinished as flagged as far as
+    they are and the failed as not, then both as all flagged; ``ci95_wilson`` widens it by
+    the Wilson intervals of both ends."""
     if p.get("modelled") is False or p["count"] is None:
         return p
-    u = int(np.size(flags_unfinished))
-    now, n = p["count"] + int(np.sum(flags_unfinished)), p["n"] + u
-    most = p["count"] + u
+    u, f = int(np.size(flags_unfinished)), int(n_failed)
+    now, n = p["count"] + int(np.sum(flags_unfinished)), p["n"] + u + f
+    most = p["count"] + u + f
     return dict(p, all_landings=dict(
-        n=n, n_unfinished=u, range=[now / n, most / n] if n else None,
+        n=n, n_unfinished=u, n_failed=f, range=[now / n, most / n] if n else None,
         ci95_wilson=[wilson_interval(now, n)[0], wilson_interval(most, n)[1]]))
 
 

@@ -40,14 +40,15 @@ def _no_successful_landing(s: dict) -> None:
 
 
 def _with_unfinished(p: dict) -> str:
-    """Where a probability lies with the unfinished landings (``with_unfinished``), for its
-    report line; nothing where none is unfinished."""
+    """Where a probability lies with the unfinished and the failed landings
+    (``with_unfinished``), for its report line; nothing where there is none."""
     a = p.get("all_landings")
-    if not a or not a["n_unfinished"]:
+    if not a or not (a["n_unfinished"] or a["n_failed"]):
         return ""
     (lo, hi), (clo, chi) = a["range"], a["ci95_wilson"]
-    return (f"; with the {a['n_unfinished']} unfinished: {lo:.4g} to {hi:.4g} (95% CI "
-            f"[{clo:.4g}, {chi:.4g}])")
+    which = " and ".join(f"{k} {name}" for k, name in ((a["n_unfinished"], "unfinished"),
+                                                        (a["n_failed"], "failed")) if k)
+    return (f"; with the {which}: {lo:.4g} to {hi:.4g} (95% CI [{clo:.4g}, {chi:.4g}])")
 
 
 def _retried_text(result) -> str:
