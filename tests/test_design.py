@@ -344,6 +344,9 @@ BAD = [
     (("variables", "x_L2_mm", "low"), 0.45, "variables.x_L2_mm.low", "must exceed x_L1"),
     (("variables", "primary_cell_size_mm"), {"low": 5.0, "high": 9.0}, "variables",
      "not both"),
+    # a cell with plateau-force variables would be silently unused
+    (("cells", "primary_cell_size_mm"), 9.0, "cells.primary_cell_size_mm",
+     "only a design with cell variables"),
     (("objective", "measure"), "median", "objective.measure", "must be one of"),
     (("objective", "level"), 1.0, "objective.level", "[0, 1)"),
     (("constraints", "stroke", "margin_mm"), -5.0, "constraints.stroke.margin_mm", ">= 0"),

@@ -96,6 +96,9 @@ class DesignResult:
                             design=self.values[v.name]) for v in prob.variables],
             objective=dict(quantity="peak_body_accel_mps2", measure=spec.objective.measure,
                            level=spec.objective.level, mass_weight=spec.objective.mass_weight),
+            # [cells]: the gear-mass proxy's flow stress and section; with cell variables also
+            # the cells that set F1 and F2
+            cells=dict(spec.cells),
             constraints=[dict(name=c.name, rule=CONSTRAINTS[c.name].rule,
                               threshold_si=c.threshold, measure=c.measure, level=c.level,
                               scale_si=c.scale) for c in spec.constraints],

@@ -320,6 +320,12 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
     cells = dict(PAPER_CELLS)
     for k, v in known_keys("cells", data.get("cells", {}), list(PAPER_CELLS)).items():
         cells[k] = float(POSITIVE(f"cells.{k}", v))
+        # the flow stress and section set the gear-mass proxy's honeycomb in every design; a
+        # cell's size or foil only sets F1/F2, which only cell variables derive from cells
+        if k in CELL_VARS and not names & set(CELL_VARS):
+            raise ConfigError(f"cells.{k}", v, "sets a honeycomb cell, which only a design "
+                              "with cell variables (*_cell_size_mm, *_foil_thickness_mm) uses; "
+                              "here F1_N and F2_N are the variables' or the vehicle's")
 
     ctabs = known_keys("constraints", data.get("constraints", {}), list(CONSTRAINTS))
     constraints = [_constraint(name, t) for name, t in ctabs.items()]
