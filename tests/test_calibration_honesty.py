@@ -171,6 +171,48 @@ def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
     assert f"disagree most on {name}: without {channel}" in str(rig_fits["artefact"][1][0].message)
 
 
+def _flat_free_fall(**rig) -> cal.DropTest:
+    """The rig's 0.2 m drop (seed 7) with every channel held at its mean before touchdown, as
+    a recorder that zeroes or holds its pre-trigger would: the loader's noise estimate falls
+    to its floor on every channel, though the impact carries the rig's noise."""
+    t, ch, _ = vr.record(vr.truth_vehicle(), 0.2, seed=7, **rig)
+    pre = t < vr.PRE_TRIGGER_S
+    ch = {c: np.where(pre, np.mean(v[pre]), v) for c, v in ch.items()}
+    return cal.DropTest.from_arrays(t, ch, sample_rate_Hz=vr.SAMPLE_RATE_HZ, drop_height_m=0.2,
+                                    vehicle=jl.paper_vehicle(), name="flat", synthetic=True)
+
+
+def test_a_flat_free_fall_is_no_noise_free_record(rig_fits):
+    """A record whose free fall is flat has every channel's noise at the loader's floor, as a
+    noise-free record has; but its residuals carry the impact's white noise, 6-80 times that
+    floor. It is no noise-free record: the misfit is kept and says so, and the interval is
+    the total one, which holds the truth; the classical one, which the fit reported when it
+    took the record for noise-free, misses k_b1 by about 9 of its standard errors (fails
+    where every channel at the floor switches the misfit test off)."""
+    drop = _flat_free_fall()
+    assert all(s.startswith("floor") for s in drop.noise_source.values())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(drop, windows=(0.01, 0.03), refine_window_s=0.06)
+    d = res.diagnostics
+    assert not d["noise_free_record"]
+    assert {w["channel"] for w in d["floor_noise"]} == set(drop.channels)
+    assert all(w["white_noise_floor_units"] > 3.0 for w in d["floor_noise"])
+    assert any("loader's noise floor" in m for m in d["misfit"])
+    assert any(issubclass(w.category, cal.MisfitWarning) and "noise floor" in str(w.message)
+               for w in caught)
+    assert d["interval"] == "std_error_total" and d["interval_bounded"]
+    truth = get_values(vr.truth_vehicle(), res.names)
+    z_total = np.abs(res.values - truth) / res.std_errors_total
+    z_classical = np.abs(res.values - truth) / res.std_errors
+    ok = res.identified
+    assert np.all(z_total[ok] <= 2.0), dict(zip(res.names, z_total))
+    assert np.max(z_classical[ok]) > 5.0, dict(zip(res.names, z_classical))
+    # the noise-free records' residuals stay far below the floor: their misfit test stays off
+    res_clean, _ = rig_fits["representable"]
+    assert not res_clean.diagnostics["floor_noise"]
+
+
 def test_without_a_peak_in_the_fit_there_is_no_peak_shape_term(rig_fits):
     """The peak-shape term needs the crush peak in the fit: none of these fits has it, so
     none refits other forms, and the report's interval is the trusted one where it warns of
