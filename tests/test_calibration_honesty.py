@@ -213,6 +213,35 @@ def test_a_flat_free_fall_is_no_noise_free_record(rig_fits):
     assert not res_clean.diagnostics["floor_noise"]
 
 
+@pytest.fixture(scope="module")
+def ground_damping_fit():
+    """The default fit (default windows) of the rig's 0.2 m drop without a crush peak, its
+    truth's foot damping chi x 10 (the fit holds chi at the nominal vehicle's value):
+    the residuals show misfit, and the model has no crush peak."""
+    truth = vr.truth_vehicle()
+    truth = set_values(truth, ("chi",), np.array([float(truth.ground.chi) * 10.0]))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(vr.drop_test(0.2, seed=7, crush_peak=0.0, vehicle=truth))
+    return res, [w for w in caught if issubclass(w.category, cal.MisfitWarning)]
+
+
+def test_the_missing_peak_fit_ends_no_worse_than_the_fit_without_a_peak(ground_damping_fit):
+    """The model with the crush peak holds the one without it, so its fit must end at least
+    as well. Started from the fit's own start (the peak at 1.2) it ended in a wrong minimum
+    far worse (chi2 4.6e6 against 3.5e3 here: F2 pulled down to F1), and the interval was
+    called not bounded, blaming a peak the truth lacks (fails so). Started from the fit's
+    optimum with the peak off, it finds what the truth has: no peak."""
+    res, warned = ground_damping_fit
+    pm = res.diagnostics["peak_model_term"]
+    assert res.diagnostics["misfit"] and pm is not None
+    assert pm["added"] and pm["failed"] is None, pm["failed"]
+    assert pm["chi2_with"] <= pm["chi2_without"]
+    assert pm["values"]["peak1"] < 1.01  # the truth has none
+    assert res.diagnostics["interval_bounded"]
+    assert not any("NO TRUSTED INTERVAL" in str(w.message) for w in warned)
+
+
 def test_without_a_peak_in_the_fit_there_is_no_peak_shape_term(rig_fits):
     """The peak-shape term needs the crush peak in the fit: none of these fits has it, so
     none refits other forms, and the report's interval is the trusted one where it warns of
@@ -457,7 +486,7 @@ def test_parameters_left_fixed_widen_the_total_to_the_fit_with_them_freed(fixed_
     truth = dict(zip(("k_b1", "F1"), get_values(vr.truth_vehicle(), ("k_b1", "F1"))))
     # how many total standard errors from the truth, with the term and without it (the
     # figures docs/calibration-validation.md quotes)
-    quoted = {"k_b1": (0.92, 2.65), "F1": (1.01, 5.77)}
+    quoted = {"k_b1": (0.92, 2.62), "F1": (1.01, 6.04)}
     for n, t in truth.items():
         p = rep["parameters"][n]
         assert abs(p["value"] - t) <= 2.0 * p["std_error_total"], n
