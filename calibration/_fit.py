@@ -259,11 +259,14 @@ class FitResult:
             return x if math.isfinite(x) else None
 
         params = {}
+        _, reported = self.reported_errors()
         for i, n in enumerate(self.names):
             unit = PARAMS[n][1]
             params[n] = dict(
                 value=num(self.values[i]), std_error=num(self.std_errors[i]), unit=unit,
-                rel_std_error=num(self.std_errors[i] / abs(self.values[i])),
+                # the reported interval's (interval_reported), as predict's fit_status has it
+                rel_std_error=num(reported[i] / abs(self.values[i])),
+                rel_std_error_classical=num(self.std_errors[i] / abs(self.values[i])),
                 std_error_hac=num(self.std_errors_hac[i]) if self.std_errors_hac is not None
                 else None,
                 std_error_total=num(self.std_errors_total[i])
@@ -295,6 +298,9 @@ class FitResult:
                           wall_s=h["wall_s"], values=dict(zip(self.names, h["values"])))
                      for h in self.history],
             units=dict(time="s", force="N", stroke="m", acceleration="m/s^2",
+                       rel_std_error="1; the reported interval's standard error "
+                                     "(interval_reported) over |value|",
+                       rel_std_error_classical="1; std_error over |value|",
                        std_error="same unit as the value; Gauss-Newton, residual-variance "
                                  "scaled (holds for white residuals)",
                        std_error_hac="same unit as the value; HAC sandwich, Bartlett window "

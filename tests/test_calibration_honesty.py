@@ -295,6 +295,33 @@ def test_a_missing_peak_widens_the_total_to_the_fit_with_the_peak(rig_fits):
     assert not capped.report()["converged"] and "# NOT CONVERGED" in capped.to_toml()
 
 
+def test_rel_std_error_is_the_reported_interval_s_in_the_report_and_in_predict(rig_fits,
+                                                                             tmp_path):
+    """fit_report.json's rel_std_error is the reported interval's (here the total), as
+    predict's fit_status has it from the fitted vehicle's header; the classical one keeps
+    its own key. It was the classical one in the report while predict gave the total under
+    the same key (k_b1 0.9 % against 10.5 %: fails so)."""
+    from calibration._predict import read_fit_status
+
+    res, _ = rig_fits["physical peak"]
+    rep = res.report()["parameters"]
+    path = tmp_path / "fitted.toml"
+    path.write_text(res.to_toml())
+    status = read_fit_status(path)["parameters"]
+    assert res.diagnostics["interval"] == "std_error_total"
+    for i, n in enumerate(res.names):
+        if not res.identified[i]:
+            continue
+        p = rep[n]
+        assert p["rel_std_error"] == pytest.approx(res.std_errors_total[i] / abs(res.values[i]),
+                                                   rel=1e-12)
+        assert p["rel_std_error_classical"] == pytest.approx(
+            res.std_errors[i] / abs(res.values[i]), rel=1e-12)
+        # the header rounds the error to 2 digits
+        assert status[n]["rel_std_error"] == pytest.approx(p["rel_std_error"], rel=0.05), n
+    assert rep["k"]["rel_std_error"] > 2 * rep["k"]["rel_std_error_classical"]
+
+
 def test_a_fit_with_the_peak_that_ends_worse_than_without_it_is_named_failed(rig_fits):
     """The model with the crush peak holds the one without it, so its fit can only end at
     least as well; one that ends worse (here: the fit's own optimum moved off) stopped short
