@@ -231,13 +231,15 @@ def test_the_missing_peak_fit_ends_no_worse_than_the_fit_without_a_peak(ground_d
     as well. Started from the fit's own start (the peak at 1.2) it ended in a wrong minimum
     far worse (chi2 4.6e6 against 3.5e3 here: F2 pulled down to F1), and the interval was
     called not bounded, blaming a peak the truth lacks (fails so). Started from the fit's
-    optimum with the peak off, it finds what the truth has: no peak."""
+    optimum with the peak off, it finds what the truth has: no peak; the run of least
+    chi^2 is kept."""
     res, warned = ground_damping_fit
     pm = res.diagnostics["peak_model_term"]
     assert res.diagnostics["misfit"] and pm is not None
     assert pm["added"] and pm["failed"] is None, pm["failed"]
     assert pm["chi2_with"] <= pm["chi2_without"]
     assert pm["values"]["peak1"] < 1.01  # the truth has none
+    assert pm["started_from"] == "the fit's optimum, the peak off"
     assert res.diagnostics["interval_bounded"]
     assert not any("NO TRUSTED INTERVAL" in str(w.message) for w in warned)
 
