@@ -319,11 +319,32 @@ class FitResult:
                                        "to the fit with them freed "
                                        "(misfit.fixed_params_term.term), added in quadrature"),
             interval_reported=self.diagnostics.get("interval"),
+            # the parameters the fit held fixed: every interval is conditional on them
+            interval_conditional_on=self.held_fixed(),
             # False: a bias term the misfit calls for failed (misfit.interval_not_bounded);
             # the interval is then no bound on the values' error
             interval_bounded=self.diagnostics.get("interval_bounded", True),
             interval_not_bounded=self.diagnostics.get("interval_not_bounded"),
         )
+
+    def held_fixed(self) -> dict:
+        """The fittable parameters (``PARAMS``) this fit held at the vehicle's values: per
+        name ``value`` (SI; None where that law extension is off), ``unit``,
+        ``config_key`` and ``active`` (False where the extension, or the peak whose length
+        it is, is off: the value then acts on nothing). Every standard error the fit
+        reports is conditional on them: a truth that differs in one biases the fitted
+        values, and no term but the fixed-parameter term (the default parameters only,
+        under misfit) sees it."""
+        owner = {"L_peak1": "peak1", "L_rise1": "peak1", "L_peak2": "peak2"}
+        out = {}
+        for n, (get, unit, key, *_) in PARAMS.items():
+            if n in self.names:
+                continue
+            v = get(self.vehicle)
+            active = v is not None and PARAMS[owner.get(n, n)][0](self.vehicle) is not None
+            out[n] = dict(value=None if v is None else float(v), unit=unit, config_key=key,
+                          active=active)
+        return out
 
     def to_json(self, path) -> Path:
         from ._report import atomic_write_text

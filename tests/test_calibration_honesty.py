@@ -244,6 +244,30 @@ def test_the_missing_peak_fit_ends_no_worse_than_the_fit_without_a_peak(ground_d
     assert not any("NO TRUSTED INTERVAL" in str(w.message) for w in warned)
 
 
+def test_the_interval_names_the_parameters_held_fixed_it_is_conditional_on(
+        ground_damping_fit):
+    """The fit holds chi, mu, k_a, k_b3 and k_tan at the vehicle's values, and its errors are
+    conditional on them: the truth's foot damping chi is 10 times the vehicle's here, and k
+    lies several total standard errors from the truth with no term to see it. The report
+    lists what was held (chi at the vehicle's value, not the truth's) and the CLI's line
+    says so (fails where either is missing)."""
+    from calibration.cli import held_fixed_line
+
+    res, _ = ground_damping_fit
+    truth = vr.truth_vehicle()
+    held = res.report()["interval_conditional_on"]
+    assert set(held) == set(cal_fit.PARAMS) - set(res.names)
+    # held at the vehicle's chi (the rig truth's), a tenth of this record's truth
+    assert held["chi"]["value"] == pytest.approx(float(jl.paper_vehicle().ground.chi))
+    assert held["chi"]["value"] == pytest.approx(float(truth.ground.chi))
+    assert held["chi"]["active"] and not held["peak1"]["active"]
+    i = res.names.index("k")
+    assert abs(res.values[i] - float(truth.ground.k)) > 3.0 * res.std_errors_total[i]
+    line = held_fixed_line(res)
+    assert f"chi {held['chi']['value']:.4g} s/m" in line and "off: peak1" in line
+    assert "interval_conditional_on" in line
+
+
 def test_without_a_peak_in_the_fit_there_is_no_peak_shape_term(rig_fits):
     """The peak-shape term needs the crush peak in the fit: none of these fits has it, so
     none refits other forms, and the report's interval is the trusted one where it warns of
