@@ -146,7 +146,8 @@ WINDOWS_S = (0.01, 0.03, 0.1)
 # widths (smoothing_m [m], smoothing_N [N]) used when none are given. Chosen from
 # benchmarks/bench_fit.py (both variants side by side; docs/calibration-validation.md).
 INTEGRATOR = "euler"
-SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0)}
+SMOOTHING = {"euler": (0.0, 0.0), "euler_implicit": (0.0, 0.0), "verlet": (1e-6, 10.0),
+             "leapfrog": (0.0, 0.0)}
 REFINE_WINDOW_S = 0.15
 # s: the default refine window, shortened to a record, stops this far before its end, where a
 # zero-phase (forward-backward) filter's backward pass starts: 5.5 ms to settle at CFC 180
