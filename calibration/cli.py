@@ -165,6 +165,20 @@ def peak_site_line(check: dict | None) -> str:
     return head + f"the motion fits without it (variance factor {vf:.3g})"
 
 
+def held_fixed_line(result) -> str:
+    """fit's line naming the parameters it held at the vehicle's values
+    (``FitResult.held_fixed``), on which every interval it prints is conditional."""
+    held = result.held_fixed()
+    on = [f"{n} {p['value']:.4g}" + ("" if p["unit"] == "1" else f" {p['unit']}")
+          for n, p in held.items() if p["active"]]
+    off = [n for n, p in held.items() if not p["active"]]
+    return ("  interval conditional on the parameters held at the vehicle's values: "
+            + ", ".join(on) + (f"; off: {', '.join(off)}" if off else "")
+            + ". A truth that differs in them biases the values by more than the interval "
+            "shows, with no misfit to warn of it (fit them with --params where the records "
+            "determine them; fit_report.json, interval_conditional_on)")
+
+
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
@@ -309,6 +323,7 @@ def _cmd_fit(args) -> int:
         + (" + missing-peak term" if pm is not None and pm["added"] else "")
         + (" + fixed-parameter term" if fp is not None and fp["added"] else "")
         if diag["interval"] == "std_error_total" else trusted))
+    print(held_fixed_line(result))
     if pm is not None:
         print("  missing crush peak: the residuals show misfit and the model has no crush "
               + ("peak, so it was fitted again with one ("

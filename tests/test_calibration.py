@@ -901,6 +901,22 @@ def test_the_refine_window_is_used_as_given_or_refused_and_a_shortened_default_i
     assert rep["inputs"]["arguments"]["refine_window_s"] == 0.15  # as parsed, default filled in
 
 
+def test_every_integrator_the_fit_accepts_has_its_defaults_and_is_documented(clean_drop):
+    """Each fixed-step integrator the fit accepts (the solver's list) gets its default
+    smoothing, and the guide's integrator section names it: leapfrog, accepted by
+    --integrator, raised a KeyError and was missing from the guide (fails so). Checked
+    only: nothing compiles."""
+    from calibration import _fit
+
+    text = (Path(__file__).parents[1] / "docs" / "calibration.md").read_text()
+    section = text.split("## The integrator", 1)[1].split("\n## ", 1)[0]
+    assert "leapfrog" in _fit.INTEGRATORS
+    for method in _fit.INTEGRATORS:
+        checked = _fit.check_fit([clean_drop], integrator=method, vehicle=TRUTH)
+        assert (checked.smoothing_m, checked.smoothing_N) == _fit.SMOOTHING[method], method
+        assert f"`{method}`" in section, method
+
+
 def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,
                                                                             monkeypatch,
                                                                             tmp_path):

@@ -171,6 +171,103 @@ def test_the_channel_spread_widens_the_errors_only_under_misfit(rig_fits):
     assert f"disagree most on {name}: without {channel}" in str(rig_fits["artefact"][1][0].message)
 
 
+def _flat_free_fall(**rig) -> cal.DropTest:
+    """The rig's 0.2 m drop (seed 7) with every channel held at its mean before touchdown, as
+    a recorder that zeroes or holds its pre-trigger would: the loader's noise estimate falls
+    to its floor on every channel, though the impact carries the rig's noise."""
+    t, ch, _ = vr.record(vr.truth_vehicle(), 0.2, seed=7, **rig)
+    pre = t < vr.PRE_TRIGGER_S
+    ch = {c: np.where(pre, np.mean(v[pre]), v) for c, v in ch.items()}
+    return cal.DropTest.from_arrays(t, ch, sample_rate_Hz=vr.SAMPLE_RATE_HZ, drop_height_m=0.2,
+                                    vehicle=jl.paper_vehicle(), name="flat", synthetic=True)
+
+
+def test_a_flat_free_fall_is_no_noise_free_record(rig_fits):
+    """A record whose free fall is flat has every channel's noise at the loader's floor, as a
+    noise-free record has; but its residuals carry the impact's white noise, 6-80 times that
+    floor. It is no noise-free record: the misfit is kept and says so, and the interval is
+    the total one, which holds the truth; the classical one, which the fit reported when it
+    took the record for noise-free, misses k_b1 by about 9 of its standard errors (fails
+    where every channel at the floor switches the misfit test off)."""
+    drop = _flat_free_fall()
+    assert all(s.startswith("floor") for s in drop.noise_source.values())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(drop, windows=(0.01, 0.03), refine_window_s=0.06)
+    d = res.diagnostics
+    assert not d["noise_free_record"]
+    assert {w["channel"] for w in d["floor_noise"]} == set(drop.channels)
+    assert all(w["white_noise_floor_units"] > 3.0 for w in d["floor_noise"])
+    assert any("loader's noise floor" in m for m in d["misfit"])
+    assert any(issubclass(w.category, cal.MisfitWarning) and "noise floor" in str(w.message)
+               for w in caught)
+    assert d["interval"] == "std_error_total" and d["interval_bounded"]
+    truth = get_values(vr.truth_vehicle(), res.names)
+    z_total = np.abs(res.values - truth) / res.std_errors_total
+    z_classical = np.abs(res.values - truth) / res.std_errors
+    ok = res.identified
+    assert np.all(z_total[ok] <= 2.0), dict(zip(res.names, z_total))
+    assert np.max(z_classical[ok]) > 5.0, dict(zip(res.names, z_classical))
+    # the noise-free records' residuals stay far below the floor: their misfit test stays off
+    res_clean, _ = rig_fits["representable"]
+    assert not res_clean.diagnostics["floor_noise"]
+
+
+@pytest.fixture(scope="module")
+def ground_damping_fit():
+    """The default fit (default windows) of the rig's 0.2 m drop without a crush peak, its
+    truth's foot damping chi x 10 (the fit holds chi at the nominal vehicle's value):
+    the residuals show misfit, and the model has no crush peak."""
+    truth = vr.truth_vehicle()
+    truth = set_values(truth, ("chi",), np.array([float(truth.ground.chi) * 10.0]))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = cal.fit(vr.drop_test(0.2, seed=7, crush_peak=0.0, vehicle=truth))
+    return res, [w for w in caught if issubclass(w.category, cal.MisfitWarning)]
+
+
+def test_the_missing_peak_fit_ends_no_worse_than_the_fit_without_a_peak(ground_damping_fit):
+    """The model with the crush peak holds the one without it, so its fit must end at least
+    as well. Started from the fit's own start (the peak at 1.2) it ended in a wrong minimum
+    far worse (chi2 4.6e6 against 3.5e3 here: F2 pulled down to F1), and the interval was
+    called not bounded, blaming a peak the truth lacks (fails so). Started from the fit's
+    optimum with the peak off, it finds what the truth has: no peak; the run of least
+    chi^2 is kept."""
+    res, warned = ground_damping_fit
+    pm = res.diagnostics["peak_model_term"]
+    assert res.diagnostics["misfit"] and pm is not None
+    assert pm["added"] and pm["failed"] is None, pm["failed"]
+    assert pm["chi2_with"] <= pm["chi2_without"]
+    assert pm["values"]["peak1"] < 1.01  # the truth has none
+    assert pm["started_from"] == "the fit's optimum, the peak off"
+    assert res.diagnostics["interval_bounded"]
+    assert not any("NO TRUSTED INTERVAL" in str(w.message) for w in warned)
+
+
+def test_the_interval_names_the_parameters_held_fixed_it_is_conditional_on(
+        ground_damping_fit):
+    """The fit holds chi, mu, k_a, k_b3 and k_tan at the vehicle's values, and its errors are
+    conditional on them: the truth's foot damping chi is 10 times the vehicle's here, and k
+    lies several total standard errors from the truth with no term to see it. The report
+    lists what was held (chi at the vehicle's value, not the truth's) and the CLI's line
+    says so (fails where either is missing)."""
+    from calibration.cli import held_fixed_line
+
+    res, _ = ground_damping_fit
+    truth = vr.truth_vehicle()
+    held = res.report()["interval_conditional_on"]
+    assert set(held) == set(cal_fit.PARAMS) - set(res.names)
+    # held at the vehicle's chi (the rig truth's), a tenth of this record's truth
+    assert held["chi"]["value"] == pytest.approx(float(jl.paper_vehicle().ground.chi))
+    assert held["chi"]["value"] == pytest.approx(float(truth.ground.chi))
+    assert held["chi"]["active"] and not held["peak1"]["active"]
+    i = res.names.index("k")
+    assert abs(res.values[i] - float(truth.ground.k)) > 3.0 * res.std_errors_total[i]
+    line = held_fixed_line(res)
+    assert f"chi {held['chi']['value']:.4g} s/m" in line and "off: peak1" in line
+    assert "interval_conditional_on" in line
+
+
 def test_without_a_peak_in_the_fit_there_is_no_peak_shape_term(rig_fits):
     """The peak-shape term needs the crush peak in the fit: none of these fits has it, so
     none refits other forms, and the report's interval is the trusted one where it warns of
@@ -222,6 +319,33 @@ def test_a_missing_peak_widens_the_total_to_the_fit_with_the_peak(rig_fits):
     capped = dataclasses.replace(res, stages=[*res.stages[:-1],
                                               dict(res.stages[-1], status="max_iter")])
     assert not capped.report()["converged"] and "# NOT CONVERGED" in capped.to_toml()
+
+
+def test_rel_std_error_is_the_reported_interval_s_in_the_report_and_in_predict(rig_fits,
+                                                                             tmp_path):
+    """fit_report.json's rel_std_error is the reported interval's (here the total), as
+    predict's fit_status has it from the fitted vehicle's header; the classical one keeps
+    its own key. It was the classical one in the report while predict gave the total under
+    the same key (k_b1 0.9 % against 10.5 %: fails so)."""
+    from calibration._predict import read_fit_status
+
+    res, _ = rig_fits["physical peak"]
+    rep = res.report()["parameters"]
+    path = tmp_path / "fitted.toml"
+    path.write_text(res.to_toml())
+    status = read_fit_status(path)["parameters"]
+    assert res.diagnostics["interval"] == "std_error_total"
+    for i, n in enumerate(res.names):
+        if not res.identified[i]:
+            continue
+        p = rep[n]
+        assert p["rel_std_error"] == pytest.approx(res.std_errors_total[i] / abs(res.values[i]),
+                                                   rel=1e-12)
+        assert p["rel_std_error_classical"] == pytest.approx(
+            res.std_errors[i] / abs(res.values[i]), rel=1e-12)
+        # the header rounds the error to 2 digits
+        assert status[n]["rel_std_error"] == pytest.approx(p["rel_std_error"], rel=0.05), n
+    assert rep["k"]["rel_std_error"] > 2 * rep["k"]["rel_std_error_classical"]
 
 
 def test_a_fit_with_the_peak_that_ends_worse_than_without_it_is_named_failed(rig_fits):
@@ -415,7 +539,7 @@ def test_parameters_left_fixed_widen_the_total_to_the_fit_with_them_freed(fixed_
     truth = dict(zip(("k_b1", "F1"), get_values(vr.truth_vehicle(), ("k_b1", "F1"))))
     # how many total standard errors from the truth, with the term and without it (the
     # figures docs/calibration-validation.md quotes)
-    quoted = {"k_b1": (0.92, 2.65), "F1": (1.01, 5.77)}
+    quoted = {"k_b1": (0.92, 2.62), "F1": (1.01, 6.04)}
     for n, t in truth.items():
         p = rep["parameters"][n]
         assert abs(p["value"] - t) <= 2.0 * p["std_error_total"], n
