@@ -15,10 +15,27 @@ from dataclasses import dataclass
 
 from ._errors import ConfigError
 
+# An integer beyond this is refused: Python's (and TOML's) integers are unbounded, and one
+# past float's range overflows where it is converted (below float's max, so that a unit
+# conversion of an accepted one stays finite).
+INT_MAX = 1e300
+
+
+def check_int_size(name: str, val):
+    """Refuse an integer too large for a float, by ``name``: the checks of typed numbers run
+    it before they convert one."""
+    if isinstance(val, numbers.Integral) and not isinstance(val, bool) and abs(val) > INT_MAX:
+        raise ConfigError(name, val, "is too large for a float")
+    return val
+
 
 def _is_number(val) -> bool:
-    return (not isinstance(val, bool) and isinstance(val, numbers.Real)
-            and math.isfinite(val))
+    """A finite number (a flag is none); call ``check_int_size`` first to name a huge int."""
+    if isinstance(val, bool) or not isinstance(val, numbers.Real):
+        return False
+    if isinstance(val, numbers.Integral):
+        return abs(val) <= INT_MAX
+    return math.isfinite(val)
 
 
 @dataclass(frozen=True)
@@ -33,6 +50,7 @@ class Number:
     hi_open: bool = False
 
     def __call__(self, name: str, val):
+        check_int_size(name, val)
         if not _is_number(val):
             raise ConfigError(name, val, "must be a finite number")
         if self.integer and not isinstance(val, numbers.Integral):

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ._checks import check_int_size
 from ._crush import plateau_force
 from ._errors import ConfigError
 from ._params import Ground, Honeycomb, Leg, Vehicle, concrete, field_info
@@ -139,6 +140,7 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         for key, val in full.items():
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not val > 0:
                 raise ConfigError(f"honeycomb.cells.{key}", val, "must be a number > 0")
+            check_int_size(f"honeycomb.cells.{key}", val)
         merged["honeycomb"]["F1_N"], merged["honeycomb"]["F2_N"] = plateau_forces_from_cells(full)
     body = merged["body"]
     n_legs = body["n_legs"]
@@ -146,8 +148,8 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
     for section in ("body", "leg", "honeycomb", "ground"):
         for key, val in merged[section].items():
-            if isinstance(val, int) and not isinstance(val, bool) and abs(val) > 1e300:
-                raise ConfigError(f"{section}.{key}", val, "is too large for a float")
+            for v in val if isinstance(val, list) else [val]:  # a list: each entry
+                check_int_size(f"{section}.{key}", v)
     veh = Vehicle(
         m_body=float(body["m_body_kg"]), m_foot=float(body["m_foot_kg"]), g=float(body["g_mps2"]),
         I_xx=float(body["I_xx_kg_m2"]), I_yy=float(body["I_yy_kg_m2"]),

@@ -16,6 +16,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import check_int_size
 from ._errors import ConfigError
 from ._params import _f64, _opt_f64, concrete
 from ._toml import read_toml, toml_value
@@ -259,6 +260,8 @@ def scene_from_dict(data: dict) -> Scene:
     known = {v.toml: k for k, v in SCENE_FIELDS.items()}
     kwargs = {}
     for key, val in data.items():
+        for v in val if isinstance(val, list) else [val]:  # a list: each entry
+            check_int_size(f"scene.{key}", v)
         if key in ("friction", "plateau_scale", "mass_scale", "com_offset_m"):
             kwargs["com_offset" if key == "com_offset_m" else key] = val
             continue

@@ -65,6 +65,8 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--roll-rate-degps", "1000"], "--roll-rate-degps = 1000.0: must be finite and in"),
     (["--model", "quarter", "--roll-deg", "5"], "--model = 'quarter': the quarter model"),
     (["--plateau-scale", "1", "1"], "--plateau-scale = [1.0, 1.0]: must have one entry per leg"),
+    (["--method", "tsit5", "--max-steps", "1" + "0" * 20],
+     "--max-steps = 100000000000000000000: must be <= 5e+08"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"
@@ -225,6 +227,31 @@ def test_a_scene_key_that_is_no_table_is_refused_in_one_line(tmp_path, capsys, t
     assert main(["simulate", "--scene", str(scene), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and ": scene = " in err and "must be a table" in err, err
+
+
+BIG = 10**400  # a TOML integer too large for a float
+
+
+@pytest.mark.parametrize("argv,text,needle", [
+    (["simulate", "--scene"], f"[scene]\ndrop_height_m = {BIG}\n", "scene.drop_height_m"),
+    (["simulate", "--scene"], f"[scene]\nplateau_scale = [1, {BIG}, 1, 1]\n",
+     "scene.plateau_scale"),
+    (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n", "honeycomb.excess1"),
+    (["montecarlo", "--n", str(BIG), str(Path(__file__).parents[1] / "examples"
+                                         / "montecarlo_dispersed.toml"), "--config"],
+     "[ground]\nmu = 0.5\n", "--n"),
+])
+def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, capsys, argv, text,
+                                                            needle):
+    """Python's integers are unbounded: one beyond float's range overflowed where it was
+    converted (a traceback, exit 1)."""
+    path = tmp_path / "in.toml"
+    path.write_text(text)
+    out = [] if argv[0] == "config" else ["--out", str(tmp_path / "o")]
+    assert main([*argv, str(path), *out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"jaxland: error: {needle} = 1000"), err
+    assert err.endswith(": is too large for a float\n"), err
 
 
 def test_bench_is_not_a_subcommand(capsys):

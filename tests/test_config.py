@@ -75,6 +75,9 @@ BAD = [
     ({"honeycomb": {"cells": {"secondary_cell_size_mm": 100.0}}},
      "honeycomb.F2_N (from [honeycomb.cells])", "65.8", "must exceed F1_N"),
     ({"ground": {"k_N_per_m": 10**400}}, "ground.k_N_per_m", "", "too large"),
+    ({"honeycomb": {"excess1": [10**400]}}, "honeycomb.excess1", "", "too large"),
+    ({"honeycomb": {"cells": {"flow_stress_Pa": 10**400}}}, "honeycomb.cells.flow_stress_Pa",
+     "", "too large"),
 ]
 
 
