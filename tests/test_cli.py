@@ -254,6 +254,21 @@ def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, capsys, a
     assert err.endswith(": is too large for a float\n"), err
 
 
+@pytest.mark.parametrize("spec", ["montecarlo_dispersed.toml", "design_paper_gear.toml"])
+@pytest.mark.parametrize("devices,rule", [("0", "must be >= 1"), ("100000", "must be <= ")])
+def test_a_device_count_beyond_the_cores_is_refused_before_any_work(tmp_path, capsys, spec,
+                                                                   devices, rule):
+    """100000 CPU devices aborted the process (a thread each: pthread_create failed, exit
+    134) minutes into the run."""
+    command = "montecarlo" if spec.startswith("montecarlo") else "design"
+    path = Path(__file__).parents[1] / "examples" / spec
+    assert main([command, str(path), "--devices", devices, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"jaxland: error: --devices = {devices}: "
+                                                    f"{rule}"), err
+    assert not (tmp_path / "o").exists()
+
+
 def test_bench_is_not_a_subcommand(capsys):
     """The benchmarks are scripts in benchmarks/ (tests/test_benchmarks.py), not the library."""
     with pytest.raises(SystemExit) as exc:

@@ -6,6 +6,7 @@ import os
 from contextlib import contextmanager
 from pathlib import Path
 
+from .._checks import Number
 from .._errors import ConfigError
 from .._files import check_out
 
@@ -23,8 +24,13 @@ def use_cpu_cores(devices: int | None) -> int | None:
     import jax
 
     given = devices is not None
-    if given and devices < 1:
-        raise ConfigError("--devices", devices, "must be >= 1")
+    if given:
+        Number(integer=True, lo=1)("--devices", devices)
+        cores = os.cpu_count() or 1
+        if devices > cores:  # a device is a thread at least: 10^5 of them exhaust the system
+            raise ConfigError("--devices", devices, f"must be <= {cores}, this machine's CPU "
+                              "count: a CPU device is a share of the cores, and more devices "
+                              "than cores gain nothing")
     if not given:
         if HOST_DEVICES_FLAG in os.environ.get("XLA_FLAGS", ""):
             return None
