@@ -128,6 +128,12 @@ def known_keys(prefix: str, table, keys) -> dict:
     return table
 
 
+def check_field(cls, name: str, label: str, val):
+    """``val`` checked by the rule of ``cls``'s field ``name``, refused as ``label`` (the
+    flag that overrides the field)."""
+    return cls.__dataclass_fields__[name].metadata["check"](label, val)
+
+
 def parse_table(cls, section: str, table) -> dict:
     """The keyword arguments of ``cls`` that the TOML ``table`` gives, each checked by its
     field's ``check``; unknown keys are refused."""
