@@ -304,7 +304,29 @@ def scene_to_toml(scene: Scene) -> str:
     return "\n".join(lines) + "\n"
 
 
+def read_scene_table(path, what: str = "scene") -> dict:
+    """The scene table of a scene TOML file: its ``[scene]`` table (or its top-level keys).
+    Refusals name the file by ``what`` (the flag that gave it). A file that sets no key
+    (empty, comments, an empty ``[scene]``) is refused: every key left out takes its default,
+    so it would run, silently, the default scene."""
+    data = read_toml(path, what)
+    if "scene" in data and len(data) > 1:
+        extra = sorted(set(data) - {"scene"})[0]
+        raise ConfigError(f"{what} {path}: {extra}", "<table>",
+                          "a scene file holds the [scene] table only (vehicle parameters "
+                          "belong in --config; friction = ... inside [scene] overrides mu)")
+    table = data.get("scene", data)
+    if not isinstance(table, dict):
+        raise ConfigError(f"{what} {path}: scene", table,
+                          "must be a table ([scene] with its keys)")
+    if not table:
+        raise ConfigError(what, str(path), "sets no scene key, and would run the default scene "
+                          "(every key left out takes its default: the 0.2 m drop); give the "
+                          "scene's values (docs/formats.md, Scene)")
+    return dict(table)
+
+
 def load_scene(path) -> Scene:
-    """Load a scene TOML file: a ``[scene]`` table (or top-level keys)."""
-    data = read_toml(path, "scene")
-    return scene_from_dict(data.get("scene", data))
+    """Load a scene TOML file: a ``[scene]`` table (or top-level keys); see
+    ``read_scene_table`` for what is refused."""
+    return scene_from_dict(read_scene_table(path))

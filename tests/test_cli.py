@@ -220,6 +220,22 @@ def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(t
     assert err.count("\n") == 1 and err.startswith("jaxland: error: design.vehicle = "), err
 
 
+@pytest.mark.parametrize("text", ["", "# a scene\n", "[scene]\n"])
+def test_a_scene_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(tmp_path, capsys,
+                                                                            text):
+    """Every key a scene file leaves out takes its default: an empty one ran, silently, the
+    default 0.2 m drop."""
+    scene = tmp_path / "empty.toml"
+    scene.write_text(text)
+    assert main(["simulate", "--scene", str(scene), "--drop-height", "0.1", "--t-end", "0.01",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--scene = {str(scene)!r}: sets no scene key" in err, err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(jl.ConfigError, match="sets no scene key"):
+        jl.load_scene(scene)
+
+
 @pytest.mark.parametrize("text", ["scene = 3\n", 'scene = "ab"\n', "scene = [1, 2]\n"])
 def test_a_scene_key_that_is_no_table_is_refused_in_one_line(tmp_path, capsys, text):
     scene = tmp_path / "scene.toml"
