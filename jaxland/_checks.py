@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from ._errors import ConfigError
@@ -141,3 +142,18 @@ def parse_table(cls, section: str, table) -> dict:
     known_keys(section, table, list(fields))
     return {fields[key].name: fields[key].metadata["check"](f"{section}.{key}", val)
             for key, val in table.items()}
+
+
+@contextmanager
+def named_as(names: dict):
+    """Refusals of the fields in ``names`` (field -> (name, the value as given)) name what the
+    user typed and its value, not the field it set: ``solver.dt`` from ``--dt`` is refused as
+    ``--dt``, from a spec's ``dt_s`` as ``montecarlo.dt_s``. A field ``names`` leaves out
+    keeps its name."""
+    try:
+        yield
+    except ConfigError as err:
+        for field, (name, given) in names.items():
+            if err.field == field or err.field.startswith(field + "."):
+                raise ConfigError(name, given, err.rule) from None
+        raise

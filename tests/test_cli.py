@@ -204,6 +204,7 @@ def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(t
     cfg = tmp_path / "empty.toml"
     cfg.write_text(text)
     for argv in (["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")],
+                 ["config", "--config", str(cfg)],
                  ["montecarlo", "--config", str(cfg),
                   str(Path(__file__).parents[1] / "examples" / "montecarlo_dispersed.toml"),
                   "--out", str(tmp_path / "m")]):

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from pathlib import Path
 
-from .._checks import Number
+from .._checks import Number, named_as
 from .._errors import ConfigError
 from .._files import check_out
 
@@ -85,15 +84,5 @@ def fmt(v, scale=1.0, unit="", nd=4):
     return f"{v * scale:.{nd}g} {unit}".strip()
 
 
-@contextmanager
-def named_by_flags(flags: dict):
-    """Refusals of the fields in ``flags`` (field -> (flag, the value as typed)) name the flag
-    the user typed and its value, not the field it set: ``solver.dt`` from ``--dt`` is refused
-    as ``--dt``. A field a flag did not set (``flags`` leaves it out) keeps its name."""
-    try:
-        yield
-    except ConfigError as err:
-        for field, (flag, given) in flags.items():
-            if err.field == field or err.field.startswith(field + "."):
-                raise ConfigError(flag, given, err.rule) from None
-        raise
+# refusals of the fields a flag set name the flag the user typed (``_checks.named_as``)
+named_by_flags = named_as

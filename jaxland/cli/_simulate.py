@@ -18,9 +18,9 @@ def cmd_config(args) -> int:
         return 0
     from .._toml import read_toml
 
-    given = {f"{section}.{key}" for section, table in read_toml(args.config, "config").items()
+    given = {f"{section}.{key}" for section, table in read_toml(args.config, "--config").items()
              if isinstance(table, dict) for key in table}
-    sys.stdout.write(vehicle_to_toml(load_vehicle(args.config), given=given,
+    sys.stdout.write(vehicle_to_toml(load_vehicle(args.config, "--config"), given=given,
                                      given_by=args.config))
     return 0
 
