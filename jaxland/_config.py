@@ -473,7 +473,8 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
                     given_by: str = "the configuration file") -> str:
     """Render a vehicle (default: the paper's) as a commented TOML document. Keys in
     ``given`` ("section.key") are marked as set by ``given_by`` instead of citing their
-    default's source."""
+    default's source; with ``honeycomb.cells`` given, F1_N and F2_N as derived from its
+    cells."""
     veh = paper_vehicle() if veh is None else veh
     given = set() if given is None else given
     lines = [
@@ -484,7 +485,10 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
     ]
 
     def line(section, md, val):
-        source = (f"SET BY {given_by}" if f"{section}.{md['toml']}" in given
+        key = f"{section}.{md['toml']}"
+        source = (f"SET BY {given_by}" if key in given else
+                  f"DERIVED from the [honeycomb.cells] of {given_by} (Wierzbicki 1983)"
+                  if key in ("honeycomb.F1_N", "honeycomb.F2_N") and "honeycomb.cells" in given
                   else md["source"])
         if md.get("table"):
             text = "[" + ", ".join(_fmt(float(v) / md["to_si"])
