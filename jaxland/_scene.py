@@ -64,6 +64,9 @@ OPTIONAL_LIMITS = {"friction": (0.0, 2.0), "mass_scale": (0.5, 2.0), "plateau_sc
                    "com_offset": (-0.3, 0.3)}
 
 
+_COM_OFFSET_RULE = (f"must be three finite numbers (x, y, z), each within "
+                    f"+/-{OPTIONAL_LIMITS['com_offset'][1]:g} m")
+
 # the unit a TOML key's suffix names, as a message prints it
 _UNIT_OF_SUFFIX = {"m": "m", "mps": "m/s", "deg": "deg", "degps": "deg/s"}
 
@@ -118,6 +121,13 @@ class Scene(eqx.Module):
         (batch_axes(batch),))``: fields left out stay unbatched, which keeps them compile-time
         constants (batched honeycomb parameters cost ~3x on CPU)."""
         vector = ("plateau_scale", "com_offset")
+        for name, val in fields.items():
+            most = 2 if name in vector else 1
+            if val is not None and np.ndim(val) > most:
+                raise ConfigError(f"scene.{name}", np.asarray(val).tolist(), "a batch gives "
+                                  + ("one row per scene (shape (batch, n))" if most == 2 else
+                                     "one value per scene (a 1-D array)")
+                                  + f"; this has shape {np.shape(val)}")
         sizes = {np.shape(v)[0] for k, v in fields.items()
                  if v is not None and np.ndim(v) > (1 if k in vector else 0)}
         if len(sizes) != 1:
@@ -172,6 +182,22 @@ class Scene(eqx.Module):
         it)."""
         return _symmetric(self, jnp)
 
+    def check_shapes(self, n_legs: int | None = None) -> Scene:
+        """Refuse a ``com_offset`` without its three components and a ``plateau_scale``
+        without one entry per leg (of ``n_legs``, where given). Shapes are known under jit and
+        vmap too, where a wrong one fails deep inside the landing."""
+        for name, field, size, rule in (
+                ("com_offset", "scene.com_offset_m", 3, _COM_OFFSET_RULE),
+                ("plateau_scale", "scene.plateau_scale", n_legs,
+                 f"must have one entry per leg ({n_legs})")):
+            val = getattr(self, name)
+            shape = np.shape(val)
+            if val is None or size is None or (shape and shape[-1] == size):
+                continue
+            arr = concrete(val)
+            raise ConfigError(field, shape if arr is None else arr.tolist(), rule)
+        return self
+
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
         for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():
@@ -194,17 +220,13 @@ class Scene(eqx.Module):
         if ms is not None and np.any(~np.isfinite(ms) | (ms < lo) | (ms > hi)):
             raise ConfigError("scene.mass_scale", float(np.ravel(ms)[0]),
                               f"must be finite and in [{lo:g}, {hi:g}]")
+        self.check_shapes(n_legs)
         co = concrete(self.com_offset)
         lo, hi = OPTIONAL_LIMITS["com_offset"]
-        if co is not None and (co.shape[-1] != 3
-                               or np.any(~np.isfinite(co) | (co < lo) | (co > hi))):
-            raise ConfigError("scene.com_offset_m", co.tolist(),
-                              f"must be three finite numbers (x, y, z), each within +/-{hi:g} m")
+        if co is not None and np.any(~np.isfinite(co) | (co < lo) | (co > hi)):
+            raise ConfigError("scene.com_offset_m", co.tolist(), _COM_OFFSET_RULE)
         ps = concrete(self.plateau_scale)
         if ps is not None:
-            if n_legs is not None and (ps.ndim == 0 or ps.shape[-1] != n_legs):
-                raise ConfigError("scene.plateau_scale", ps.tolist(),
-                                  f"must have one entry per leg ({n_legs})")
             lo, hi = OPTIONAL_LIMITS["plateau_scale"]
             if np.any(~np.isfinite(ps) | (ps < lo) | (ps > hi)):
                 raise ConfigError("scene.plateau_scale", ps.tolist(),
