@@ -11,14 +11,32 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from ._errors import ConfigError
 
+# An integer beyond this is refused: Python's (and TOML's) integers are unbounded, and one
+# past float's range overflows where it is converted (below float's max, so that a unit
+# conversion of an accepted one stays finite).
+INT_MAX = 1e300
+
+
+def check_int_size(name: str, val):
+    """Refuse an integer too large for a float, by ``name``: the checks of typed numbers run
+    it before they convert one."""
+    if isinstance(val, numbers.Integral) and not isinstance(val, bool) and abs(val) > INT_MAX:
+        raise ConfigError(name, val, "is too large for a float")
+    return val
+
 
 def _is_number(val) -> bool:
-    return (not isinstance(val, bool) and isinstance(val, numbers.Real)
-            and math.isfinite(val))
+    """A finite number (a flag is none); call ``check_int_size`` first to name a huge int."""
+    if isinstance(val, bool) or not isinstance(val, numbers.Real):
+        return False
+    if isinstance(val, numbers.Integral):
+        return abs(val) <= INT_MAX
+    return math.isfinite(val)
 
 
 @dataclass(frozen=True)
@@ -33,6 +51,7 @@ class Number:
     hi_open: bool = False
 
     def __call__(self, name: str, val):
+        check_int_size(name, val)
         if not _is_number(val):
             raise ConfigError(name, val, "must be a finite number")
         if self.integer and not isinstance(val, numbers.Integral):
@@ -110,6 +129,12 @@ def known_keys(prefix: str, table, keys) -> dict:
     return table
 
 
+def check_field(cls, name: str, label: str, val):
+    """``val`` checked by the rule of ``cls``'s field ``name``, refused as ``label`` (the
+    flag that overrides the field)."""
+    return cls.__dataclass_fields__[name].metadata["check"](label, val)
+
+
 def parse_table(cls, section: str, table) -> dict:
     """The keyword arguments of ``cls`` that the TOML ``table`` gives, each checked by its
     field's ``check``; unknown keys are refused."""
@@ -117,3 +142,18 @@ def parse_table(cls, section: str, table) -> dict:
     known_keys(section, table, list(fields))
     return {fields[key].name: fields[key].metadata["check"](f"{section}.{key}", val)
             for key, val in table.items()}
+
+
+@contextmanager
+def named_as(names: dict):
+    """Refusals of the fields in ``names`` (field -> (name, the value as given)) name what the
+    user typed and its value, not the field it set: ``solver.dt`` from ``--dt`` is refused as
+    ``--dt``, from a spec's ``dt_s`` as ``montecarlo.dt_s``. A field ``names`` leaves out
+    keeps its name."""
+    try:
+        yield
+    except ConfigError as err:
+        for field, (name, given) in names.items():
+            if err.field == field or err.field.startswith(field + "."):
+                raise ConfigError(name, given, err.rule) from None
+        raise

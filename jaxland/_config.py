@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ._checks import check_int_size
 from ._crush import plateau_force
 from ._errors import ConfigError
 from ._params import Ground, Honeycomb, Leg, Vehicle, concrete, field_info
@@ -139,6 +140,7 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         for key, val in full.items():
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not val > 0:
                 raise ConfigError(f"honeycomb.cells.{key}", val, "must be a number > 0")
+            check_int_size(f"honeycomb.cells.{key}", val)
         merged["honeycomb"]["F1_N"], merged["honeycomb"]["F2_N"] = plateau_forces_from_cells(full)
     body = merged["body"]
     n_legs = body["n_legs"]
@@ -146,8 +148,8 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
     for section in ("body", "leg", "honeycomb", "ground"):
         for key, val in merged[section].items():
-            if isinstance(val, int) and not isinstance(val, bool) and abs(val) > 1e300:
-                raise ConfigError(f"{section}.{key}", val, "is too large for a float")
+            for v in val if isinstance(val, list) else [val]:  # a list: each entry
+                check_int_size(f"{section}.{key}", v)
     veh = Vehicle(
         m_body=float(body["m_body_kg"]), m_foot=float(body["m_foot_kg"]), g=float(body["g_mps2"]),
         I_xx=float(body["I_xx_kg_m2"]), I_yy=float(body["I_yy_kg_m2"]),
@@ -471,7 +473,8 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
                     given_by: str = "the configuration file") -> str:
     """Render a vehicle (default: the paper's) as a commented TOML document. Keys in
     ``given`` ("section.key") are marked as set by ``given_by`` instead of citing their
-    default's source."""
+    default's source; with ``honeycomb.cells`` given, F1_N and F2_N as derived from its
+    cells."""
     veh = paper_vehicle() if veh is None else veh
     given = set() if given is None else given
     lines = [
@@ -482,7 +485,10 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
     ]
 
     def line(section, md, val):
-        source = (f"SET BY {given_by}" if f"{section}.{md['toml']}" in given
+        key = f"{section}.{md['toml']}"
+        source = (f"SET BY {given_by}" if key in given else
+                  f"DERIVED from the [honeycomb.cells] of {given_by} (Wierzbicki 1983)"
+                  if key in ("honeycomb.F1_N", "honeycomb.F2_N") and "honeycomb.cells" in given
                   else md["source"])
         if md.get("table"):
             text = "[" + ", ".join(_fmt(float(v) / md["to_si"])

@@ -16,6 +16,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from ._checks import check_int_size
 from ._errors import ConfigError
 from ._params import _f64, _opt_f64, concrete
 from ._toml import read_toml, toml_value
@@ -62,6 +63,9 @@ SCENE_FIELDS = {
 OPTIONAL_LIMITS = {"friction": (0.0, 2.0), "mass_scale": (0.5, 2.0), "plateau_scale": (0.2, 5.0),
                    "com_offset": (-0.3, 0.3)}
 
+
+_COM_OFFSET_RULE = (f"must be three finite numbers (x, y, z), each within "
+                    f"+/-{OPTIONAL_LIMITS['com_offset'][1]:g} m")
 
 # the unit a TOML key's suffix names, as a message prints it
 _UNIT_OF_SUFFIX = {"m": "m", "mps": "m/s", "deg": "deg", "degps": "deg/s"}
@@ -117,6 +121,13 @@ class Scene(eqx.Module):
         (batch_axes(batch),))``: fields left out stay unbatched, which keeps them compile-time
         constants (batched honeycomb parameters cost ~3x on CPU)."""
         vector = ("plateau_scale", "com_offset")
+        for name, val in fields.items():
+            most = 2 if name in vector else 1
+            if val is not None and np.ndim(val) > most:
+                raise ConfigError(f"scene.{name}", np.asarray(val).tolist(), "a batch gives "
+                                  + ("one row per scene (shape (batch, n))" if most == 2 else
+                                     "one value per scene (a 1-D array)")
+                                  + f"; this has shape {np.shape(val)}")
         sizes = {np.shape(v)[0] for k, v in fields.items()
                  if v is not None and np.ndim(v) > (1 if k in vector else 0)}
         if len(sizes) != 1:
@@ -171,6 +182,22 @@ class Scene(eqx.Module):
         it)."""
         return _symmetric(self, jnp)
 
+    def check_shapes(self, n_legs: int | None = None) -> Scene:
+        """Refuse a ``com_offset`` without its three components and a ``plateau_scale``
+        without one entry per leg (of ``n_legs``, where given). Shapes are known under jit and
+        vmap too, where a wrong one fails deep inside the landing."""
+        for name, field, size, rule in (
+                ("com_offset", "scene.com_offset_m", 3, _COM_OFFSET_RULE),
+                ("plateau_scale", "scene.plateau_scale", n_legs,
+                 f"must have one entry per leg ({n_legs})")):
+            val = getattr(self, name)
+            shape = np.shape(val)
+            if val is None or size is None or (shape and shape[-1] == size):
+                continue
+            arr = concrete(val)
+            raise ConfigError(field, shape if arr is None else arr.tolist(), rule)
+        return self
+
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
         for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():
@@ -193,17 +220,13 @@ class Scene(eqx.Module):
         if ms is not None and np.any(~np.isfinite(ms) | (ms < lo) | (ms > hi)):
             raise ConfigError("scene.mass_scale", float(np.ravel(ms)[0]),
                               f"must be finite and in [{lo:g}, {hi:g}]")
+        self.check_shapes(n_legs)
         co = concrete(self.com_offset)
         lo, hi = OPTIONAL_LIMITS["com_offset"]
-        if co is not None and (co.shape[-1] != 3
-                               or np.any(~np.isfinite(co) | (co < lo) | (co > hi))):
-            raise ConfigError("scene.com_offset_m", co.tolist(),
-                              f"must be three finite numbers (x, y, z), each within +/-{hi:g} m")
+        if co is not None and np.any(~np.isfinite(co) | (co < lo) | (co > hi)):
+            raise ConfigError("scene.com_offset_m", co.tolist(), _COM_OFFSET_RULE)
         ps = concrete(self.plateau_scale)
         if ps is not None:
-            if n_legs is not None and (ps.ndim == 0 or ps.shape[-1] != n_legs):
-                raise ConfigError("scene.plateau_scale", ps.tolist(),
-                                  f"must have one entry per leg ({n_legs})")
             lo, hi = OPTIONAL_LIMITS["plateau_scale"]
             if np.any(~np.isfinite(ps) | (ps < lo) | (ps > hi)):
                 raise ConfigError("scene.plateau_scale", ps.tolist(),
@@ -259,6 +282,8 @@ def scene_from_dict(data: dict) -> Scene:
     known = {v.toml: k for k, v in SCENE_FIELDS.items()}
     kwargs = {}
     for key, val in data.items():
+        for v in val if isinstance(val, list) else [val]:  # a list: each entry
+            check_int_size(f"scene.{key}", v)
         if key in ("friction", "plateau_scale", "mass_scale", "com_offset_m"):
             kwargs["com_offset" if key == "com_offset_m" else key] = val
             continue
@@ -301,7 +326,29 @@ def scene_to_toml(scene: Scene) -> str:
     return "\n".join(lines) + "\n"
 
 
+def read_scene_table(path, what: str = "scene") -> dict:
+    """The scene table of a scene TOML file: its ``[scene]`` table (or its top-level keys).
+    Refusals name the file by ``what`` (the flag that gave it). A file that sets no key
+    (empty, comments, an empty ``[scene]``) is refused: every key left out takes its default,
+    so it would run, silently, the default scene."""
+    data = read_toml(path, what)
+    if "scene" in data and len(data) > 1:
+        extra = sorted(set(data) - {"scene"})[0]
+        raise ConfigError(f"{what} {path}: {extra}", "<table>",
+                          "a scene file holds the [scene] table only (vehicle parameters "
+                          "belong in --config; friction = ... inside [scene] overrides mu)")
+    table = data.get("scene", data)
+    if not isinstance(table, dict):
+        raise ConfigError(f"{what} {path}: scene", table,
+                          "must be a table ([scene] with its keys)")
+    if not table:
+        raise ConfigError(what, str(path), "sets no scene key, and would run the default scene "
+                          "(every key left out takes its default: the 0.2 m drop); give the "
+                          "scene's values (docs/formats.md, Scene)")
+    return dict(table)
+
+
 def load_scene(path) -> Scene:
-    """Load a scene TOML file: a ``[scene]`` table (or top-level keys)."""
-    data = read_toml(path, "scene")
-    return scene_from_dict(data.get("scene", data))
+    """Load a scene TOML file: a ``[scene]`` table (or top-level keys); see
+    ``read_scene_table`` for what is refused."""
+    return scene_from_dict(read_scene_table(path))

@@ -91,6 +91,7 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     a ``ConfigError`` names the one refused); a traced one (inside jit, vmap or grad) outside
     its rule gives ``INVALID_VEHICLE``, with NaN derivatives. The rules between fields are
     ``simulate``'s and the loaders': a fit's crush-peak forms may bend them on purpose."""
+    scene.check_shapes(vehicle.n_legs)
     return integrate(get_model(model, scene), validate_vehicle(vehicle, fields_only=True),
                      scene, solver)
 
@@ -99,6 +100,7 @@ def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),
              model: str | AbstractModel = "auto"):
     """``landing`` vmapped over a ``Scene.batch``: every output gains a leading batch axis.
     Only the batched fields are mapped; the rest stay constants of the compiled loop."""
+    scenes.check_shapes(vehicle.n_legs)  # by value, before the vmap traces them
     model = get_model(model, scenes)
     return jax.vmap(lambda s: landing(vehicle, s, solver, model),
                     in_axes=(batch_axes(scenes),))(scenes)
@@ -159,6 +161,18 @@ class Landing:
     def to_json(self, path) -> Path:
         """Write the outcomes as JSON. Atomic."""
         return atomic_write_text(Path(path), json_text(self.outcomes))
+
+
+def _number(x):
+    """A concrete 0-d numeric array as its Python number; anything else as it is (the
+    Solver's checks refuse it by name)."""
+    if getattr(x, "ndim", None) == 0 and getattr(x, "dtype", np.dtype(bool)).kind in "iuf":
+        try:
+            return np.asarray(x).item()
+        except (TypeError, jax.errors.TracerArrayConversionError,
+                jax.errors.ConcretizationTypeError):
+            return x
+    return x
 
 
 def _py(x):
@@ -394,6 +408,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     method's stability limit (stated in the message) and ``SimulationError`` if the
     integration blows up or an adaptive solver stalls.
     """
+    # a concrete 0-d array (jnp.array(0.01)) is the number it holds
+    dt, t_end, save_dt = (_number(x) for x in (dt, t_end, save_dt))
     scene = Scene() if scene is None else scene
     for name, obj, cls in (("scene", scene, Scene), ("vehicle", vehicle, Vehicle)):
         if obj is not None and not isinstance(obj, cls):

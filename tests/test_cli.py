@@ -65,6 +65,8 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--roll-rate-degps", "1000"], "--roll-rate-degps = 1000.0: must be finite and in"),
     (["--model", "quarter", "--roll-deg", "5"], "--model = 'quarter': the quarter model"),
     (["--plateau-scale", "1", "1"], "--plateau-scale = [1.0, 1.0]: must have one entry per leg"),
+    (["--method", "tsit5", "--max-steps", "1" + "0" * 20],
+     "--max-steps = 100000000000000000000: must be <= 5e+08"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"
@@ -211,6 +213,7 @@ def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(t
     cfg = tmp_path / "empty.toml"
     cfg.write_text(text)
     for argv in (["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")],
+                 ["config", "--config", str(cfg)],
                  ["montecarlo", "--config", str(cfg),
                   str(Path(__file__).parents[1] / "examples" / "montecarlo_dispersed.toml"),
                   "--out", str(tmp_path / "m")]):
@@ -227,6 +230,22 @@ def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(t
     assert err.count("\n") == 1 and err.startswith("jaxland: error: design.vehicle = "), err
 
 
+@pytest.mark.parametrize("text", ["", "# a scene\n", "[scene]\n"])
+def test_a_scene_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(tmp_path, capsys,
+                                                                            text):
+    """Every key a scene file leaves out takes its default: an empty one ran, silently, the
+    default 0.2 m drop."""
+    scene = tmp_path / "empty.toml"
+    scene.write_text(text)
+    assert main(["simulate", "--scene", str(scene), "--drop-height", "0.1", "--t-end", "0.01",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--scene = {str(scene)!r}: sets no scene key" in err, err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(jl.ConfigError, match="sets no scene key"):
+        jl.load_scene(scene)
+
+
 @pytest.mark.parametrize("text", ["scene = 3\n", 'scene = "ab"\n', "scene = [1, 2]\n"])
 def test_a_scene_key_that_is_no_table_is_refused_in_one_line(tmp_path, capsys, text):
     scene = tmp_path / "scene.toml"
@@ -234,6 +253,46 @@ def test_a_scene_key_that_is_no_table_is_refused_in_one_line(tmp_path, capsys, t
     assert main(["simulate", "--scene", str(scene), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and ": scene = " in err and "must be a table" in err, err
+
+
+BIG = 10**400  # a TOML integer too large for a float
+
+
+@pytest.mark.parametrize("argv,text,needle", [
+    (["simulate", "--scene"], f"[scene]\ndrop_height_m = {BIG}\n", "scene.drop_height_m"),
+    (["simulate", "--scene"], f"[scene]\nplateau_scale = [1, {BIG}, 1, 1]\n",
+     "scene.plateau_scale"),
+    (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n", "honeycomb.excess1"),
+    (["montecarlo", "--n", str(BIG), str(Path(__file__).parents[1] / "examples"
+                                         / "montecarlo_dispersed.toml"), "--config"],
+     "[ground]\nmu = 0.5\n", "--n"),
+])
+def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, capsys, argv, text,
+                                                            needle):
+    """Python's integers are unbounded: one beyond float's range overflowed where it was
+    converted (a traceback, exit 1)."""
+    path = tmp_path / "in.toml"
+    path.write_text(text)
+    out = [] if argv[0] == "config" else ["--out", str(tmp_path / "o")]
+    assert main([*argv, str(path), *out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"jaxland: error: {needle} = 1000"), err
+    assert err.endswith(": is too large for a float\n"), err
+
+
+@pytest.mark.parametrize("spec", ["montecarlo_dispersed.toml", "design_paper_gear.toml"])
+@pytest.mark.parametrize("devices,rule", [("0", "must be >= 1"), ("100000", "must be <= ")])
+def test_a_device_count_beyond_the_cores_is_refused_before_any_work(tmp_path, capsys, spec,
+                                                                   devices, rule):
+    """100000 CPU devices aborted the process (a thread each: pthread_create failed, exit
+    134) minutes into the run."""
+    command = "montecarlo" if spec.startswith("montecarlo") else "design"
+    path = Path(__file__).parents[1] / "examples" / spec
+    assert main([command, str(path), "--devices", devices, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"jaxland: error: --devices = {devices}: "
+                                                    f"{rule}"), err
+    assert not (tmp_path / "o").exists()
 
 
 def test_bench_is_not_a_subcommand(capsys):

@@ -4,6 +4,7 @@ import tomllib
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -75,6 +76,9 @@ BAD = [
     ({"honeycomb": {"cells": {"secondary_cell_size_mm": 100.0}}},
      "honeycomb.F2_N (from [honeycomb.cells])", "65.8", "must exceed F1_N"),
     ({"ground": {"k_N_per_m": 10**400}}, "ground.k_N_per_m", "", "too large"),
+    ({"honeycomb": {"excess1": [10**400]}}, "honeycomb.excess1", "", "too large"),
+    ({"honeycomb": {"cells": {"flow_stress_Pa": 10**400}}}, "honeycomb.cells.flow_stress_Pa",
+     "", "too large"),
 ]
 
 
@@ -102,6 +106,7 @@ def test_bad_toml_file(tmp_path):
     (dict(sink_speed=-1.0), "scene.sink_speed"),
     (dict(sink_speed=float("inf")), "scene.sink_speed"),
     (dict(drop_height=60.0), "scene.drop_height"),
+    (dict(com_offset=0.0), "scene.com_offset_m = 0.0: must be three"),  # was an IndexError
 ])
 def test_bad_scene_is_refused(kwargs, field):
     with pytest.raises(jl.ConfigError, match=field.replace(".", r"\.")):
@@ -125,6 +130,31 @@ def test_a_flag_or_a_text_is_no_scene_value(kwargs):
             else:
                 jl.Scene(**kwargs)
         assert str(err.value).startswith(f"scene.{name} = {value!r}: must be a number")
+
+
+@pytest.mark.parametrize("make,needle", [
+    # was a ValueError from inside the broadcast
+    (lambda: jl.Scene.batch(drop_height=[[0.1, 0.2]]),
+     "scene.drop_height = [[0.1, 0.2]]: a batch gives one value per scene (a 1-D array); "
+     "this has shape (1, 2)"),
+    (lambda: jl.Scene.batch(drop_height=[0.1, 0.2], com_offset=np.zeros((2, 1, 3))),
+     "scene.com_offset = [[[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]]: a batch gives one row per "
+     "scene"),
+    # three plateau scales for the paper's four legs: was a shape error from inside the vmap
+    (lambda: jl.landings(jl.paper_vehicle(), jl.Scene.batch(
+        drop_height=[0.1, 0.2], plateau_scale=[1.0, 1.0, 1.0]), jl.Solver(t_end=0.01), "full"),
+     "scene.plateau_scale = [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]: must have one entry per leg "
+     "(4)"),
+    (lambda: jl.landing(jl.paper_vehicle(), jl.Scene(plateau_scale=[1.0, 1.0]),
+                        jl.Solver(t_end=0.01), "full"),
+     "scene.plateau_scale = [1.0, 1.0]: must have one entry per leg (4)"),
+    # a concrete 0-d array is its number (it was refused as no number, showing the number)
+    (lambda: jl.simulate(t_end=jnp.array(1e6)), "solver.t_end = 1000000.0: must be <= 100 s"),
+])
+def test_a_scene_or_setting_of_the_wrong_shape_is_refused_by_name(make, needle):
+    with pytest.raises(jl.ConfigError) as err:
+        make()
+    assert str(err.value).startswith(needle), str(err.value)
 
 
 def test_bad_solver_is_refused():

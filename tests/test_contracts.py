@@ -246,6 +246,18 @@ def test_config_marks_the_values_a_file_set(tmp_path, capsys):
     assert "SET BY" not in k and "paper Table 2" in k
 
 
+def test_config_marks_plateau_forces_derived_from_the_files_cells(tmp_path, capsys):
+    """Forces derived from the file's cells were credited to the paper's calibration."""
+    cfg = tmp_path / "cells.toml"
+    cfg.write_text("[honeycomb.cells]\nflow_stress_Pa = 200e6\n")
+    assert main(["config", "--config", str(cfg)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    for key in ("F1_N", "F2_N"):
+        line = next(line for line in lines if line.startswith(f"{key} ="))
+        assert f"DERIVED from the [honeycomb.cells] of {cfg}" in line, line
+        assert "our calibration" not in line and "SET BY" not in line, line
+
+
 def test_an_impossible_inertia_is_refused():
     """Principal moments obey the triangle inequality (I_zz = I_xx + I_yy for a flat plate)."""
     veh = eqx.tree_at(lambda v: v.I_zz, VEH, VEH.I_xx + VEH.I_yy + 1.0)

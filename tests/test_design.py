@@ -471,6 +471,24 @@ def test_cli_refuses_design_inputs_before_the_banner(tmp_path, capsys, old, new,
     assert err.startswith(line) and err.count("\n") == 1, err
 
 
+@pytest.mark.parametrize("flags,line", [
+    (["--iterations", "1000000000"], "--iterations = 1000000000: must be <= 100000"),
+    (["--iterations", "-1"], "--iterations = -1: must be >= 0"),
+    (["--verify-n", "-1"], "--verify-n = -1: must be >= 0"),
+    (["--verify-n", "100000000000"], "--verify-n = 100000000000: its per-sample results"),
+])
+def test_cli_checks_a_flag_by_the_rule_of_the_key_it_overrides(tmp_path, capsys, flags, line):
+    """--iterations skipped design.iterations' bound and started the run; --verify-n was
+    refused as montecarlo.n, a key the user did not type."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(TINY)
+    assert main(["design", str(spec), "--out", str(tmp_path / "o"), "--no-plots", *flags]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"jaxland: error: {line}") and err.count("\n") == 1, err
+
+
 STIFF_BOUNDS = ("high = 8000.0\n", "high = 8000.0\n[variables.k_a_N_per_m]\nlow = 1e6\n"
                 "high = 1e9\n")
 

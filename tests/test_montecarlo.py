@@ -477,6 +477,14 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         ("[fixed]\ndrop_hieght_m = 0.0\n", "fixed.drop_hieght_m"),  # a typo, in its table
         ("[montecarlo]\ndt_s = 3e-5\nt_end_s = 0.05\n",
          "montecarlo.dt_s = 3e-05: must divide montecarlo.t_end_s = 0.05 s into whole steps"),
+        # an integer too large for a float, refused by its key (it overflowed where converted)
+        (f"[montecarlo]\nn = {10**400}\n", "montecarlo.n = 1000"),
+        (f"[dispersion.roll_deg]\ndist = 'uniform'\nlow = 0.0\nhigh = {10**400}\n",
+         "dispersion.roll_deg.high = 1000"),
+        (f"[fixed]\nroll_deg = {10**400}\n", "fixed.roll_deg = 1000"),
+        # the run's limits, named by the spec's keys (they were named solver.dt, solver.t_end)
+        ("[montecarlo]\ndt_s = 1e-300\n", "montecarlo.dt_s = 1e-300: t_end/dt must be <="),
+        ("[montecarlo]\nt_end_s = 1e6\n", "montecarlo.t_end_s = 1000000.0: must be <= 100 s"),
     ]
     for text, field in cases:
         path.write_text(text)

@@ -10,10 +10,20 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._checks import FLAG, NON_NEGATIVE, POSITIVE, Choice, Number, parse_table, spec_field
+from .._checks import (
+    FLAG,
+    NON_NEGATIVE,
+    POSITIVE,
+    Choice,
+    Number,
+    check_int_size,
+    named_as,
+    parse_table,
+    spec_field,
+)
 from .._errors import ConfigError
 from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS, Scene
-from .._solvers import FIXED_STEP_METHODS, check_whole_steps
+from .._solvers import FIXED_STEP_METHODS, Solver, check_whole_steps
 from .._toml import read_toml, toml_value
 
 
@@ -117,10 +127,7 @@ class Distribution:
                               f"not a parameter of a {kind} distribution ({', '.join(need[kind])})")
         vals = {}
         for key in need[kind]:
-            v = d.get(key)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f"dispersion.{name}.{key}", v, "must be a finite number")
-            vals[key] = float(v)
+            vals[key] = float(Number()(f"dispersion.{name}.{key}", d.get(key)))
         if kind == "constant":
             return cls("constant", mean=vals["value"])
         if kind in ("normal", "truncnormal") and not vals["std"] > 0:
@@ -222,6 +229,8 @@ class MonteCarloSpec:
         for key, val in self.fixed.items():
             per_leg = DISPERSIBLE[key].component == "legs"
             vals = val if isinstance(val, list) and per_leg else [val]
+            for v in vals:
+                check_int_size(f"fixed.{key}", v)
             if not vals or any(isinstance(v, bool) or not isinstance(v, (int, float))
                                or not math.isfinite(v) for v in vals):
                 raise ConfigError(f"fixed.{key}", val, "must be a finite number"
@@ -240,6 +249,11 @@ class MonteCarloSpec:
             if "check" in f.metadata:
                 f.metadata["check"](f"montecarlo.{f.metadata['toml']}", getattr(self, f.name))
         check_whole_steps(self.dt, self.t_end, "montecarlo.dt_s", "montecarlo.t_end_s")
+        # the run's limits (duration, step count) are the Solver's, named by the spec's keys
+        with named_as({"solver.dt": ("montecarlo.dt_s", self.dt),
+                       "solver.t_end": ("montecarlo.t_end_s", self.t_end)}):
+            Solver(dt=self.dt, t_end=self.t_end, save_dt=self.t_end,
+                   method=self.method).validate()
 
     def range_of(self, key: str) -> tuple[float, float]:
         """The values an input takes over the run, in its TOML units: a fixed value, a

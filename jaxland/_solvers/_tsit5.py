@@ -10,9 +10,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._checks import Number
 from .._errors import ConfigError
 from .._models import AbstractODEModel
-from ._base import AbstractIntegrator, Result, positive
+from ._base import MAX_STEPS, AbstractIntegrator, Result, positive
 from ._impulse import check_adjoint
 from ._loop import Track, record, setup, summary
 
@@ -43,9 +44,11 @@ class Tsit5(AbstractIntegrator):
     def validate(self):
         positive("solver", "rtol", self.rtol, "")
         positive("solver", "atol", self.atol, "")
-        if (isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int)
-                or self.max_steps < 1):
+        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int):
             raise ConfigError("solver.max_steps", self.max_steps, "must be an integer >= 1")
+        # no run takes more steps than MAX_STEPS, whatever its method; a budget far beyond it
+        # overflows the integer the solver counts its steps in
+        Number(integer=True, lo=1, hi=MAX_STEPS)("solver.max_steps", self.max_steps)
         check_adjoint("solver", self.adjoint)
         return self
 

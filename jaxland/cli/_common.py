@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from pathlib import Path
 
+from .._checks import Number, named_as
 from .._errors import ConfigError
 from .._files import check_out
 
@@ -23,8 +23,13 @@ def use_cpu_cores(devices: int | None) -> int | None:
     import jax
 
     given = devices is not None
-    if given and devices < 1:
-        raise ConfigError("--devices", devices, "must be >= 1")
+    if given:
+        Number(integer=True, lo=1)("--devices", devices)
+        cores = os.cpu_count() or 1
+        if devices > cores:  # a device is a thread at least: 10^5 of them exhaust the system
+            raise ConfigError("--devices", devices, f"must be <= {cores}, this machine's CPU "
+                              "count: a CPU device is a share of the cores, and more devices "
+                              "than cores gain nothing")
     if not given:
         if HOST_DEVICES_FLAG in os.environ.get("XLA_FLAGS", ""):
             return None
@@ -79,15 +84,5 @@ def fmt(v, scale=1.0, unit="", nd=4):
     return f"{v * scale:.{nd}g} {unit}".strip()
 
 
-@contextmanager
-def named_by_flags(flags: dict):
-    """Refusals of the fields in ``flags`` (field -> (flag, the value as typed)) name the flag
-    the user typed and its value, not the field it set: ``solver.dt`` from ``--dt`` is refused
-    as ``--dt``. A field a flag did not set (``flags`` leaves it out) keeps its name."""
-    try:
-        yield
-    except ConfigError as err:
-        for field, (flag, given) in flags.items():
-            if err.field == field or err.field.startswith(field + "."):
-                raise ConfigError(flag, given, err.rule) from None
-        raise
+# refusals of the fields a flag set name the flag the user typed (``_checks.named_as``)
+named_by_flags = named_as

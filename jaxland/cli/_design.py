@@ -19,7 +19,7 @@ from .. import use_batch_fusion
 from .._files import staged
 from .._montecarlo._stats import probability_text
 from .._progress import ProgressLine
-from ._common import out_dir, use_cpu_cores
+from ._common import named_by_flags, out_dir, use_cpu_cores
 from ._montecarlo import _t_end_check_text
 
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE", "EXIT_UNVERIFIED"]
@@ -44,14 +44,17 @@ def _progress(quiet: bool, total: int):
 def _cmd_design(args) -> int:
     import jaxland as jl
 
+    from .._checks import check_field
     from .._design import (
         DesignProblem,
+        DesignSpec,
         check_verification,
         design_verified,
         load_design_spec,
         optimise_design,
     )
     from .._design._verify import MIN_JUDGED
+    from .._montecarlo import MonteCarloSpec
 
     out = out_dir(args.out, (args.spec, args.config))
     use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
@@ -59,21 +62,23 @@ def _cmd_design(args) -> int:
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     spec = load_design_spec(args.spec)
     out_dir(args.out, (spec.vehicle,))  # the baseline vehicle the spec names is an input too
+    # a flag's value is checked by the rule of the spec's key it overrides, named by the flag
     if args.iterations is not None:
-        if args.iterations < 0:
-            raise jl.ConfigError("--iterations", args.iterations, "must be >= 0")
-        spec.iterations = args.iterations
+        spec.iterations = check_field(DesignSpec, "iterations", "--iterations", args.iterations)
     if args.verify_n is not None:
         if args.verify_n < 0:
-            raise jl.ConfigError("--verify-n", args.verify_n, "must be >= 0")
-        spec.montecarlo.n = max(args.verify_n, 1)
+            raise jl.ConfigError("--verify-n", args.verify_n, "must be >= 0 (0: no verification)")
+        spec.montecarlo.n = (check_field(MonteCarloSpec, "n", "--verify-n", args.verify_n)
+                             if args.verify_n else 1)  # 0: no verification runs
     vehicle = (jl.load_vehicle(args.config, "--config") if args.config else
                jl.load_vehicle(spec.vehicle, "design.vehicle") if spec.vehicle
                else jl.paper_vehicle())
     # every input check (bounds, scenes, steps) before the banner: one line if bad
     problem = DesignProblem(spec, jl.validate_vehicle(vehicle))
     if args.verify_n != 0:
-        check_verification(problem)
+        with named_by_flags({} if args.verify_n is None else
+                            {"montecarlo.n": ("--verify-n", args.verify_n)}):
+            check_verification(problem)
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)

@@ -18,9 +18,9 @@ def cmd_config(args) -> int:
         return 0
     from .._toml import read_toml
 
-    given = {f"{section}.{key}" for section, table in read_toml(args.config, "config").items()
+    given = {f"{section}.{key}" for section, table in read_toml(args.config, "--config").items()
              if isinstance(table, dict) for key in table}
-    sys.stdout.write(vehicle_to_toml(load_vehicle(args.config), given=given,
+    sys.stdout.write(vehicle_to_toml(load_vehicle(args.config, "--config"), given=given,
                                      given_by=args.config))
     return 0
 
@@ -70,22 +70,9 @@ _SCENE_FLAGS = (  # CLI flag -> scene TOML key (units in the names)
 
 
 def _scene_from_args(args):
-    from .._scene import scene_from_dict
-    from .._toml import read_toml
+    from .._scene import read_scene_table, scene_from_dict
 
-    table = {}
-    if args.scene:
-        data = read_toml(args.scene, "--scene")
-        if "scene" in data and len(data) > 1:
-            extra = sorted(set(data) - {"scene"})[0]
-            raise ConfigError(f"--scene {args.scene}: {extra}", "<table>",
-                              "a scene file holds the [scene] table only (vehicle parameters "
-                              "belong in --config; friction = ... inside [scene] overrides mu)")
-        table = data.get("scene", data)
-        if not isinstance(table, dict):
-            raise ConfigError(f"--scene {args.scene}: scene", table,
-                              "must be a table ([scene] with its keys)")
-        table = dict(table)
+    table = read_scene_table(args.scene, "--scene") if args.scene else {}
     for flag, key in _SCENE_FLAGS:
         val = getattr(args, flag)
         if val is not None:
