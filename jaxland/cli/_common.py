@@ -12,6 +12,9 @@ from .._files import check_out
 HOST_DEVICES_FLAG = "xla_force_host_platform_device_count"
 
 
+DEVICES_MAX = 256  # --devices beyond the machine's cores: at most this many
+
+
 def use_cpu_cores(devices: int | None) -> int | None:
     """Split this process's CPU into ``devices`` JAX devices, before JAX starts its backend
     (default: one per core this process may run on). A batch of landings compiles into one
@@ -25,11 +28,14 @@ def use_cpu_cores(devices: int | None) -> int | None:
     given = devices is not None
     if given:
         Number(integer=True, lo=1)("--devices", devices)
-        cores = os.cpu_count() or 1
-        if devices > cores:  # a device is a thread at least: 10^5 of them exhaust the system
-            raise ConfigError("--devices", devices, f"must be <= {cores}, this machine's CPU "
-                              "count: a CPU device is a share of the cores, and more devices "
-                              "than cores gain nothing")
+        # A CPU device is a thread at least (10^5 of them exhaust the system). More devices
+        # than cores gain no speed, but repeat a run made on more cores: a design's path
+        # depends on how its scenes are split (docs/design.md)
+        most = max(os.cpu_count() or 1, DEVICES_MAX)
+        if devices > most:
+            raise ConfigError("--devices", devices, f"must be <= {most}: a CPU device is a "
+                              "thread at least, and more devices than this machine's "
+                              f"{os.cpu_count() or 1} cores gain no speed")
     if not given:
         if HOST_DEVICES_FLAG in os.environ.get("XLA_FLAGS", ""):
             return None
