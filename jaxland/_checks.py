@@ -30,6 +30,22 @@ def check_int_size(name: str, val):
     return val
 
 
+def as_number(x):
+    """A concrete 0-d numeric array as its Python number; anything else as it is (the checks
+    refuse it by name)."""
+    if getattr(x, "ndim", None) == 0 and getattr(x, "dtype", None) is not None \
+            and x.dtype.kind in "iuf":
+        import jax
+        import numpy as np
+
+        try:
+            return np.asarray(x).item()
+        except (TypeError, jax.errors.TracerArrayConversionError,
+                jax.errors.ConcretizationTypeError):
+            return x
+    return x
+
+
 def _is_number(val) -> bool:
     """A finite number (a flag is none); call ``check_int_size`` first to name a huge int."""
     if isinstance(val, bool) or not isinstance(val, numbers.Real):

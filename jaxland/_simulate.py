@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import __version__
+from ._checks import as_number
 from ._config import paper_vehicle, validate_vehicle, vehicle_fields
 from ._errors import ConfigError, SimulationError
 from ._files import atomic_write_csv, atomic_write_text, flat_columns, json_text
@@ -161,18 +162,6 @@ class Landing:
     def to_json(self, path) -> Path:
         """Write the outcomes as JSON. Atomic."""
         return atomic_write_text(Path(path), json_text(self.outcomes))
-
-
-def _number(x):
-    """A concrete 0-d numeric array as its Python number; anything else as it is (the
-    Solver's checks refuse it by name)."""
-    if getattr(x, "ndim", None) == 0 and getattr(x, "dtype", np.dtype(bool)).kind in "iuf":
-        try:
-            return np.asarray(x).item()
-        except (TypeError, jax.errors.TracerArrayConversionError,
-                jax.errors.ConcretizationTypeError):
-            return x
-    return x
 
 
 def _py(x):
@@ -409,7 +398,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     integration blows up or an adaptive solver stalls.
     """
     # a concrete 0-d array (jnp.array(0.01)) is the number it holds
-    dt, t_end, save_dt = (_number(x) for x in (dt, t_end, save_dt))
+    dt, t_end, save_dt = (as_number(x) for x in (dt, t_end, save_dt))
     scene = Scene() if scene is None else scene
     for name, obj, cls in (("scene", scene, Scene), ("vehicle", vehicle, Vehicle)):
         if obj is not None and not isinstance(obj, cls):

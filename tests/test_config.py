@@ -150,6 +150,12 @@ def test_a_flag_or_a_text_is_no_scene_value(kwargs):
      "scene.plateau_scale = [1.0, 1.0]: must have one entry per leg (4)"),
     # a concrete 0-d array is its number (it was refused as no number, showing the number)
     (lambda: jl.simulate(t_end=jnp.array(1e6)), "solver.t_end = 1000000.0: must be <= 100 s"),
+    (lambda: jl.Solver(t_end=jnp.array(1e6)).validate(),
+     "solver.t_end = 1000000.0: must be <= 100 s"),
+    # an int too large for a float: was an OverflowError from math.isfinite
+    (lambda: jl.simulate(dt=10**400), f"solver.dt = {10**400}: is too large for a float"),
+    (lambda: jl.Solver(t_end=10**400).validate(),
+     f"solver.t_end = {10**400}: is too large for a float"),
 ])
 def test_a_scene_or_setting_of_the_wrong_shape_is_refused_by_name(make, needle):
     with pytest.raises(jl.ConfigError) as err:

@@ -366,6 +366,8 @@ BAD = [
     (("design", "clip_norm"), -1.0, "design.clip_norm", ">= 0"),
     (("design", "lr_final"), 2.0, "design.lr_final", "<= 1"),
     (("design", "patience"), -3, "design.patience", ">= 0"),
+    # the run's own limits, named by the key (they were solver.t_end, solver.dt)
+    (("design", "t_end_s"), 1e6, "design.t_end_s", "must be <= 100 s"),
     (("constraints", "stroke"), {"margin_mm": 20.0, "measure": "normal", "level": 0.0},
      "constraints.stroke.level", "(0, 1)"),
     # Monte Carlo settings the verification sets itself: refused, not silently ignored

@@ -17,6 +17,7 @@ from .._checks import (
     Number,
     Text,
     known_keys,
+    named_as,
     parse_table,
     spec_field,
 )
@@ -342,7 +343,9 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
         raise ConfigError("constraints.stability", "<table>", "needs the full 3-D model (a "
                           "symmetric drop cannot tip); set design.model = \"full\"")
     check_whole_steps(spec.dt, spec.t_end, "design.dt_s", "design.t_end_s")
-    Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end, method=spec.method).validate()
+    with named_as({"solver.dt": ("design.dt_s", spec.dt),
+                   "solver.t_end": ("design.t_end_s", spec.t_end)}):
+        Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end, method=spec.method).validate()
     return spec
 
 

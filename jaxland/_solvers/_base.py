@@ -12,12 +12,12 @@ from __future__ import annotations
 import abc
 import enum
 import math
-import numbers
 from typing import ClassVar
 
 import equinox as eqx
 from jaxtyping import Array
 
+from .._checks import _is_number, as_number, check_int_size
 from .._errors import ConfigError
 from .._models import AbstractModel, Oscillator, Smoothing
 
@@ -83,8 +83,8 @@ _MESSAGES = {
 
 def positive(owner: str, name: str, val, unit: str, *, zero_ok: bool = False) -> None:
     """Refuse a setting that is not a finite number > 0 (>= 0 with ``zero_ok``)."""
-    ok = (not isinstance(val, bool) and isinstance(val, numbers.Real) and math.isfinite(val)
-          and (val >= 0 if zero_ok else val > 0))
+    check_int_size(f"{owner}.{name}", val)
+    ok = _is_number(val) and (val >= 0 if zero_ok else val > 0)
     if not ok:
         raise ConfigError(f"{owner}.{name}", val,
                           f"must be a finite number {'>=' if zero_ok else '>'} 0{unit}")
@@ -168,6 +168,9 @@ class Solver(eqx.Module):
     event_log: int = eqx.field(static=True, default=N_EVENTS)
 
     def __post_init__(self):
+        # a concrete 0-d array as the number it holds (the fields are static)
+        for name in ("dt", "t_end", "save_dt", "smoothing_m", "smoothing_N"):
+            setattr(self, name, as_number(getattr(self, name)))
         if self.save_dt is None and _finite_positive(self.dt):
             every = max(1, math.ceil(SAVE_DT_MIN / self.dt - 1e-9))
             if _finite_positive(self.t_end):  # a run shorter than that saves at its end
@@ -266,5 +269,4 @@ def _whole_steps(span: float, dt: float) -> bool:
 
 
 def _finite_positive(x) -> bool:
-    return (not isinstance(x, bool) and isinstance(x, numbers.Real) and math.isfinite(x)
-            and x > 0)
+    return _is_number(x) and x > 0
