@@ -133,6 +133,7 @@ from ._problem import (
     MS,
     PLAIN,
     CalibrationProblem,
+    _without_primary_peak,
     check_integrator,
 )
 from ._uncertainty import MISFIT_SIGMA2, hac_covariance, misfit
@@ -277,8 +278,9 @@ class FitResult:
                 at_bound=n in self.diagnostics.get("at_bound", ()),
                 config_key=PARAMS[n][2], description=PARAMS[n][4])
         return dict(
-            # False: the last stage stopped at its iteration cap, the values are no minimum
-            converged=self.converged,
+            # False: the values are no minimum (the last stage stopped at its iteration cap,
+            # or the fit with the crush peak ended worse than its model without it)
+            converged=self.converged, not_converged=self.not_converged(),
             parameters=params,
             correlation=dict(names=list(self.names),
                              matrix=[[num(x) for x in row] for row in self.correlation]),
@@ -354,8 +356,16 @@ class FitResult:
 
     @property
     def converged(self) -> bool:
-        """The last stage ended at a minimum, not at its iteration cap."""
-        return not stopped_at_cap(self.stages)
+        """The last stage ended at a minimum, not at its iteration cap, and a fit with the
+        crush peak no worse than its special case without it (``no_peak_failure``)."""
+        return self.not_converged() is None
+
+    def not_converged(self) -> str | None:
+        """Why the values are no minimum (the NOT CONVERGED line's text); None where they
+        are one."""
+        if stopped_at_cap(self.stages):
+            return "the last stage stopped at its iteration cap; these values are not a minimum"
+        return no_peak_failure(self.diagnostics.get("no_peak_check"))
 
     def reported_errors(self) -> tuple[str, np.ndarray]:
         """The standard errors the fit reports (``diagnostics["interval"]``): the classical
@@ -380,9 +390,7 @@ class FitResult:
                                                self.identified, self.start_values)),
                 *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
-                *([] if self.converged else [HEADER_NOT_CONVERGED + "the last stage stopped at "
-                                             "its iteration cap; these values are not a "
-                                             "minimum"]),
+                *([] if self.converged else [HEADER_NOT_CONVERGED + self.not_converged()]),
                 *([HEADER_NOT_BOUNDED + "; ".join(self.diagnostics["interval_not_bounded"])
                    + " (fit_report.json, misfit.interval_not_bounded)"]
                   if self.diagnostics.get("interval_bounded") is False else []),
@@ -1280,6 +1288,48 @@ def _least_chi2(runs: dict) -> FitResult:
     return best
 
 
+def no_peak_names(names) -> tuple:
+    """The parameters of a fit's special case without the primary crush peak: ``names``
+    without the peak's (``SHAPE_PARAMS``)."""
+    return tuple(n for n in names if n not in SHAPE_PARAMS)
+
+
+def wants_no_peak_check(names, inner: bool) -> bool:
+    """Whether a fit is checked against its special case without the crush peak
+    (``_against_no_peak``): it fits the primary peak (peak1) and other parameters, and is no
+    fit run inside another (those are checked by the term that runs them)."""
+    return not inner and "peak1" in names and bool(no_peak_names(names))
+
+
+def peak_off_theta(problem: CalibrationProblem, vehicle: jl.Vehicle, no_peak: FitResult):
+    """``problem``'s theta at the fit without the peak's optimum (``no_peak``: its values and
+    touchdowns) with the primary peak all but off (peak1 ``PEAK_OFF_REL`` into its interval
+    above 1) and the peak's other parameters at ``vehicle``'s (the fit's start)."""
+    veh = set_values(vehicle, no_peak.names, no_peak.values)
+    names = problem.names
+    lo, hi = interval("peak1", names, get_values(veh, names), veh, problem.peak_form,
+                      problem.peak_site)
+    veh = set_values(veh, ("peak1",), [lo + PEAK_OFF_REL * (hi - lo)])
+    shifts = no_peak.theta[len(no_peak.names):] if problem.fit_touchdown else None
+    return problem.theta_from(veh, shifts_ms=shifts)
+
+
+# how much worse (in chi^2 units: twice the loss) than its model without the peak a fit with
+# the peak may end before it counts as no optimum: one unit, far below what a likelihood
+# ratio test resolves (2 degrees of freedom at 1 %: 9.2). Run from the no-peak optimum with
+# the peak at its bound, the fit stopped 0.004 above it (the rig's 0.2 m drop without a
+# peak: the peak's coordinate flat there); the wrong minima it catches lie orders of
+# magnitude above (chi2 4.16e6 against 2994)
+NO_PEAK_CHI2_ATOL = 1.0
+FROM_START, FROM_NO_PEAK = "the fit's start", "the no-peak optimum, the peak all but off"
+
+
+def no_peak_failure(check: dict | None) -> str | None:
+    """Why a fit with the crush peak is no optimum (``diagnostics["no_peak_check"]``): it ended
+    worse than its special case without the peak; None where it did not."""
+    return None if check is None else check.get("failed")
+
+
 def fixed_defaults(names) -> tuple:
     """The default fitted parameters (``DEFAULT_PARAMS``) that a fit of ``names`` leaves fixed
     at the vehicle's values: the fixed-parameter term frees them."""
@@ -1674,7 +1724,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
         fixed_params_term: bool | str = "auto",
         peak_site: str = HONEYCOMB, progress=None, _inner: bool = False,
-        _start_shifts_ms=None) -> FitResult:
+        _start_shifts_ms=None, _no_peak: FitResult | None = None) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -1756,6 +1806,26 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     start_vehicle, start_values = checked.start_vehicle, checked.start_values
     form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
+    # a fit with the crush peak is checked against its special case without it (peak1 = 1),
+    # fitted here in a thread of its own beside this one, with the peak off in the vehicle
+    # (``_no_peak``: a caller that has that fit, --compare-models, hands it over)
+    no_peak_future = None
+    if _no_peak is None and wants_no_peak_check(names, _inner):
+        np_names = no_peak_names(names)
+        start_np = ({k: v for k, v in start.items() if k in np_names}
+                    if isinstance(start, dict) else
+                    dict(zip(np_names, get_values(start, np_names).tolist()))
+                    if isinstance(start, jl.Vehicle) else None)
+        tagged_np = None if progress is None else (
+            lambda rec: progress(dict(rec, stage="without the crush peak " + rec["stage"])))
+        no_peak_future = _in_thread(
+            fit, drops, np_names,
+            vehicle=_without_primary_peak(drops[0].vehicle if vehicle is None else vehicle),
+            start=start_np, windows=windows, refine_window_s=refine_window_s, robust=robust,
+            multistart=multistart, method=method, max_iter=max_iter, dt=dt, save_dt=save_dt,
+            integrator=integrator, smoothing_m=smoothing_m, smoothing_N=smoothing_N,
+            fit_touchdown=fit_touchdown, channels=channels, model_form=False,
+            peak_model_term=False, fixed_params_term=False, progress=tagged_np, _inner=True)
     # one problem (one compilation) for every stage: the windows are masks. With the
     # peak-shape term, its functions serve every peak form (``shared_forms``), so that the
     # term's refits compile nothing: a second program for the other forms cost about twice
@@ -1833,6 +1903,55 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         history += hist
         stages.append(rec)
     final = problem.windowed(stages_w[-1])
+    no_peak_check = None
+    if no_peak_future is not None or _no_peak is not None:
+        no_peak = _refit_outcome(no_peak_future) if _no_peak is None else _no_peak
+        if isinstance(no_peak, FitResult):
+            # the same final stage from the no-peak optimum with the peak all but off, the
+            # run of least chi^2 kept: from the start alone the fit with the peak ended in
+            # a wrong minimum on a record without one (the rig's 0.2 m drop, noise only:
+            # chi2 4.16e6 against 2994 without the peak, F2 5568 N against the truth's 8547,
+            # the peak at its bound), and its misfit then blamed the data
+            theta_off = peak_off_theta(problem, start_vehicle, no_peak)
+            huber_off = robust_threshold(final, theta_off, robust) if robust is not None \
+                else None
+            theta_b, hist_b, rec_b = run(final.robust(huber_off), theta_off, labels[-1],
+                                         " from the no-peak optimum")
+            rec_b["start"] = FROM_NO_PEAK
+            runs = {FROM_START: (theta, huber_c), FROM_NO_PEAK: (theta_b, huber_off)}
+            chi2 = {k: _chi2(final, th) for k, (th, _) in runs.items()}
+            # each run ends no worse than the model without the peak on its own loss (the
+            # Huber loss of its threshold), to NO_PEAK_CHI2_ATOL: the no-peak optimum is a
+            # point of its model, so a run whose loss lies above it stopped short of its
+            # optimum. Not on chi^2: a Huber optimum's chi^2 may lie a hair above the no-peak
+            # one's (1329.80 against 1329.75 on the rig's drop without a peak, the short
+            # windows) and be no failure
+            ok = {k: 2.0 * final.robust(c).loss(th) <= 2.0 * no_peak.problem.robust(c).loss(
+                no_peak.theta) + NO_PEAK_CHI2_ATOL for k, (th, c) in runs.items()}
+            # of the runs that end no worse, the one of least chi^2 (of both, where neither)
+            kept = min([k for k in runs if ok[k]] or list(runs), key=chi2.get)
+            if kept == FROM_NO_PEAK:
+                theta, huber_c = theta_b, huber_off
+                history += hist_b
+                stages.append(rec_b)
+            chi2_np = _chi2(no_peak.problem, no_peak.theta)
+            no_peak_check = dict(
+                chi2_no_peak=chi2_np, chi2_from_start=chi2[FROM_START],
+                chi2_from_no_peak=chi2[FROM_NO_PEAK], started_from=kept,
+                no_worse_on_its_loss={k: bool(v) for k, v in ok.items()},
+                stage_from_no_peak=rec_b,
+                values_no_peak=dict(zip(no_peak.names, no_peak.values.tolist())),
+                wall_s_no_peak=no_peak.wall_s, failed=None)
+            if not ok[kept]:
+                no_peak_check["failed"] = (
+                    f"the fit with the crush peak ended worse than its special case without "
+                    f"the peak (chi2 {chi2[kept]:.6g} against {chi2_np:.6g}, and on its own "
+                    "loss beyond its tolerance; peak1 = 1 is in its model), from the start "
+                    "and from the no-peak optimum alike: an optimiser failure, not a misfit; "
+                    "these values are not its optimum (misfit.no_peak_check)")
+        else:  # the check could not run: the fit stands as it ended, and says so
+            no_peak_check = dict(failed=None, no_peak_failed=(
+                None if no_peak is None else f"{type(no_peak).__name__}: {no_peak}"))
     values = final.values(theta)
     try:
         if not np.all(np.isfinite(np.asarray(theta))):
@@ -1986,7 +2105,10 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         worst = "; ".join(
             f"{w['drop']}: {w['channel']} {_window_text(*w['window_s'])} "
             f"({w['rms_noise_units']:.3g} x noise)" for w in unc["where"])
-        warn("the data contradict the model: " + "; ".join(unc["misfit"])
+        short = no_peak_failure(no_peak_check)
+        warn(("the data contradict the model: " if short is None else
+              "the residuals misfit, but NOT CONVERGED: " + short + "; so the misfit below "
+              "is the optimiser's, not evidence against the model: ") + "; ".join(unc["misfit"])
              + ". The classical standard errors are too small: trust the HAC ones "
              "(std_error_hac), widened by how far the values move when one channel "
              f"is left out (std_error_total){_disagreement(names, shifts, trusted)}"
@@ -2044,6 +2166,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                             for g, v in shifts.items()},
             channel_spread_failed=spread_failed,
             **({} if drops_rec is None else {"drop_spread": drops_rec}),
+            no_peak_check=no_peak_check,
             noise_free_record=bool(unc.get("noise_free", False)), floor_noise=noisy_floor,
             peak_location=where_peak, peak_site_check=site_check),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,

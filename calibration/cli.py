@@ -305,11 +305,17 @@ def _cmd_fit(args) -> int:
               f"{args.max_iter}) before converging: the values below are not a minimum; "
               "raise --max-iter" + ("" if result.method == "lm" else " or use --method lm"),
               file=sys.stderr)
-    verb = "NOT CONVERGED," if capped else "fitted"
+    short = None if capped else result.not_converged()
+    if short is not None:  # the fit with the crush peak ended worse than the one without
+        print(f"jaxland fit: warning: NOT CONVERGED: {short}; fit without the peak's "
+              "parameters, or from a start nearer the record", file=sys.stderr)
+    verb = "fitted" if result.converged else "NOT CONVERGED,"
     print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
           f"autocorrelation {diag['residual_lag1_autocorr']:.2f}"
-          + ("  MISFIT: trust the HAC standard errors widened by the channel spread"
+          + ("  MISFIT of a fit short of its optimum, not of the model (above)" if short
+             and diag["misfit"] else
+             "  MISFIT: trust the HAC standard errors widened by the channel spread"
              + (" and the drop spread" if diag.get("drop_spread") is not None else "")
              + " (total)" if diag["misfit"] else ""))
     trusted = _INTERVAL_TEXT[diag["trust"]]
@@ -324,6 +330,15 @@ def _cmd_fit(args) -> int:
         + (" + fixed-parameter term" if fp is not None and fp["added"] else "")
         if diag["interval"] == "std_error_total" else trusted))
     print(held_fixed_line(result))
+    npc = diag.get("no_peak_check")
+    if npc is not None and npc.get("chi2_no_peak") is not None:
+        print(f"  against the model without the crush peak: chi2 "
+              f"{min(npc['chi2_from_start'], npc['chi2_from_no_peak']):.6g} (the run from "
+              f"{npc['started_from']} kept; from the other "
+              f"{max(npc['chi2_from_start'], npc['chi2_from_no_peak']):.6g}) against "
+              f"{npc['chi2_no_peak']:.6g} without the peak")
+    elif npc is not None:
+        print(f"  the fit without the crush peak, its check, failed ({npc['no_peak_failed']})")
     if pm is not None:
         print("  missing crush peak: the residuals show misfit and the model has no crush "
               + ("peak, so it was fitted again with one ("
