@@ -15,7 +15,7 @@ from pathlib import Path
 
 import jaxland as jl
 from jaxland import staged
-from jaxland.cli._common import named_by_flags
+from jaxland._checks import named_as
 
 __all__ = ["add_subcommands"]
 
@@ -197,7 +197,7 @@ def _cmd_fit(args) -> int:
     # one start value refused (start.gamma) as the user typed it, before --start as a whole
     flags = {**{f"start.{n}": (f"--start {n}", v) for n, v in _start_typed(args.start).items()},
              **flags}
-    with named_by_flags(flags):
+    with named_as(flags):
         names = check_names(args.params)
     vehicle = jl.load_vehicle(args.config, "--config") if args.config else None
     drops = load_drop_tests(args.data, vehicle=vehicle, vehicle_name=f"--config {args.config}")
@@ -217,7 +217,7 @@ def _cmd_fit(args) -> int:
     if args.refine_window_s is None:
         args.refine_window_s = _fit.REFINE_WINDOW_S
     robust = args.robust if args.robust > 0 else None
-    with named_by_flags(flags):
+    with named_as(flags):
         start = _start(args.start)
     peak_form = None if args.peak_form == "law" else args.peak_form
     from ._compare import peak_model_names
@@ -234,7 +234,7 @@ def _cmd_fit(args) -> int:
                              "in the honeycomb; fit with --peak-site forces on its own")
     # every argument refused before the banner; --compare-models fits the peak model
     # (peak_form's) beside the model without the peak
-    with named_by_flags(flags):
+    with named_as(flags):
         checked = _fit.check_fit(drops, peak_model_names(names) if args.compare_models
                                  else names, peak_form=peak_form, **fit_kw)
     print(f"jaxland fit: {len(drops)} drop test(s) ({', '.join(d.name for d in drops)}), "

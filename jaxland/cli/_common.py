@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .._checks import Number, named_as
+from .._checks import Number
 from .._errors import ConfigError
 from .._files import check_out
 
@@ -89,6 +89,3 @@ def fmt(v, scale=1.0, unit="", nd=4):
         return (" / ".join(f"{x * scale:.{nd}g}" for x in v) + f" {unit}  (per leg)").strip()
     return f"{v * scale:.{nd}g} {unit}".strip()
 
-
-# refusals of the fields a flag set name the flag the user typed (``_checks.named_as``)
-named_by_flags = named_as

@@ -16,10 +16,11 @@ import time
 from pathlib import Path
 
 from .. import use_batch_fusion
+from .._checks import named_as
 from .._files import staged
 from .._montecarlo._stats import probability_text
 from .._progress import ProgressLine
-from ._common import named_by_flags, out_dir, use_cpu_cores
+from ._common import out_dir, use_cpu_cores
 from ._montecarlo import _t_end_check_text
 
 __all__ = ["add_subcommands", "EXIT_INFEASIBLE", "EXIT_UNVERIFIED"]
@@ -76,7 +77,7 @@ def _cmd_design(args) -> int:
     # every input check (bounds, scenes, steps) before the banner: one line if bad
     problem = DesignProblem(spec, jl.validate_vehicle(vehicle))
     if args.verify_n != 0:
-        with named_by_flags({} if args.verify_n is None else
+        with named_as({} if args.verify_n is None else
                             {"montecarlo.n": ("--verify-n", args.verify_n)}):
             check_verification(problem)
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "

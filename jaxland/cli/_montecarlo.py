@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from .. import use_batch_fusion
-from ._common import named_by_flags, out_dir, use_cpu_cores
+from .._checks import named_as
+from ._common import out_dir, use_cpu_cores
 
 # envelopes whose low tail is the danger (the others: the high tail)
 LOW_SIDE = ("min_stability_margin_m",)
@@ -98,11 +99,11 @@ def cmd_montecarlo(args) -> int:
         ("chunk", "--chunk", args.chunk), ("num_processes", "--num-processes",
                                            args.num_processes),
         ("process_id", "--process-id", args.process_id)) if v is not None}
-    with named_by_flags(flags):
+    with named_as(flags):
         if args.coordinator is not None:  # one of several processes; process 0 writes outputs
             init_distributed(args.coordinator, args.num_processes, args.process_id)
     spec = load_montecarlo_spec(args.spec)  # its own values are refused by their keys
-    with named_by_flags(flags):
+    with named_as(flags):
         if args.n is not None:
             spec.n = args.n
         if args.seed is not None:

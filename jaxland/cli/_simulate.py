@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import sys
 
+from .._checks import named_as
 from .._errors import ConfigError
 from .._files import staged
 from .._solvers import CLOSURE_LIMIT
-from ._common import fmt as _fmt, named_by_flags, out_dir
+from ._common import fmt as _fmt, out_dir
 
 
 def cmd_config(args) -> int:
@@ -92,7 +93,7 @@ def _scene_from_args(args):
 
 
 def _given_flags(args) -> dict:
-    """The fields the command line set -> (flag, value as typed), for named_by_flags."""
+    """The fields the command line set -> (flag, value as typed), for named_as."""
     flags = {f"scene.{key}": (f"--{flag.replace('_', '-')}", getattr(args, flag))
              for flag, key in _SCENE_FLAGS if getattr(args, flag) is not None}
     for name in ("dt", "t_end", "save_dt", "impulse", "rtol", "atol", "max_steps"):
@@ -111,7 +112,7 @@ def cmd_simulate(args) -> int:
     vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
     options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
                if getattr(args, k) is not None}
-    with named_by_flags(_given_flags(args)):
+    with named_as(_given_flags(args)):
         scene = _scene_from_args(args)
         result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
                           model=args.model, method=args.method, **options)
