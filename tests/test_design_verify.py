@@ -138,13 +138,13 @@ def _cut_short_verification(t_end):
 def test_cut_off_verification_landings_are_continued_to_their_final_outcomes():
     """A verification landing that t_end_s cuts off in its impact is run on (3 x, then 9 x
     t_end_s) and judged on the outcomes of a Monte Carlo run that long from the start."""
-    from jaxland._design._verify import CONTINUE_FACTORS, _continue_unfinished
+    from jaxland._design._verify import CONTINUE_FACTORS, _latest_outcomes
     from jaxland._montecarlo import run_montecarlo
 
     short = _cut_short_verification(0.04)
     res = run_montecarlo(short, progress=False, share_program=True)
     assert res.summary["n_unfinished"] == short.n, "the scene must cut every landing off"
-    log = _continue_unfinished(short, res)
+    log = _latest_outcomes(short, res)
     assert [c["t_end_s"] for c in log] == pytest.approx([0.04 * f for f in CONTINUE_FACTORS])
     assert res.summary["n_unfinished"] == 0 and log[-1]["n_unfinished_after"] == 0
     longest = run_montecarlo(_cut_short_verification(0.04 * CONTINUE_FACTORS[-1]),
@@ -164,7 +164,7 @@ def test_the_t_end_checks_landings_are_judged_on_their_longer_run():
     Monte Carlo run that long from the start; the unchecked landing keeps its own."""
     import dataclasses
 
-    from jaxland._design._verify import _continue_unfinished
+    from jaxland._design._verify import _latest_outcomes
     from jaxland._montecarlo import run_montecarlo
 
     spec = jl.MonteCarloSpec(dispersion={"mass_scale": jl.Distribution("normal", 1.0, 0.03)},
@@ -173,7 +173,7 @@ def test_the_t_end_checks_landings_are_judged_on_their_longer_run():
     res = run_montecarlo(spec, progress=False, share_program=True)
     assert res.summary["t_end_check"]["changed_samples"] == [0, 1, 2]
     at_t_end = {k: v.copy() for k, v in res.outputs.items()}
-    assert _continue_unfinished(spec, res) == []  # none unfinished at 0.74 s
+    assert _latest_outcomes(spec, res) == []  # none unfinished at 0.74 s
     longer = run_montecarlo(dataclasses.replace(spec, t_end=0.74, t_end_check=0),
                             progress=False)
     np.testing.assert_array_equal(res.outputs["t_end_s"], [0.74, 0.74, 0.74, 0.37])
@@ -213,7 +213,7 @@ def test_a_continuation_that_fails_numerically_is_retried(monkeypatch):
     monkeypatch.setattr(_verify, "_continued_program", failing_first)
     short = _cut_short_verification(0.04)
     res = run_montecarlo(short, progress=False, share_program=True)
-    log = _verify._continue_unfinished(short, res)
+    log = _verify._latest_outcomes(short, res)
     assert log[0]["n_retried"] == 1 and np.all(res.failure == int(jl.Result.SUCCESSFUL))
     assert res.outputs["retried"][0] and not res.outputs["retried"][1:].any()
     t_end, dt = float(res.outputs["t_end_s"][0]), float(res.outputs["dt_s"][0])

@@ -53,7 +53,24 @@ def _continued_program(solver, model):
     return jax.jit(lambda vehicle, scenes: _per_sample(vehicle, solver, model, scenes))
 
 
-def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
+def _keep(res, idx: np.ndarray, out: dict, t_end: float) -> None:
+    """Keep, in place of their own, the outcomes ``out`` (a Monte Carlo's, with "result") of
+    ``res``'s landings ``idx``, run to ``t_end`` [s]."""
+    out = dict(out)
+    res.failure[idx] = out.pop("result").astype(int)
+    for k, v in out.items():
+        if k in res.outputs:
+            res.outputs[k][idx] = v.astype(res.outputs[k].dtype)
+    res.outputs["t_end_s"][idx] = t_end
+
+
+def _bottomed_again(res, idx: np.ndarray) -> None:
+    """Whether ``res``'s landings ``idx`` bottomed out, from the max strokes they now keep."""
+    res.outputs["bottomed_out"][idx] = bottomed_out(
+        {"max_stroke_m": res.outputs["max_stroke_m"][idx]}, res.vehicle)
+
+
+def _latest_outcomes(vspec: MonteCarloSpec, res, say=None) -> list:
     """The verification Monte Carlo ``res`` (of ``vspec``) with each landing's latest known
     outcomes, kept in place (``res.failure``, ``res.outputs``; ``res.outputs["t_end_s"]``:
     each landing's end) with the summary made again from them. The t_end check's landings take
@@ -68,14 +85,8 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
     res.outputs["t_end_s"] = np.full(n, float(vspec.t_end))
     longer = res.t_end_longer
     if longer is not None and longer["samples"].size:
-        idx = longer["samples"]
-        out = dict(longer["outputs"])
-        res.failure[idx] = out.pop("result").astype(int)
-        for k, v in out.items():
-            if k in res.outputs:
-                res.outputs[k][idx] = v.astype(res.outputs[k].dtype)
-        res.outputs["bottomed_out"][idx] = bottomed_out(out, vehicle)
-        res.outputs["t_end_s"][idx] = longer["t_end_s"]
+        _keep(res, longer["samples"], longer["outputs"], longer["t_end_s"])
+        _bottomed_again(res, longer["samples"])
     log = []
     for factor in CONTINUE_FACTORS:
         todo = np.flatnonzero(res.failure == int(Result.UNFINISHED))
@@ -96,18 +107,12 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
             padded = np.concatenate([idx, np.full(size - idx.size, idx[-1])])
             scenes, _ = sample_scenes(vspec, 0, 0, vehicle.n_legs, indices=padded)
             out = jax.device_get(_continued_program(solver, model)(vehicle, scenes))
-            out = {k: np.asarray(v)[:idx.size] for k, v in out.items()}
-            res.failure[idx] = out.pop("result").astype(int)
-            for k, v in out.items():
-                if k in res.outputs:
-                    res.outputs[k][idx] = v.astype(res.outputs[k].dtype)
-            res.outputs["t_end_s"][idx] = t_end
+            _keep(res, idx, {k: np.asarray(v)[:idx.size] for k, v in out.items()}, t_end)
         # a continuation that fails numerically is retried as the Monte Carlo retries its own
         # (the arrays are shared: the retry writes its outcomes into res)
         _retry(dataclasses.replace(vspec, t_end=t_end), vehicle, model,
                dict(res.outputs, result=res.failure), ProgressLine("", quiet=True), only=todo)
-        res.outputs["bottomed_out"][todo] = bottomed_out(
-            {"max_stroke_m": res.outputs["max_stroke_m"][todo]}, vehicle)
+        _bottomed_again(res, todo)
         left = int((res.failure[todo] == int(Result.UNFINISHED)).sum())
         retried = int((res.outputs["retried"][todo] & ~was_retried).sum())
         log.append(dict(t_end_s=t_end, n=int(todo.size), n_unfinished_after=left,
@@ -125,7 +130,7 @@ def _continue_unfinished(vspec: MonteCarloSpec, res, say=None) -> list:
 
 
 def _judge(res, vehicle: Vehicle, spec: DesignSpec) -> dict:
-    # a landing still unfinished after its continuation (_continue_unfinished) has no final
+    # a landing still unfinished after its continuation (_latest_outcomes) has no final
     # outcome: it is counted (n_unfinished) and the verification is not met
     ok = res.failure == int(Result.SUCCESSFUL)
     o = res.outputs
@@ -287,7 +292,7 @@ def verify_design(result: DesignResult, *, n: int | None = None, seed: int | Non
                            progress=progress and "verification, after (design)")
     for res in (before, after):
         if res is not None:
-            _continue_unfinished(vspec, res, say)
+            _latest_outcomes(vspec, res, say)
     result.mc_before, result.mc_after = before, after
     result.verification = dict(
         n=vspec.n, seed=seed, dt_s=vspec.dt, t_end_s=vspec.t_end, model=vspec.model,
@@ -448,7 +453,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
             result.mc_before = run_montecarlo(
                 vspec, result.baseline, share_program=True,
                 progress=mc_progress and "verification, before (baseline)")
-            _continue_unfinished(vspec, result.mc_before, say)
+            _latest_outcomes(vspec, result.mc_before, say)
             ver["before"] = _judge(result.mc_before, result.baseline, spec)
         last = ver["after"]
         ver["verified"] = bool(not reason and result.status == "feasible" and last["met"])
