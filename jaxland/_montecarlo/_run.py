@@ -29,11 +29,11 @@ from .._solvers._base import T_END_MAX
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec, montecarlo_spec_to_toml
 from ._stats import (
+    over_all_landings,
     percentiles,
     proportion,
     sensitivity,
     tip_over_of,
-    with_unfinished,
 )
 
 # the running maxima a Monte Carlo reports (each costs a maximum per step; the others are not
@@ -565,9 +565,9 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         # The quarter model cannot tip: no probability, not a computed-looking 0
         # (all_landings: where it lies with the unfinished and the failed landings, which
         # could still tip or bottom out)
-        tip_over=with_unfinished(tip_over_of(model, outputs["tipped_over"][ok]),
+        tip_over=over_all_landings(tip_over_of(model, outputs["tipped_over"][ok]),
                                  outputs["tipped_over"][unfinished], int(failed.sum())),
-        bottoming=with_unfinished(proportion(outputs["bottomed_out"][ok]),
+        bottoming=over_all_landings(proportion(outputs["bottomed_out"][ok]),
                                   outputs["bottomed_out"][unfinished], int(failed.sum())),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),

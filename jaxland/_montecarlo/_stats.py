@@ -51,7 +51,7 @@ def tip_over_of(model: str, tipped) -> dict:
     return not_modelled(np.size(tipped), TIP_OVER_NOT_MODELLED)
 
 
-def with_unfinished(p: dict, flags_unfinished, n_failed: int = 0) -> dict:
+def over_all_landings(p: dict, flags_unfinished, n_failed: int = 0) -> dict:
     """``p`` (a ``proportion`` over the successful landings) with ``all_landings``: where the
     probability over them, the unfinished ones and the ``n_failed`` that failed numerically
     lies (``flags_unfinished``: the flag each unfinished landing carries so far; one it has

@@ -40,9 +40,9 @@ def _no_successful_landing(s: dict) -> None:
                           f"below {s['dt_s']:g} s{again}")
 
 
-def _with_unfinished(p: dict) -> str:
+def _all_landings_text(p: dict) -> str:
     """Where a probability lies with the unfinished and the failed landings
-    (``with_unfinished``), for its report line; nothing where there is none."""
+    (``over_all_landings``), for its report line; nothing where there is none."""
     a = p.get("all_landings")
     if not a or not (a["n_unfinished"] or a["n_failed"]):
         return ""
@@ -139,11 +139,11 @@ def cmd_montecarlo(args) -> int:
     if tip["modelled"]:
         print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI "
               f"[{tip['ci95_wilson'][0]:.4g}, {tip['ci95_wilson'][1]:.4g}]  "
-              f"({tip['count']}/{tip['n']}){_with_unfinished(tip)}")
+              f"({tip['count']}/{tip['n']}){_all_landings_text(tip)}")
     else:  # no probability to print: a 0 would read as computed
         print(f"  P(tip-over)         not modelled: {tip['reason']}")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
-          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']}){_with_unfinished(bot)}")
+          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']}){_all_landings_text(bot)}")
     for name, env in s["envelopes"].items():
         if not env:
             continue
