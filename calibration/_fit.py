@@ -1254,17 +1254,23 @@ def add_peak_model_term(result: FitResult, with_peak) -> None:
 PEAK_OFF_REL = 1e-3
 
 
+def peak1_all_but_off(vehicle: jl.Vehicle, names, *form_site) -> float:
+    """peak1 ``PEAK_OFF_REL`` into its interval above 1 (``interval`` of a fit of ``names``
+    from ``vehicle``, the peak in ``form_site``): the nearest a fit with the peak starts to
+    the model without it."""
+    lo, hi = interval("peak1", names, get_values(vehicle, names), vehicle, *form_site)
+    return lo + PEAK_OFF_REL * (hi - lo)
+
+
 def peak_off_start(fitted: jl.Vehicle, names) -> dict:
     """The start of the missing-peak term's fit: ``fitted``'s values of ``names`` (the fit
-    without a peak's optimum) and the primary peak all but off (peak1 ``PEAK_OFF_REL`` into
-    its interval above 1, L_peak1 the vehicle's or its ``START_IF_OFF``), so that the fit
-    with the peak starts where the model without it ended."""
+    without a peak's optimum) and the primary peak all but off (``peak1_all_but_off``,
+    L_peak1 the vehicle's or its ``START_IF_OFF``), so that the fit with the peak starts
+    where the model without it ended."""
     names_p = tuple(names) + PEAK_PARAMS
     on = switch_on(fitted, names_p)
-    vals = get_values(on, names_p)
-    lo, hi = interval("peak1", names_p, vals, on)
-    start = dict(zip(names_p, vals.tolist()))
-    start["peak1"] = lo + PEAK_OFF_REL * (hi - lo)
+    start = dict(zip(names_p, get_values(on, names_p).tolist()))
+    start["peak1"] = peak1_all_but_off(on, names_p)
     return start
 
 
@@ -1303,13 +1309,11 @@ def wants_no_peak_check(names, inner: bool) -> bool:
 
 def peak_off_theta(problem: CalibrationProblem, vehicle: jl.Vehicle, no_peak: FitResult):
     """``problem``'s theta at the fit without the peak's optimum (``no_peak``: its values and
-    touchdowns) with the primary peak all but off (peak1 ``PEAK_OFF_REL`` into its interval
-    above 1) and the peak's other parameters at ``vehicle``'s (the fit's start)."""
+    touchdowns) with the primary peak all but off (``peak1_all_but_off``) and the peak's
+    other parameters at ``vehicle``'s (the fit's start)."""
     veh = set_values(vehicle, no_peak.names, no_peak.values)
-    names = problem.names
-    lo, hi = interval("peak1", names, get_values(veh, names), veh, problem.peak_form,
-                      problem.peak_site)
-    veh = set_values(veh, ("peak1",), [lo + PEAK_OFF_REL * (hi - lo)])
+    veh = set_values(veh, ("peak1",), [peak1_all_but_off(veh, problem.names, problem.peak_form,
+                                                         problem.peak_site)])
     shifts = no_peak.theta[len(no_peak.names):] if problem.fit_touchdown else None
     return problem.theta_from(veh, shifts_ms=shifts)
 
