@@ -17,14 +17,13 @@ from .._checks import (
     Number,
     Text,
     known_keys,
-    named_as,
     parse_table,
     spec_field,
 )
 from .._config import PAPER_CELLS
 from .._errors import ConfigError
 from .._montecarlo import MODEL_CHOICE, MonteCarloSpec, montecarlo_spec_from_dict
-from .._solvers import FIXED_STEP_METHODS, Solver, check_whole_steps
+from .._solvers import FIXED_STEP_METHODS, check_spec_steps
 from .._toml import read_toml
 
 _DEG = math.pi / 180.0
@@ -342,10 +341,7 @@ def design_spec_from_dict(data: dict, base_dir: Path | None = None) -> DesignSpe
     if model == "quarter" and any(c.name == "stability" for c in constraints):
         raise ConfigError("constraints.stability", "<table>", "needs the full 3-D model (a "
                           "symmetric drop cannot tip); set design.model = \"full\"")
-    check_whole_steps(spec.dt, spec.t_end, "design.dt_s", "design.t_end_s")
-    with named_as({"solver.dt": ("design.dt_s", spec.dt),
-                   "solver.t_end": ("design.t_end_s", spec.t_end)}):
-        Solver(dt=spec.dt, t_end=spec.t_end, save_dt=spec.t_end, method=spec.method).validate()
+    check_spec_steps("design", spec.dt, spec.t_end, spec.method)
     return spec
 
 

@@ -17,13 +17,12 @@ from .._checks import (
     Choice,
     Number,
     check_int_size,
-    named_as,
     parse_table,
     spec_field,
 )
 from .._errors import ConfigError
 from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS, Scene
-from .._solvers import FIXED_STEP_METHODS, Solver, check_whole_steps
+from .._solvers import FIXED_STEP_METHODS, check_spec_steps
 from .._toml import read_toml, toml_value
 
 
@@ -248,12 +247,7 @@ class MonteCarloSpec:
         for f in dataclasses.fields(self):
             if "check" in f.metadata:
                 f.metadata["check"](f"montecarlo.{f.metadata['toml']}", getattr(self, f.name))
-        check_whole_steps(self.dt, self.t_end, "montecarlo.dt_s", "montecarlo.t_end_s")
-        # the run's limits (duration, step count) are the Solver's, named by the spec's keys
-        with named_as({"solver.dt": ("montecarlo.dt_s", self.dt),
-                       "solver.t_end": ("montecarlo.t_end_s", self.t_end)}):
-            Solver(dt=self.dt, t_end=self.t_end, save_dt=self.t_end,
-                   method=self.method).validate()
+        check_spec_steps("montecarlo", self.dt, self.t_end, self.method)
 
     def range_of(self, key: str) -> tuple[float, float]:
         """The values an input takes over the run, in its TOML units: a fixed value, a

@@ -11,7 +11,7 @@ from ._base import (
     AbstractIntegrator as AbstractIntegrator,
     Result as Result,
     Solver as Solver,
-    check_whole_steps as check_whole_steps,
+    check_spec_steps as check_spec_steps,
 )
 from ._fixed import (
     AbstractFixedStep as AbstractFixedStep,

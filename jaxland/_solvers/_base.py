@@ -17,7 +17,7 @@ from typing import ClassVar
 import equinox as eqx
 from jaxtyping import Array
 
-from .._checks import _is_number, as_number, check_int_size
+from .._checks import _is_number, as_number, check_int_size, named_as
 from .._errors import ConfigError
 from .._models import AbstractModel, Oscillator, Smoothing
 
@@ -254,12 +254,17 @@ class Solver(eqx.Module):
         return self
 
 
-def check_whole_steps(dt: float, t_end: float, dt_field: str, t_end_field: str) -> None:
-    """Refuse a step ``dt`` that does not divide ``t_end`` into whole steps, naming the spec's
-    own fields (a run without a trajectory ends on its one save interval, t_end)."""
+def check_spec_steps(section: str, dt: float, t_end: float, method: str) -> None:
+    """Refuse a spec's run without a trajectory (``[section]`` ``dt_s``, ``t_end_s``,
+    ``method``) by its keys: a step that does not divide ``t_end`` into whole steps (the run
+    ends on its one save interval, t_end), and what the run's ``Solver`` refuses (its
+    duration and step count)."""
+    dt_field, t_end_field = f"{section}.dt_s", f"{section}.t_end_s"
     if not _whole_steps(t_end, dt):
         raise ConfigError(dt_field, dt, f"must divide {t_end_field} = {t_end:g} s into whole "
                           f"steps (it gives {t_end / dt:.6g})")
+    with named_as({"solver.dt": (dt_field, dt), "solver.t_end": (t_end_field, t_end)}):
+        Solver(dt=dt, t_end=t_end, save_dt=t_end, method=method).validate()
 
 
 def _whole_steps(span: float, dt: float) -> bool:
