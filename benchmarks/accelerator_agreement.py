@@ -25,6 +25,8 @@ ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 ap.add_argument("out", help="the JSON file to write")
 ap.add_argument("--commit", default=None, help="the commit measured, recorded in the JSON")
 ap.add_argument("--quick", action="store_true", help="tiny sizes; allowed on a CPU")
+ap.add_argument("--samples", default=None, metavar="NPZ",
+                help="also write every run's per-sample outcomes to this .npz (model, run, key)")
 args = ap.parse_args()
 out_path = Path(args.out).resolve()
 if not out_path.parent.is_dir():
@@ -82,6 +84,7 @@ for model, sc in scenes.items():
 KEYS = ("max_stroke_m", "peak_strut_force_N", "peak_normal_force_N", "peak_body_accel_mps2",
         "min_stability_margin_m")
 CLASSES = ("tipped_over", "bottomed_out")
+CHANGES_SHOWN = 40  # changed samples listed per class and pair
 SIZES = {"quarter": (16384, (16384, 2048), (2048, 512)), "full": (4096, (4096, 512), (512, 64))}
 if args.quick:
     SIZES = {"quarter": (16, (16, 8), (8, 4)), "full": (4, (4, 2), (2, 1))}
@@ -109,14 +112,27 @@ def compare(a, b) -> dict:
             out[k] = dict(max_rel=float(rel.max()), above_1e9=int((rel > 1e-9).sum()),
                           above_1e6=int((rel > 1e-6).sum()), above_1e3=int((rel > 1e-3).sum()))
     out["class_changes"] = int(sum((a[k] != b[k]).sum() for k in (*CLASSES, "result")))
+    # which class moved, and on which samples (the first CHANGES_SHOWN of each): a changed
+    # result code between finished and unfinished is a landing still moving at t_end; a
+    # changed tip-over or bottoming is a verdict
+    out["changes_by_class"] = {}
+    for k in (*CLASSES, "result"):
+        idx = np.flatnonzero(a[k] != b[k])
+        out["changes_by_class"][k] = dict(
+            n=int(idx.size), samples=[
+                dict(sample=int(i), a=int(a[k][i]), b=int(b[k][i]),
+                     max_stroke_m=[float(a["max_stroke_m"][i]), float(b["max_stroke_m"][i])])
+                for i in idx[:CHANGES_SHOWN]])
     return out
 
 
-samples = {}
+samples, raw = {}, {}
 for model, (n, gpu_chunks, cpu_chunks) in SIZES.items():
     runs = {f"gpu chunk {c}": outcomes(model, n, c, gpu[:1]) for c in gpu_chunks}
     runs.update({f"cpu chunk {c}": outcomes(model, n, c, cpu) for c in cpu_chunks})
     names = list(runs)
+    for run_name, (o, _) in runs.items():
+        raw[f"{model}|{run_name}"] = o
     ref = names[-1]  # the CPU at its default-sized chunk
     samples[model] = dict(
         n=n, cpu_devices=len(cpu), reference=ref,
@@ -135,3 +151,6 @@ result = dict(commit=args.commit, jax=jax.__version__, device_kind=gpu[0].device
                    "chosen step, fixed seed; relative differences per sample, the worst leg")
 with open(out_path, "w") as f:
     json.dump(result, f, indent=1)
+if args.samples:
+    np.savez_compressed(args.samples, **{f"{run}|{k}": v for run, o in raw.items()
+                                          for k, v in o.items()})

@@ -485,12 +485,15 @@ def accelerator_samples() -> str:
     rows = []
     for model, m in b["samples"].items():
         for p in m["pairs"]:
-            diffs = {k: v for k, v in p.items() if isinstance(v, dict)}
+            diffs = {k: v for k, v in p.items() if isinstance(v, dict) and "max_rel" in v}
+            by = p["changes_by_class"]
             rows.append([model, str(m["n"]), f"{p['a']} / {p['b']}",
                          "; ".join(f"{k} {v['max_rel']:.1e} ({v['above_1e6']}, {v['above_1e3']})"
-                                   for k, v in diffs.items()), str(p["class_changes"])])
+                                   for k, v in diffs.items()),
+                         " / ".join(str(by[k]["n"]) for k in ("tipped_over", "bottomed_out",
+                                                               "result"))])
     return _table(["model", "n [-]", "runs compared", "per outcome: largest relative difference "
-                   "(samples beyond 1e-6, beyond 1e-3)", "samples whose tip-over, bottoming or "
+                   "(samples beyond 1e-6, beyond 1e-3)", "samples whose tip-over / bottoming / "
                    "result changed [-]"], rows)
 
 
