@@ -58,7 +58,11 @@ def test_a_second_vehicle_reuses_the_compiled_chunk_with_its_own_outcomes():
     a1, a2 = first.outputs["peak_body_accel_mps2"], second.outputs["peak_body_accel_mps2"]
     assert np.all(np.abs(a2 - a1) > 0.01 * a1)  # every sample saw the stiffer honeycomb
     for k, v in alone.outputs.items():  # up to how XLA compiles either program
-        np.testing.assert_allclose(second.outputs[k], v, rtol=1e-9, atol=0, err_msg=k)
+        # the ledger's closure is a difference of energies, relative to the landing's energy:
+        # its rounding is absolute in those units (7.6e-14 between the two programs on a GPU,
+        # 2.2e-9 of the closure itself), not relative to the closure
+        atol = 1e-12 if k == "energy_closure_rel" else 0.0
+        np.testing.assert_allclose(second.outputs[k], v, rtol=1e-9, atol=atol, err_msg=k)
 
 
 def _drop_spec(t_end, **kw):
