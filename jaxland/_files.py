@@ -146,10 +146,47 @@ def check_out(out, inputs=()) -> Path:
             raise ConfigError("--out", str(out), f"holds {path}, an input of this run, and "
                               "would be replaced as a whole: give another folder")
     _check_writable(out, out.parent if p == out else p)  # the staging folder's place
+    for p in where.parents:  # a run into that folder would replace this one with it
+        if (p / MARKER).is_file():
+            raise ConfigError("--out", str(out), f"lies inside {p}, a jaxland output folder "
+                              "that its next run replaces as a whole: give a folder outside it")
     if out.is_dir() and not (out / MARKER).exists() and any(out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
                           f"{MARKER}): give a new or empty folder, its files would be replaced")
+    if out.is_dir():
+        foreign = _not_written_by_jaxland(out)
+        if foreign:
+            more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+            raise ConfigError("--out", str(out), f"holds {foreign[0]}{more}, which its jaxland "
+                              "run did not write: move it out first, since the whole folder "
+                              "is replaced")
     return out
+
+
+def _written(folder: Path) -> list[str]:
+    """Every file below ``folder``, as paths relative to it ('/'-separated), sorted; symbolic
+    links are listed, not followed."""
+    out = []
+    for root, dirs, files in os.walk(folder):
+        rel = Path(root).relative_to(folder)
+        out += [(rel / f).as_posix() for f in files]
+        out += [(rel / d).as_posix() for d in dirs if (Path(root) / d).is_symlink()]
+    return sorted(out)
+
+
+def _not_written_by_jaxland(out: Path) -> list[str]:
+    """The files in ``out`` (a folder with jaxland's ``MARKER``) that its run did not write:
+    those missing from the marker's list of files (markers without one: another jaxland
+    output's marker in a subfolder)."""
+    try:
+        listed = json.loads((out / MARKER).read_text()).get("files")
+    except (OSError, ValueError, AttributeError):
+        listed = None
+    present = _written(out)
+    if listed is None:
+        return [f for f in present if f.endswith("/" + MARKER)]
+    keep = set(listed) | {MARKER}
+    return [f for f in present if f not in keep]
 
 
 def _check_writable(out: Path, folder: Path) -> None:
@@ -203,7 +240,8 @@ def staged(out, command: str | None = None) -> Iterator[Path]:
     try:
         yield staging
         (staging / MARKER).write_text(json.dumps(
-            dict(command=command, jaxland_version=__version__), indent=2) + "\n")
+            dict(command=command, jaxland_version=__version__, files=_written(staging)),
+            indent=2) + "\n")
         old = out.parent / f".{out.name}.old-{tag}"
         if out.exists():
             out.replace(old)

@@ -154,6 +154,32 @@ def test_a_foreign_folder_is_refused_before_running(tmp_path, capsys):
     assert link.is_symlink() and not list(tmp_path.glob(".link.*"))
 
 
+def test_a_run_never_deletes_what_its_own_run_did_not_write(tmp_path, capsys):
+    """An output folder holds one run's files: a folder inside it is refused (the outer
+    folder's next run would delete it), and a rerun is refused where the folder holds a file
+    its run did not write (another run's output, a note of the user's), all left in place."""
+    outer = tmp_path / "A"
+    assert _simulate(outer) == 0
+    assert _simulate(outer / "inner") == 2
+    err = capsys.readouterr().err
+    assert "lies inside" in err and "A" in err and not (outer / "inner").exists()
+    (outer / "notes.txt").write_text("mine")
+    assert _simulate(outer) == 2
+    assert "notes.txt" in capsys.readouterr().err
+    assert (outer / "notes.txt").read_text() == "mine"
+    (outer / "notes.txt").unlink()
+    # an output folder of an earlier version (no list of files) holding another run's output
+    marker = outer / ".jaxland-output.json"
+    record = json.loads(marker.read_text())
+    assert "summary.json" in record["files"]
+    marker.write_text(json.dumps({k: v for k, v in record.items() if k != "files"}))
+    (outer / "mc").mkdir()
+    (outer / "mc" / ".jaxland-output.json").write_text("{}")
+    assert _simulate(outer) == 2
+    assert "mc/.jaxland-output.json" in capsys.readouterr().err
+    assert (outer / "mc").is_dir()
+
+
 def test_staging_debris_of_a_killed_run_is_cleaned(tmp_path):
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True).stdout.strip()
