@@ -646,3 +646,24 @@ def test_a_montecarlo_folder_reruns_its_landings_from_its_own_spec_and_vehicle(t
                  "--no-plots", "--quiet", "--out", str(again)]) == 0
     assert (again / "samples.csv").read_text() == (first / "samples.csv").read_text()
     assert load_montecarlo_spec(again / "spec.toml") == written
+
+
+def test_the_sensitivity_ranks_no_rounding_noise():
+    """A target the same in every landing up to rounding (a tip-over margin that no dispersion
+    moves) has no drivers: the regression is not run and the summary says why, where a
+    target that the inputs move is ranked by them."""
+    from jaxland._montecarlo._stats import sensitivity
+
+    rng = np.random.default_rng(0)
+    inputs = {"sink_speed_mps": rng.uniform(1, 3, 64), "plateau_scale": rng.normal(1, 0.05,
+                                                                                   (64, 4))}
+    ok = np.ones(64, bool)
+    flat = 1.582 + rng.normal(0, 1e-16, 64)  # rounding about one value
+    s = sensitivity(inputs, flat, ok)
+    assert s["ranking"] == [] and "same in every successful landing" in s["not_estimated"]
+    moved = 0.1 * inputs["sink_speed_mps"] + rng.normal(0, 1e-3, 64)
+    s = sensitivity(inputs, moved, ok)
+    assert s["not_estimated"] is None and s["ranking"][0]["input"] == "sink_speed_mps"
+    assert s["ranking"][0]["r2_of_fit"] > 0.99
+    s = sensitivity(inputs, moved, np.arange(64) < 5)  # 5 landings, 5 inputs
+    assert s["ranking"] == [] and s["not_estimated"].startswith("5 successful landings")

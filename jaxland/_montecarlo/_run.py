@@ -582,7 +582,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         sensitivity=dict(
             target="min_stability_margin_m" if model == "full" else "max_stroke_m",
             method="least squares on standardised inputs: change per standard deviation",
-            ranking=sensitivity(inputs, target, ok)),
+            **sensitivity(inputs, target, ok)),
         dispersion={k: vars(v) for k, v in spec.dispersion.items()},
         fixed=spec.fixed,
         environment=run_environment(),

@@ -93,9 +93,18 @@ def percentiles(x) -> dict | None:
                 max=float(np.max(x)), mean=float(np.mean(x)))
 
 
-def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> list[dict]:
-    """Linear regression of ``target`` on the standardised dispersed inputs (per-leg inputs
-    enter per leg): the change of the target per standard deviation of each input, ranked."""
+# a target whose spread over the landings is at most this fraction of its size is the same in
+# every landing up to rounding (a tip-over margin no dispersion moves: spread 1e-16 of 1.58 m);
+# a regression on it ranks rounding noise
+CONSTANT_REL = 1e-9
+
+
+def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> dict:
+    """Linear regression of ``target`` [m] (a stroke or a margin) on the standardised
+    dispersed inputs (per-leg inputs enter per leg): {"ranking": the change of the target per
+    standard deviation of each input, ranked; "not_estimated": None, or why there is no
+    ranking (too few landings ``ok``, no input dispersed, or a target the same in every
+    landing up to rounding)}."""
     cols, names = [], []
     for name, arr in inputs.items():
         arr = np.asarray(arr, dtype=float)
@@ -106,11 +115,22 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> list[dict]:
                 cols.append((x - x.mean()) / x.std())
                 names.append(name if arr.shape[1] == 1 else f"{name}[leg{i}]")
     y = np.asarray(target, dtype=float)[ok]
-    if not cols or y.size <= len(cols) + 1:
-        return []
+    if not cols:
+        return dict(ranking=[], not_estimated="no dispersed input varies over the successful "
+                    "landings")
+    if y.size <= len(cols) + 1:
+        return dict(ranking=[], not_estimated=(
+            f"{y.size} successful landings; the regression needs more than one per dispersed "
+            "input and leg"))
+    spread = float(y.max() - y.min())
+    if spread <= CONSTANT_REL * float(np.abs(y).max()):
+        return dict(ranking=[], not_estimated=(
+            f"the target is the same in every successful landing up to rounding, a spread "
+            f"of {spread:.2g} m: no dispersed input moves it"))
     X = np.column_stack([np.ones(y.size), *cols])
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     resid = y - X @ coef
-    r2 = 1.0 - resid.var() / y.var() if y.var() > 0 else 0.0
+    r2 = 1.0 - resid.var() / y.var()
     ranked = sorted(zip(names, coef[1:]), key=lambda t: -abs(t[1]))
-    return [dict(input=n, effect_per_std=float(c), r2_of_fit=float(r2)) for n, c in ranked]
+    return dict(ranking=[dict(input=n, effect_per_std=float(c), r2_of_fit=float(r2))
+                         for n, c in ranked], not_estimated=None)

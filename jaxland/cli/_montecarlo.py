@@ -158,9 +158,12 @@ def cmd_montecarlo(args) -> int:
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
     else:
-        print(f"  drivers of {s['sensitivity']['target']}: not estimated ({s['n_succeeded']} "
-              "successful landings; the regression needs more than one per dispersed input "
-              "and leg)")
+        print(f"  drivers of {s['sensitivity']['target']}: not estimated "
+              f"({s['sensitivity']['not_estimated']})")
+    if not args.no_plots and s["tip_over"].get("modelled", True) \
+            and len(s["sensitivity"]["ranking"]) < 2:
+        print("  no tip-over map: it is drawn over the two most influential inputs, and the "
+              "drivers rank fewer")
     print(f"wrote {out}/samples.csv, samples.npz, summary.json, spec.toml, vehicle.toml"
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
