@@ -583,3 +583,21 @@ def test_simulate_and_monte_carlo_report_one_ledger_closure():
                                                       rel=1e-9)
     assert mc.outputs["energy_closure_rel"][0] == pytest.approx(one["energy_closure_rel"],
                                                                 rel=1e-6)
+
+
+@pytest.mark.parametrize("model", ["quarter", "full"])
+def test_peaks_and_max_stroke_include_the_end_state(model):
+    """A landing cut off while a foot is still pressing in peaks at its end: the summary's max
+    stroke and peak forces are never below the end state's stroke and force (they missed the
+    last step: a max stroke 7.60e-5 m against a final 7.92e-5 m, a peak normal force 2057 N
+    against a final 2088 N)."""
+    scene = jl.Scene(drop_height=0.2, roll=0.05 if model == "full" else 0.0)
+    o = jl.simulate(scene, t_end=0.2025, model=model).outcomes  # 0.6 ms after touchdown
+    assert o["result"] == "unfinished"
+    stroke, final = np.atleast_1d(o["max_stroke_m"]), np.atleast_1d(o["final_stroke_m"])
+    force, f_end = np.atleast_1d(o["peak_normal_force_N"]), np.atleast_1d(o["final_normal_force_N"])
+    assert np.all(stroke >= final) and np.all(force >= f_end)
+    pressing = f_end > 0.0  # the feet on the ground: still compressing, at their peak now
+    assert pressing.any()
+    np.testing.assert_array_equal(stroke[pressing], final[pressing])
+    np.testing.assert_array_equal(force[pressing], f_end[pressing])

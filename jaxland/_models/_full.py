@@ -492,7 +492,7 @@ class FullModel(AbstractModel):
 
     def final_summary(self, s: Vehicle3DState, record) -> dict:
         return dict(
-            max_stroke_m=s.x_max,
+            max_stroke_m=record["stroke_max_m"],  # the memory with the end state's stroke
             final_stroke_m=record["stroke_m"],
             final_pit_depth_m=record["pit_depth_m"],
             final_normal_force_N=record["normal_force_N"],

@@ -275,7 +275,7 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
     def final_summary(self, s: QuarterState, record) -> dict:
         """Model-specific end-of-landing outcomes."""
         return dict(
-            max_stroke_m=s.x_max,
+            max_stroke_m=record["stroke_max_m"],  # the memory with the end state's stroke
             final_stroke_m=record["stroke_m"],
             final_plastic_set_m=record["plastic_set_m"],
             final_pit_depth_m=record["pit_depth_m"],

@@ -227,8 +227,13 @@ def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict
                        jnp.where(track.n_events > 0,
                                  jnp.where(cut, int(Result.UNFINISHED), int(Result.SUCCESSFUL)),
                                  int(Result.NO_TOUCHDOWN)))
+    # the end state is a step's state too: its values join the peaks (a landing cut off while
+    # compressing peaks there), as its largest stroke does in ``final_summary``
+    values = model.peak_values(ev_end.record, ev_end.accel)
+    peaks = {k: jnp.where(track.tip_time < 0.0, fmax(values[k], p), p)
+             for k, p in track.peaks.items()}
     return dict(
-        **track.peaks,
+        **peaks,
         **model.final_summary(s_end, ev_end.record),
         event_times_s=track.events(),
         n_contact_changes=track.n_events,
