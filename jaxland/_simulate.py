@@ -177,7 +177,9 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
     t = traj["time_s"]
     first_end = impacts[0][1] if impacts and impacts[0][1] is not None else None
     stroke = np.asarray(traj["stroke_m"])
-    if first_end is not None and not np.any((t >= impacts[0][0]) & (t <= first_end)):
+    if not impacts:  # no touchdown: no first impact to read
+        stroke_first, foot_v = None, None
+    elif first_end is not None and not np.any((t >= impacts[0][0]) & (t <= first_end)):
         # no saved sample inside the first impact (save_dt longer than it): nothing to read
         stroke_first, foot_v = None, None
     elif first_end is not None:

@@ -81,6 +81,8 @@ def test_a_landing_without_touchdown_is_no_touchdown_not_stable():
     res = jl.simulate(jl.Scene(drop_height=1.0), t_end=0.1)
     assert res.outcomes["classification"] == "no_touchdown"
     assert res.outcomes["result"] == "no_touchdown"
+    # no first impact to read a stroke of (it read the run's max stroke, 1e-15 m of preload)
+    assert res.outcomes["first_impact_stroke_m"] is None
     spec = jl.MonteCarloSpec(dispersion={"sink_speed_mps": jl.Distribution("uniform", low=0.0,
                                                                            high=0.5)},
                              fixed={"drop_height_m": 2.0}, n=4, t_end=0.05)
