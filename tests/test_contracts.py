@@ -359,7 +359,9 @@ def test_an_output_folder_holding_an_input_or_the_current_folder_is_refused(
 def test_fit_and_predict_refuse_an_output_folder_holding_a_file_the_metadata_names(
         tmp_path, capsys, key):
     """The drop test's metadata names its traces and vehicle: a folder holding either is an
-    input's folder too, refused before any work, and the file stays."""
+    input's folder too, refused before any work, and the file stays. The file is one the
+    folder's run wrote (as a fit's fitted_vehicle.toml is, given to predict): a file it did
+    not write is refused as such already."""
     from pathlib import Path
 
     src = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -367,6 +369,9 @@ def test_fit_and_predict_refuse_an_output_folder_holding_a_file_the_metadata_nam
     assert _simulate(out, "--no-plots") == 0  # a folder jaxland wrote
     inside = {"data_file": "drop_h0.20m.csv", "vehicle_config": "nominal_vehicle.toml"}[key]
     (out / inside).write_bytes((src / inside).read_bytes())
+    marker = out / ".jaxland-output.json"
+    record = json.loads(marker.read_text())
+    marker.write_text(json.dumps(dict(record, files=[*record["files"], inside])))
     meta = (src / "drop_h0.20m.toml").read_text()
     for k, name in (("data_file", "drop_h0.20m.csv"), ("vehicle_config", "nominal_vehicle.toml")):
         where = out / name if k == key else src / name
