@@ -14,7 +14,7 @@ from jaxland._design._verify import _check, _risk_rows
 # exceed: the design fitted to two scenes fails on fresh ones.
 SPEC = dict(
     design=dict(iterations=8, n_scenes=2, scene_seed=3, dt_s=2e-5, t_end_s=0.15,
-                learning_rate=0.3, verify_rounds=2, reoptimise_iterations=6, verify_add=3),
+                learning_rate=0.3, verify_rounds=3, reoptimise_iterations=6, verify_add=3),
     objective=dict(measure="max"),
     variables={"F1_N": dict(low=2000.0, high=8000.0), "x_L2_mm": dict(low=20.0, high=150.0)},
     # 32 fresh landings without a violation bound its probability by 0.107 (95 % Wilson): the
@@ -41,9 +41,11 @@ def test_a_failed_verification_adds_its_violators_and_the_loop_closes(closed):
     assert log[0]["unmet"] == ["stroke"], "the spec must start with a failed verification"
     assert len(log) >= 2 and v["verified"] and v["reason"] is None
     # the landings added in round r are the violators found by round r - 1's verification
+    # (at most verify_add of them: round 0 finds 15, a later round may find one)
     for (added, rnd) in zip(v["added_landings"], log):
         assert added["seed"] == rnd["seed"]
-        assert len(added["samples"]) == SPEC["design"]["verify_add"]
+        assert 1 <= len(added["samples"]) <= SPEC["design"]["verify_add"]
+    assert len(v["added_landings"][0]["samples"]) == SPEC["design"]["verify_add"]
     # each round verifies on fresh samples, never the design scenes' seed
     seeds = [r["seed"] for r in log]
     assert len(set(seeds)) == len(seeds) and SPEC["design"]["scene_seed"] not in seeds
