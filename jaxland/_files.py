@@ -13,6 +13,7 @@ import os
 import secrets
 import shutil
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -118,6 +119,21 @@ def atomic_savefig(fig, path, dpi: int = 110) -> Path:
 
 
 MARKER = ".jaxland-output.json"  # in every output folder jaxland publishes
+# set by ``interrupt_handler``: a Ctrl-C that landed where Python swallows the exception (a
+# weak reference's callback, a finaliser) still stops the run before it publishes
+_INTERRUPTED = threading.Event()
+
+
+def interrupt_handler(signum, frame):
+    """SIGINT: remember the interrupt (``staged`` then publishes nothing), then raise
+    KeyboardInterrupt as Python's own handler does."""
+    _INTERRUPTED.set()
+    raise KeyboardInterrupt
+
+
+def clear_interrupt() -> None:
+    """Forget an earlier interrupt (a command's start)."""
+    _INTERRUPTED.clear()
 
 
 def check_out(out, inputs=()) -> Path:
@@ -239,6 +255,8 @@ def staged(out, command: str | None = None) -> Iterator[Path]:
     staging.mkdir()
     try:
         yield staging
+        if _INTERRUPTED.is_set():  # interrupted, and the exception was swallowed on its way
+            raise KeyboardInterrupt
         (staging / MARKER).write_text(json.dumps(
             dict(command=command, jaxland_version=__version__, files=_written(staging)),
             indent=2) + "\n")

@@ -608,3 +608,31 @@ def test_peaks_and_max_stroke_include_the_end_state(model):
     assert pressing.any()
     np.testing.assert_array_equal(stroke[pressing], final[pressing])
     np.testing.assert_array_equal(force[pressing], f_end[pressing])
+
+
+def test_an_interrupt_python_swallowed_still_publishes_nothing(tmp_path, capsys, monkeypatch):
+    """Ctrl-C delivered inside a weak reference's callback raises a KeyboardInterrupt that
+    Python prints and drops ("Exception ignored in ..."): the run went on and replaced the
+    folder. The interrupt is remembered, so the run stops before it publishes; the earlier
+    output stays."""
+    from jaxland import _files
+    from jaxland._simulate import Landing
+
+    out = tmp_path / "run"
+    assert _simulate(out, "--no-plots") == 0
+    before = (out / "summary.json").read_text()
+    to_json = Landing.to_json
+
+    def interrupted_and_swallowed(self, path):
+        try:
+            _files.interrupt_handler(2, None)
+        except KeyboardInterrupt:
+            pass  # as in a callback whose exception Python ignores
+        return to_json(self, path)
+
+    monkeypatch.setattr(Landing, "to_json", interrupted_and_swallowed)
+    assert _simulate(out, "--no-plots", "--drop-height", "0.03") == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert (out / "summary.json").read_text() == before
+    monkeypatch.undo()
+    assert _simulate(out, "--no-plots", "--drop-height", "0.03") == 0  # the next run is free

@@ -143,6 +143,17 @@ def main(argv=None) -> int:
     from ._common import use_compilation_cache
 
     use_compilation_cache()
+    import signal
+    import threading
+
+    from .._files import clear_interrupt, interrupt_handler
+
+    clear_interrupt()
+    # only from the main thread, and only over Python's own handler (not one a caller set)
+    own = (threading.current_thread() is threading.main_thread()
+           and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    if own:
+        signal.signal(signal.SIGINT, interrupt_handler)
     try:
         return args.func(args)
     except ConfigError as err:
@@ -157,6 +168,9 @@ def main(argv=None) -> int:
     except OSError as err:  # a full disk, a closed pipe: the output folder is left untouched
         print(f"jaxland: cannot write: {err}", file=sys.stderr)
         return EXIT_OS
+    finally:
+        if own:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 if __name__ == "__main__":
