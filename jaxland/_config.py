@@ -170,18 +170,26 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         raise
 
 
-def load_vehicle(path, what: str = "config") -> Vehicle:
-    """Load and validate a vehicle TOML file (refusals name it as ``what``: the flag or key
-    that gave the path). A file that sets no parameter (empty, comments, empty tables) is
-    refused: every key a file leaves out takes the paper's value, so it would load, silently,
-    as the paper vehicle."""
-    data = read_toml(path, what)
+def load_vehicle(path, what: str | None = None) -> Vehicle:
+    """Load and validate a vehicle TOML file. ``what`` is the flag or key that gave the path
+    (``--config``, ``design.vehicle``): every refusal names the file by it, a refusal of a
+    value as ``WHAT PATH: section.key = value: rule``. Without ``what`` (a caller that names
+    the file itself) a value's refusal names the key alone, and the file's own as ``config``.
+    A file that sets no parameter (empty, comments, empty tables) is refused: every key a file
+    leaves out takes the paper's value, so it would load, silently, as the paper vehicle."""
+    name = "config" if what is None else what
+    data = read_toml(path, name)
     if all(isinstance(t, dict) and not t for t in data.values()):
-        raise ConfigError(what, str(path), "sets no vehicle parameter, and would run as the "
+        raise ConfigError(name, str(path), "sets no vehicle parameter, and would run as the "
                           "paper vehicle (every key left out takes the paper's value); give "
                           "the vehicle's values (`jaxland config` prints the paper vehicle's, "
                           "to edit)")
-    return vehicle_from_dict(data)
+    try:
+        return vehicle_from_dict(data)
+    except ConfigError as err:
+        if what is None:
+            raise
+        raise ConfigError(f"{what} {path}: {err.field}", err.value, err.rule) from None
 
 
 def _breakpoint_error(hc: Honeycomb, names: tuple[str, ...], rule: str):
