@@ -303,7 +303,8 @@ BIG = 10**400  # a TOML integer too large for a float
     (["simulate", "--scene"], f"[scene]\ndrop_height_m = {BIG}\n", "scene.drop_height_m"),
     (["simulate", "--scene"], f"[scene]\nplateau_scale = [1, {BIG}, 1, 1]\n",
      "scene.plateau_scale"),
-    (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n", "honeycomb.excess1"),
+    (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n",
+     "--config {path}: honeycomb.excess1"),  # a vehicle file's refusal names the file
     (["montecarlo", "--n", str(BIG), str(Path(__file__).parents[1] / "examples"
                                          / "montecarlo_dispersed.toml"), "--config"],
      "[ground]\nmu = 0.5\n", "--n"),
@@ -317,6 +318,7 @@ def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, capsys, a
     out = [] if argv[0] == "config" else ["--out", str(tmp_path / "o")]
     assert main([*argv, str(path), *out]) == 2
     err = capsys.readouterr().err
+    needle = needle.format(path=path)
     assert err.count("\n") == 1 and err.startswith(f"jaxland: error: {needle} = 1000"), err
     assert err.endswith(": is too large for a float\n"), err
 
