@@ -430,6 +430,16 @@ def test_a_simulate_folder_reruns_its_landing_from_its_own_files(tmp_path, capsy
     assert float(eff.honeycomb.F1) == pytest.approx(0.8 * float(paper.honeycomb.F1), rel=1e-12)
     assert float(eff.honeycomb.F2) == pytest.approx(0.8 * float(paper.honeycomb.F2), rel=1e-12)
     assert float(eff.ground.mu) == 0.5
+    # the scaled values are the scene's, not the paper's: their source is not cited as theirs
+    lines = {line.split(" = ")[0]: line for line in
+             (first / "effective_vehicle.toml").read_text().splitlines() if " = " in line}
+    for key, paper_source in (("m_body_kg", "paper section 3.1"), ("I_xx_kg_m2", None),
+                              ("F1_N", "our calibration"), ("F2_N", "our calibration")):
+        assert "; APPLIED BY THE SCENE (friction, mass_scale or plateau_scale): not the paper " \
+               "vehicle's value " in lines[key], lines[key]
+        assert paper_source is None or f"]; {paper_source}" not in lines[key], lines[key]
+    for key in ("k_N_per_m", "mu"):  # left alone, and set by the scene to the paper's 0.5
+        assert "]; paper Table 2; rule" in lines[key], lines[key]
 
 
 def test_the_stroke_figures_mark_the_breakpoints_of_the_honeycomb_run(tmp_path, capsys,
