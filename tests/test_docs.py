@@ -8,6 +8,7 @@
 - docs/model.md keeps its numbered sections 1-9 (the code cites "docs/model.md section N").
 """
 
+import json
 import re
 import subprocess
 import sys
@@ -58,6 +59,24 @@ def test_an_unknown_table_is_an_error(tmp_path):
     page.write_text("<!-- table:no-such-table -->\n<!-- /table -->\n")
     with pytest.raises(SystemExit, match="unknown table"):
         docs_tables.main(["--check", str(page)])
+
+
+def test_the_paper_table_lists_every_impact():
+    """docs/paper-comparison.md's "later impacts" row showed 3 of the default run's 5 later
+    impacts (benchmarks/paper_reproduction.py kept impacts 2-4): every jaxland column of
+    paper_table.json lists each impact after the first, and the rendered row shows them all."""
+    data = json.loads((ROOT / "benchmarks" / "results" / "paper_table.json").read_text())
+    header, _, *rows = docs_tables.paper_table().splitlines()
+    names = [c.strip() for c in header.strip("|").split("|")]
+    cells = next([c.strip() for c in r.strip("|").split("|")] for r in rows
+                 if r.startswith("| later impacts"))
+    runs = [c for c in data if "n_impacts" in data[c]]
+    assert len(runs) >= 2, list(data)
+    for c in runs:
+        later = data[c]["later_impacts_s"]
+        assert len(later) == data[c]["n_impacts"] - 1, (c, later)
+        cell = cells[names.index(docs_tables.PAPER_COLUMNS.get(c, c))]
+        assert len(cell.split(", ")) == len(later), (c, cell)
 
 
 def _anchors(page: Path) -> set[str]:
