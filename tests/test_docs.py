@@ -79,6 +79,31 @@ def test_the_paper_table_lists_every_impact():
         assert len(cell.split(", ")) == len(later), (c, cell)
 
 
+@pytest.fixture(scope="module")
+def summaries(tmp_path_factory) -> dict:
+    """simulate's summary.json of a short landing (touchdown at 0.2 s), quarter and 3-D."""
+    import jaxland as jl
+
+    out = {}
+    for model in ("quarter", "full"):
+        path = tmp_path_factory.mktemp(model) / "summary.json"
+        jl.simulate(t_end=0.25, model=model).to_json(path)
+        out[model] = json.loads(path.read_text())
+    return out
+
+
+@pytest.mark.parametrize("model", ["quarter", "full"])
+def test_formats_md_describes_every_key_of_simulates_summary(summaries, model):
+    """summary.json wrote keys docs/formats.md never named (solver_ok, n_rejected_steps,
+    smoothing, the foot's normal and tangential acceleration, the 3-D final_position_m ...):
+    each top-level key is named, in backticks, in its section on simulate's folder."""
+    text = (DOCS / "formats.md").read_text()
+    section = text[text.index("**`jaxland simulate`**"):text.index("**`jaxland montecarlo`**")]
+    named = {" ".join(span.split()) for span in re.findall(r"`([^`]+)`", section)}
+    missing = [k for k in summaries[model] if k not in named]
+    assert not missing, f"docs/formats.md does not describe summary.json's {missing}"
+
+
 def _anchors(page: Path) -> set[str]:
     """GitHub's heading anchors: lower case, punctuation dropped, spaces to hyphens."""
     heads = re.findall(r"^#+\s+(.*)$", page.read_text(), re.M)
