@@ -170,18 +170,26 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         raise
 
 
-def load_vehicle(path, what: str = "config") -> Vehicle:
-    """Load and validate a vehicle TOML file (refusals name it as ``what``: the flag or key
-    that gave the path). A file that sets no parameter (empty, comments, empty tables) is
-    refused: every key a file leaves out takes the paper's value, so it would load, silently,
-    as the paper vehicle."""
-    data = read_toml(path, what)
+def load_vehicle(path, what: str | None = None) -> Vehicle:
+    """Load and validate a vehicle TOML file. ``what`` is the flag or key that gave the path
+    (``--config``, ``design.vehicle``): every refusal names the file by it, a refusal of a
+    value as ``WHAT PATH: section.key = value: rule``. Without ``what`` (a caller that names
+    the file itself) a value's refusal names the key alone, and the file's own as ``config``.
+    A file that sets no parameter (empty, comments, empty tables) is refused: every key a file
+    leaves out takes the paper's value, so it would load, silently, as the paper vehicle."""
+    name = "config" if what is None else what
+    data = read_toml(path, name)
     if all(isinstance(t, dict) and not t for t in data.values()):
-        raise ConfigError(what, str(path), "sets no vehicle parameter, and would run as the "
+        raise ConfigError(name, str(path), "sets no vehicle parameter, and would run as the "
                           "paper vehicle (every key left out takes the paper's value); give "
                           "the vehicle's values (`jaxland config` prints the paper vehicle's, "
                           "to edit)")
-    return vehicle_from_dict(data)
+    try:
+        return vehicle_from_dict(data)
+    except ConfigError as err:
+        if what is None:
+            raise
+        raise ConfigError(f"{what} {path}: {err.field}", err.value, err.rule) from None
 
 
 def _breakpoint_error(hc: Honeycomb, names: tuple[str, ...], rule: str):
@@ -469,14 +477,39 @@ def _unit(md) -> str:
     return "-" if unit == "1" else unit
 
 
+def _value_text(md, val) -> str:
+    """A field's value as the TOML writes it (in the key's units; an extension that is off, at
+    its "off" value)."""
+    if val is None:  # an extension, off
+        val = md["off"] if md.get("table") else md["off"] * md["to_si"]
+    if md.get("table"):
+        return "[" + ", ".join(_fmt(float(v) / md["to_si"])
+                               for v in np.ravel(np.asarray(val, dtype=float))) + "]"
+    return _fmt(float(val) / md["to_si"])
+
+
+def _texts(veh: Vehicle) -> dict:
+    """``"section.key" -> value as written`` of every documented parameter of ``veh``."""
+    return {f"{section}.{f.metadata['toml']}": _value_text(f.metadata, getattr(mod, f.name))
+            for section, mod, f in vehicle_fields(veh)}
+
+
 def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
-                    given_by: str = "the configuration file") -> str:
-    """Render a vehicle (default: the paper's) as a commented TOML document. Keys in
-    ``given`` ("section.key") are marked as set by ``given_by`` instead of citing their
-    default's source; with ``honeycomb.cells`` given, F1_N and F2_N as derived from its
-    cells."""
+                    given_by: str = "the configuration file", changed_by: str | None = None,
+                    base: Vehicle | None = None) -> str:
+    """Render a vehicle (default: the paper's) as a commented TOML document.
+
+    Each key cites the source of its value. A key whose value, as written, is the paper
+    vehicle's cites the paper vehicle's source; any other never does: keys in ``given``
+    ("section.key") are marked as set by ``given_by``; with ``honeycomb.cells`` given, F1_N and
+    F2_N as derived from its cells; a key whose value differs from ``base``'s (default: the
+    paper vehicle) as ``changed_by`` (who changed it: "FITTED", "DESIGNED", ...), where given;
+    and every other key that differs from the paper vehicle as differing from it, with the
+    paper vehicle's value and that value's source."""
     veh = paper_vehicle() if veh is None else veh
     given = set() if given is None else given
+    paper = _texts(paper_vehicle())
+    start = paper if base is None else _texts(base)
     lines = [
         "# jaxland vehicle configuration (SI units unless the key says otherwise).",
         "# Each key: value, then its meaning, source and validity rule.",
@@ -486,15 +519,17 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
 
     def line(section, md, val):
         key = f"{section}.{md['toml']}"
-        source = (f"SET BY {given_by}" if key in given else
-                  f"DERIVED from the [honeycomb.cells] of {given_by} (Wierzbicki 1983)"
-                  if key in ("honeycomb.F1_N", "honeycomb.F2_N") and "honeycomb.cells" in given
-                  else md["source"])
-        if md.get("table"):
-            text = "[" + ", ".join(_fmt(float(v) / md["to_si"])
-                                   for v in np.ravel(np.asarray(val, dtype=float))) + "]"
-        else:
-            text = _fmt(float(val) / md["to_si"])
+        text = _value_text(md, val)
+        if key in given:
+            source = f"SET BY {given_by}"
+        elif key in ("honeycomb.F1_N", "honeycomb.F2_N") and "honeycomb.cells" in given:
+            source = f"DERIVED from the [honeycomb.cells] of {given_by} (Wierzbicki 1983)"
+        elif text == paper[key]:
+            source = md["source"]
+        else:  # not the paper's value: its source is not the paper vehicle's
+            was = f"the paper vehicle's value {paper[key]}, whose source is {md['source']}"
+            source = (f"{changed_by}: not {was}" if changed_by is not None
+                      and text != start[key] else f"NOT {was}")
         return (f"{md['toml']} = {text}"
                 f"  # {md['doc']} [{_unit(md)}]; {source}; rule {md['rule']}")
 
@@ -504,11 +539,7 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
     for section, mod in (("leg", veh.leg), ("honeycomb", veh.honeycomb), ("ground", veh.ground)):
         lines += ["", f"[{section}]"]
         for f in field_info(type(mod)):
-            md = f.metadata
-            val = getattr(mod, f.name)
-            if val is None:  # an extension, off
-                val = md["off"] if md.get("table") else md["off"] * md["to_si"]
-            lines.append(line(section, md, val))
+            lines.append(line(section, f.metadata, getattr(mod, f.name)))
         if section == "honeycomb":
             bonded_doc = Honeycomb.__dataclass_fields__["bonded"].metadata["doc"]
             lines.append(f"bonded = {_fmt(mod.bonded)}  # {bonded_doc}")

@@ -230,6 +230,47 @@ def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(t
     assert err.count("\n") == 1 and err.startswith("jaxland: error: design.vehicle = "), err
 
 
+# a vehicle file's content each rule refuses: (file text, the refusal after the file's name)
+BAD_VEHICLE_FILES = [
+    ("[body]\nm_body_kg = -1000\n", "body.m_body_kg = -1000.0: must be > 0 (mass of the main"),
+    ("[bodyx]\nm_body_kg = 1000\n", "bodyx = '<table>': unknown section; known: body, "),
+    ("[ground]\nfriction = 0.5\n", "ground.friction = 0.5: unknown key; known: "),
+    ('[ground]\nmu = "high"\n', "ground.mu = 'high': must be a number"),
+    ("[honeycomb]\nx_L2_mm = 0.3\n", "honeycomb.x_L2_mm = 0.3: breakpoints must increase"),
+    ("[honeycomb.cells]\nsecondary_cell_size_mm = 100.0\n",
+     "honeycomb.F2_N (from [honeycomb.cells]) = "),
+]
+
+
+@pytest.mark.parametrize("text,refusal", BAD_VEHICLE_FILES,
+                         ids=[b[1].split(" ")[0] for b in BAD_VEHICLE_FILES])
+def test_a_bad_vehicle_files_refusal_names_the_file_by_what_gave_it(tmp_path, capsys, text,
+                                                                     refusal):
+    """docs/formats.md: a refusal of a vehicle file's content names the file by what gave it
+    (--config, design.vehicle), in one line (exit 2), with the field, value and rule: one
+    without it named only `body.m_body_kg`, as if the flags or a spec had set it."""
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(text)
+    examples = Path(__file__).parents[1] / "examples"
+    spec = tmp_path / "design.toml"
+    spec.write_text(f"[design]\nvehicle = {json.dumps(str(cfg))}\n"
+                    + (examples / "design_paper_gear.toml").read_text().split("[design]\n", 1)[1])
+    for argv, by in (
+            (["config", "--config", str(cfg)], "--config"),
+            (["simulate", "--config", str(cfg), "--out", str(tmp_path / "o")], "--config"),
+            (["montecarlo", str(examples / "montecarlo_dispersed.toml"), "--config", str(cfg),
+              "--out", str(tmp_path / "o")], "--config"),
+            (["design", str(spec), "--out", str(tmp_path / "o")], "design.vehicle")):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith(f"jaxland: error: {by} {cfg}: {refusal}") and \
+            err.count("\n") == 1, (argv, err)
+        assert not (tmp_path / "o").exists()
+    with pytest.raises(jl.ConfigError) as caught:  # Python: named by the caller's `what`
+        jl.load_vehicle(cfg, "--config")
+    assert caught.value.field.startswith(f"--config {cfg}: ")
+
+
 @pytest.mark.parametrize("text", ["", "# a scene\n", "[scene]\n"])
 def test_a_scene_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(tmp_path, capsys,
                                                                             text):
@@ -262,7 +303,8 @@ BIG = 10**400  # a TOML integer too large for a float
     (["simulate", "--scene"], f"[scene]\ndrop_height_m = {BIG}\n", "scene.drop_height_m"),
     (["simulate", "--scene"], f"[scene]\nplateau_scale = [1, {BIG}, 1, 1]\n",
      "scene.plateau_scale"),
-    (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n", "honeycomb.excess1"),
+    (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n",
+     "--config {path}: honeycomb.excess1"),  # a vehicle file's refusal names the file
     (["montecarlo", "--n", str(BIG), str(Path(__file__).parents[1] / "examples"
                                          / "montecarlo_dispersed.toml"), "--config"],
      "[ground]\nmu = 0.5\n", "--n"),
@@ -276,6 +318,7 @@ def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, capsys, a
     out = [] if argv[0] == "config" else ["--out", str(tmp_path / "o")]
     assert main([*argv, str(path), *out]) == 2
     err = capsys.readouterr().err
+    needle = needle.format(path=path)
     assert err.count("\n") == 1 and err.startswith(f"jaxland: error: {needle} = 1000"), err
     assert err.endswith(": is too large for a float\n"), err
 
@@ -387,6 +430,16 @@ def test_a_simulate_folder_reruns_its_landing_from_its_own_files(tmp_path, capsy
     assert float(eff.honeycomb.F1) == pytest.approx(0.8 * float(paper.honeycomb.F1), rel=1e-12)
     assert float(eff.honeycomb.F2) == pytest.approx(0.8 * float(paper.honeycomb.F2), rel=1e-12)
     assert float(eff.ground.mu) == 0.5
+    # the scaled values are the scene's, not the paper's: their source is not cited as theirs
+    lines = {line.split(" = ")[0]: line for line in
+             (first / "effective_vehicle.toml").read_text().splitlines() if " = " in line}
+    for key, paper_source in (("m_body_kg", "paper section 3.1"), ("I_xx_kg_m2", None),
+                              ("F1_N", "our calibration"), ("F2_N", "our calibration")):
+        assert "; APPLIED BY THE SCENE (friction, mass_scale or plateau_scale): not the paper " \
+               "vehicle's value " in lines[key], lines[key]
+        assert paper_source is None or f"]; {paper_source}" not in lines[key], lines[key]
+    for key in ("k_N_per_m", "mu"):  # left alone, and set by the scene to the paper's 0.5
+        assert "]; paper Table 2; rule" in lines[key], lines[key]
 
 
 def test_the_stroke_figures_mark_the_breakpoints_of_the_honeycomb_run(tmp_path, capsys,

@@ -1,5 +1,6 @@
 """Configuration: round trips, the bundled paper file, and every refused input."""
 
+import dataclasses
 import tomllib
 from pathlib import Path
 
@@ -30,6 +31,50 @@ def test_toml_round_trip_and_bundled_file():
     assert _leaves(again) == _leaves(jl.paper_vehicle())
     assert (ROOT / "data" / "paper_vehicle.toml").read_text() == text, (
         "stale: regenerate with `jaxland config > data/paper_vehicle.toml`")
+
+
+def _comments(text: str) -> dict:
+    """``"section.key" -> the comment`` of every key line of a vehicle TOML."""
+    out, section = {}, None
+    for line in text.splitlines():
+        if line.startswith("["):
+            section = line.strip("[]")
+        elif " = " in line and not line.startswith("#"):
+            out[f"{section}.{line.split(' = ')[0]}"] = line.split("  # ", 1)[1]
+    return out
+
+
+def test_a_value_that_is_not_the_papers_does_not_cite_the_papers_source():
+    """A fitted, designed or scaled vehicle's file cited the paper vehicle's source for values
+    that are not the paper's (a fitted k_b1 "F1 / x_L1 with the paper's x_L1 = 0.47 mm", a
+    fitted D_b "paper Table 2", a scaled m_body "paper section 3.1"). Each key that differs
+    from the paper vehicle says so, with the paper's value and its source; ``changed_by``
+    names who changed the keys that differ from ``base``; a paper value keeps its source."""
+    from jaxland._config import vehicle_fields
+
+    paper = jl.paper_vehicle()
+    start = dataclasses.replace(paper, m_body=1344.0)  # a start vehicle off the paper's
+    veh = dataclasses.replace(start, leg=dataclasses.replace(paper.leg, D_b=1.2),
+                              honeycomb=dataclasses.replace(paper.honeycomb, k_b1=9028070.40609,
+                                                            F1=5427.06))
+    changed = {"body.m_body_kg", "leg.D_b_s_per_m", "honeycomb.k_b1_N_per_m", "honeycomb.F1_N"}
+    papers = tomllib.loads(jl.vehicle_to_toml())
+    for kwargs, fitted in (({}, set()), (dict(changed_by="FITTED", base=start),
+                                         changed - {"body.m_body_kg"})):
+        text = jl.vehicle_to_toml(veh, **kwargs)
+        assert _leaves(jl.vehicle_from_dict(tomllib.loads(text))) == _leaves(veh)
+        comments = _comments(text)
+        for section, _, f in vehicle_fields(veh):
+            md = f.metadata
+            key = f"{section}.{md['toml']}"
+            own = f"]; {md['source']}; rule"  # the paper's source, cited as the value's
+            if key not in changed:
+                assert own in comments[key], (key, comments[key])
+                continue
+            was = (f"the paper vehicle's value {papers[section][md['toml']]!r}, whose source "
+                   f"is {md['source']}; rule")
+            said = f"FITTED: not {was}" if key in fitted else f"NOT {was}"
+            assert said in comments[key] and own not in comments[key], (key, comments[key])
 
 
 def test_partial_config_and_cells_derivation(tmp_path):

@@ -8,6 +8,7 @@
 - docs/model.md keeps its numbered sections 1-9 (the code cites "docs/model.md section N").
 """
 
+import json
 import re
 import subprocess
 import sys
@@ -58,6 +59,49 @@ def test_an_unknown_table_is_an_error(tmp_path):
     page.write_text("<!-- table:no-such-table -->\n<!-- /table -->\n")
     with pytest.raises(SystemExit, match="unknown table"):
         docs_tables.main(["--check", str(page)])
+
+
+def test_the_paper_table_lists_every_impact():
+    """docs/paper-comparison.md's "later impacts" row showed 3 of the default run's 5 later
+    impacts (benchmarks/paper_reproduction.py kept impacts 2-4): every jaxland column of
+    paper_table.json lists each impact after the first, and the rendered row shows them all."""
+    data = json.loads((ROOT / "benchmarks" / "results" / "paper_table.json").read_text())
+    header, _, *rows = docs_tables.paper_table().splitlines()
+    names = [c.strip() for c in header.strip("|").split("|")]
+    cells = next([c.strip() for c in r.strip("|").split("|")] for r in rows
+                 if r.startswith("| later impacts"))
+    runs = [c for c in data if "n_impacts" in data[c]]
+    assert len(runs) >= 2, list(data)
+    for c in runs:
+        later = data[c]["later_impacts_s"]
+        assert len(later) == data[c]["n_impacts"] - 1, (c, later)
+        cell = cells[names.index(docs_tables.PAPER_COLUMNS.get(c, c))]
+        assert len(cell.split(", ")) == len(later), (c, cell)
+
+
+@pytest.fixture(scope="module")
+def summaries(tmp_path_factory) -> dict:
+    """simulate's summary.json of a short landing (touchdown at 0.2 s), quarter and 3-D."""
+    import jaxland as jl
+
+    out = {}
+    for model in ("quarter", "full"):
+        path = tmp_path_factory.mktemp(model) / "summary.json"
+        jl.simulate(t_end=0.25, model=model).to_json(path)
+        out[model] = json.loads(path.read_text())
+    return out
+
+
+@pytest.mark.parametrize("model", ["quarter", "full"])
+def test_formats_md_describes_every_key_of_simulates_summary(summaries, model):
+    """summary.json wrote keys docs/formats.md never named (solver_ok, n_rejected_steps,
+    smoothing, the foot's normal and tangential acceleration, the 3-D final_position_m ...):
+    each top-level key is named, in backticks, in its section on simulate's folder."""
+    text = (DOCS / "formats.md").read_text()
+    section = text[text.index("**`jaxland simulate`**"):text.index("**`jaxland montecarlo`**")]
+    named = {" ".join(span.split()) for span in re.findall(r"`([^`]+)`", section)}
+    missing = [k for k in summaries[model] if k not in named]
+    assert not missing, f"docs/formats.md does not describe summary.json's {missing}"
 
 
 def _anchors(page: Path) -> set[str]:

@@ -68,7 +68,8 @@ class DesignResult:
             cells = {**self.spec.cells, **self.values}
             lines.append("# honeycomb cells (Wierzbicki, F1_N / F2_N below derive from them): "
                          + ", ".join(f"{k} = {cells[k]:.6g}" for k in CELL_VARS))
-        return "\n".join(lines) + "\n" + vehicle_to_toml(self.vehicle)
+        return "\n".join(lines) + "\n" + vehicle_to_toml(self.vehicle, changed_by="DESIGNED",
+                                                         base=self.baseline)
 
     def report(self) -> dict:
         spec, prob = self.spec, self.problem

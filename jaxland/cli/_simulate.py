@@ -129,12 +129,15 @@ def cmd_simulate(args) -> int:
         (staging / "vehicle.toml").write_text(
             f"# the vehicle given ({given}), before the scene's friction, mass_scale and "
             "plateau_scale:\n# with scene.toml (--config vehicle.toml --scene scene.toml) it "
-            "reruns this landing\n" + vehicle_to_toml(vehicle))
+            "reruns this landing\n" + vehicle_to_toml(
+                vehicle, changed_by=f"GIVEN BY --config {args.config}" if args.config else None))
         (staging / "effective_vehicle.toml").write_text(
             "# the vehicle as the landing ran it: vehicle.toml with scene.toml's friction, "
             "mass_scale and plateau_scale\n# applied. For reading: beside scene.toml, which "
             "applies them again, it runs another landing\n"
-            + (f"# {note}\n" if note else "") + vehicle_to_toml(effective))
+            + (f"# {note}\n" if note else "") + vehicle_to_toml(
+                effective, changed_by="APPLIED BY THE SCENE (friction, mass_scale or "
+                "plateau_scale)", base=vehicle))
         if not args.no_plots:
             if model == "quarter":
                 from .._plots import plot_landing
