@@ -1860,8 +1860,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # a fit with the crush peak is checked against its special case without it (peak1 = 1),
     # fitted in a thread of its own beside this one (``_no_peak``: a caller that has that
     # fit, --compare-models, hands it over). On this fit's program with the peak switched
-    # off, started once that is compiled: it then compiles nothing, where a program of its
-    # own, compiled beside this one, took longer than this fit's optimisation
+    # off, started once that is compiled, so that it compiles nothing: a program of its own,
+    # traced and compiled beside this one, costs more wall time than this fit's optimisation
     check = _no_peak is None and wants_no_peak_check(names, _inner)
     on_program = check and problem.peak_switches_off
     no_peak_future = without_peak() if check and not on_program else None

@@ -491,8 +491,8 @@ class CalibrationProblem:
         half = np.full(len(names), 0.5)
         if _vehicle_key(set_values(veh, names, half)) != _vehicle_key(
                 set_values(_without_primary_peak(self.vehicle), names, half)):
-            raise jl.ConfigError("vehicle", "given", "its fixed values differ from the "
-                                 "problem's, whose compiled functions hold them")
+            raise jl.ConfigError("vehicle", "the one given", "its fixed values must be the "
+                                 "problem's, which its compiled functions hold")
         new = copy.copy(self)
         new.__dict__.pop("_args_cache", None)
         new.names, new.vehicle, new.peak_on = names, jl.validate_vehicle(veh), False
