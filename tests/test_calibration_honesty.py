@@ -580,6 +580,10 @@ def test_a_peak_switched_off_is_the_model_without_it():
             assert np.all(np.isfinite(full)) and len(held) == full.shape[1] - j1.shape[1]
             assert np.all(full[:, held] == 0.0)
         assert off.vehicle_at(theta).honeycomb.peak_ratio1 is None
+    with pytest.raises(jl.ConfigError, match="cannot switch the primary crush peak off"):
+        plain.without_peak()
+    with pytest.raises(jl.ConfigError, match="fixed values must be the problem's"):
+        peak.without_peak(set_values(veh, ("k_tan",), [2.0 * veh.ground.k_tan]))
 
 
 def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_path, capsys):
