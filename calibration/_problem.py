@@ -620,15 +620,23 @@ class CalibrationProblem:
     def compile(self, theta) -> None:
         """Compile (or find compiled) both functions for this problem's shapes: the residual's
         in a second thread while the Jacobian's compiles here (XLA compiles without the
-        interpreter lock: on two cores the residual's compilation then costs no wall time)."""
+        interpreter lock: on two cores the residual's compilation then costs no wall time),
+        and after it, in that thread, the transforms of ``values`` and
+        ``transform_jacobian``, which every fit reads (otherwise compiled on its way)."""
         import threading
 
         th = jnp.asarray(theta, dtype=jnp.float64)
         args = self._args()
+
+        def second():
+            self._res(th, *args)[0].block_until_ready()
+            self.values(theta)
+            self.transform_jacobian(theta)
+
         # the residual traced here first: the Jacobian's trace then reuses its jaxpr instead
         # of tracing the landing again, while the residual compiles in the second thread
         self._res_jit.trace(self._embed(th), *args)
-        side = threading.Thread(target=lambda: self._res(th, *args)[0].block_until_ready())
+        side = threading.Thread(target=second)
         side.start()
         try:
             self._jac(th, *args)[0].block_until_ready()
