@@ -1728,7 +1728,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
         fixed_params_term: bool | str = "auto",
         peak_site: str = HONEYCOMB, progress=None, _inner: bool = False,
-        _start_shifts_ms=None, _no_peak: FitResult | None = None) -> FitResult:
+        _start_shifts_ms=None, _no_peak: FitResult | None = None,
+        _program: CalibrationProblem | None = None) -> FitResult:
     """Fit the quarter model's parameters ``params`` to one or more drop tests jointly.
 
     Parameters
@@ -1810,11 +1811,11 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     start_vehicle, start_values = checked.start_vehicle, checked.start_values
     form = peak_form_of(names, peak_form)
     optimiser = levenberg_marquardt if method == "lm" else lbfgs
-    # a fit with the crush peak is checked against its special case without it (peak1 = 1),
-    # fitted here in a thread of its own beside this one, with the peak off in the vehicle
-    # (``_no_peak``: a caller that has that fit, --compare-models, hands it over)
-    no_peak_future = None
-    if _no_peak is None and wants_no_peak_check(names, _inner):
+
+    def without_peak(program=None):
+        """This fit's special case without the crush peak (peak1 = 1), in a thread of its own
+        beside this one: on ``program`` (this fit's problem) with the peak switched off, or,
+        where that cannot switch it off, on its own program, the peak off in the vehicle."""
         np_names = no_peak_names(names)
         start_np = ({k: v for k, v in start.items() if k in np_names}
                     if isinstance(start, dict) else
@@ -1822,14 +1823,16 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
                     if isinstance(start, jl.Vehicle) else None)
         tagged_np = None if progress is None else (
             lambda rec: progress(dict(rec, stage="without the crush peak " + rec["stage"])))
-        no_peak_future = _in_thread(
+        return _in_thread(
             fit, drops, np_names,
             vehicle=_without_primary_peak(drops[0].vehicle if vehicle is None else vehicle),
             start=start_np, windows=windows, refine_window_s=refine_window_s, robust=robust,
             multistart=multistart, method=method, max_iter=max_iter, dt=dt, save_dt=save_dt,
             integrator=integrator, smoothing_m=smoothing_m, smoothing_N=smoothing_N,
             fit_touchdown=fit_touchdown, channels=channels, model_form=False,
-            peak_model_term=False, fixed_params_term=False, progress=tagged_np, _inner=True)
+            peak_model_term=False, fixed_params_term=False, progress=tagged_np, _inner=True,
+            _program=program)
+
     # one problem (one compilation) for every stage: the windows are masks. With the
     # peak-shape term, its functions serve every peak form (``shared_forms``), so that the
     # term's refits compile nothing: a second program for the other forms cost about twice
@@ -1843,15 +1846,28 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     # time. Every fit without a peak does so, whether the term runs or not, so that a fit's
     # values do not depend on the term's setting
     switch = has_no_peak(names, start_vehicle) or (_inner and form == "linear")
-    problem = CalibrationProblem(drops, names, vehicle=start_vehicle, window_s=stages_w[-1],
-                                 pre_s=PRE_S, dt=dt, save_dt=save_dt, integrator=integrator,
-                                 smoothing_m=smoothing_m, smoothing_N=smoothing_N,
-                                 fit_touchdown=fit_touchdown, channels=channels,
-                                 peak_form=form if shared else peak_form, shared_forms=shared,
-                                 peak_switch=switch, peak_site=peak_site)
+    if _program is not None:  # the no-peak check's fit: its caller's program, the peak off
+        problem = _program.without_peak(start_vehicle)
+    else:
+        problem = CalibrationProblem(
+            drops, names, vehicle=start_vehicle, window_s=stages_w[-1], pre_s=PRE_S, dt=dt,
+            save_dt=save_dt, integrator=integrator, smoothing_m=smoothing_m,
+            smoothing_N=smoothing_N, fit_touchdown=fit_touchdown, channels=channels,
+            peak_form=form if shared else peak_form, shared_forms=shared, peak_switch=switch,
+            peak_site=peak_site)
     theta0 = problem.theta_from(shifts_ms=_start_shifts_ms)
     forms_thread = precompile_forms(problem, form) if forms and not shared else None
+    # a fit with the crush peak is checked against its special case without it (peak1 = 1),
+    # fitted in a thread of its own beside this one (``_no_peak``: a caller that has that
+    # fit, --compare-models, hands it over). On this fit's program with the peak switched
+    # off, started once that is compiled, so that it compiles nothing: a program of its own,
+    # traced and compiled beside this one, costs more wall time than this fit's optimisation
+    check = _no_peak is None and wants_no_peak_check(names, _inner)
+    on_program = check and problem.peak_switches_off
+    no_peak_future = without_peak() if check and not on_program else None
     problem.compile(theta0)
+    if on_program:
+        no_peak_future = without_peak(problem)
     history, stages = [], []
     n_ms = len(windows) - 1 if len(windows) > 1 else 0  # stages run from every start
 

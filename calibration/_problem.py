@@ -35,13 +35,17 @@ form) at the crush p so far (from the crush's start on). The stroke and the body
 acceleration are the drop's without the peak: a force the motion does not show, as a load
 cell's artefact.
 
-With ``peak_switch`` the primary crush peak (``PEAK_PARAMS``, the law's linear form) is
-switched on or off at run time instead: the compiled functions fit ``switch_names`` (the
-problem's list without PEAK_PARAMS, then PEAK_PARAMS) and take the switch as an argument,
-off for a problem that does not fit the peak (its peak coordinates held at 0, their Jacobian
-columns dropped, the peak ratio read as exactly 1: no peak) and on for one that fits it. So
-a fit without the peak and its repetition with the peak (the missing-peak term of ``fit``)
-share one compiled program.
+Every compiled function whose parameters hold peak1 switches the primary crush peak on or
+off at run time (the first data argument): on for a problem that fits peak1, off for its
+special case without the peak (``CalibrationProblem.without_peak``: the peak's coordinates
+held in the slot, their Jacobian columns dropped, the peak ratio read as exactly 1, so that
+the peak's height (r - 1) F1, its form's excess and the force channels' gain are 0, 0 and
+1: no peak). So a fit with the peak and its check against the model without it
+(``fit``'s no-peak check) share one compiled program. With ``peak_switch`` the peak is the
+law's linear one (``PEAK_PARAMS``) and a problem without it runs on that switch too: the
+compiled functions fit ``switch_names`` (the problem's list without PEAK_PARAMS, then
+PEAK_PARAMS), so that a fit without the peak and its repetition with the peak (the
+missing-peak term of ``fit``) share one compiled program.
 
 The integrator is configurable (``integrator``, ``smoothing_m``, ``smoothing_N``: the
 ``jaxland.Solver`` fields ``method``, ``smoothing_m``, ``smoothing_N``), restricted to the
@@ -64,12 +68,14 @@ from jaxland import FIXED_STEP_METHODS
 from ._data import CHANNELS, LEG_COLUMN, DropTest, base_channel
 from ._filter import IDENTITY, filtfilt_jax, filtfilt_np, noise_gain, settle_time_s, white_lag1
 from ._parameters import (
+    EXP_TABLE_SPAN,
     FORCES,
     FORM_INDEX,
     HONEYCOMB,
     PEAK_FORMS,
     PEAK_PARAMS,
     RISE_FORMS,
+    SHAPE_PARAMS,
     check_names,
     check_peak_site,
     forms_vehicle,
@@ -84,7 +90,7 @@ __all__ = ["CalibrationProblem", "INTEGRATORS", "check_integrator", "shared_name
 
 MS = 1e-3  # the touchdown shifts are fitted in milliseconds
 SHARED = "shared"  # the compiled functions' peak form: every form, chosen at run time
-SWITCH = "switch"  # the compiled functions' primary peak: the linear one, on or off at run time
+SWITCH = "switch"  # the compiled functions' primary peak: the linear one, fitted or not
 FORCE_CHANNELS = ("normal_force_N", "buffer_force_N")
 PRIMARY_PEAK_FIELDS = ("peak_ratio1", "peak_rise1", "excess1")  # None: off
 PLAIN = 1e150  # Huber threshold that never acts (plain least squares)
@@ -157,9 +163,11 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
               peak_site=HONEYCOMB):
     """(residual_fn, jacobian_fn) for this vehicle, parameter selection, solver and channels
     (and whether a CFC filter acts, and the primary peak's form: None, the vehicle's own;
-    SHARED, the form's code ``FORM_INDEX`` as the first data argument; SWITCH, the linear
-    peak on or off by the first data argument; and where it sits, ``PEAK_SITES``); compiled
-    once and shared (data, speeds, windows and filter coefficients are arguments)."""
+    SHARED, the form's code ``FORM_INDEX`` as a data argument; SWITCH, the vehicle's linear
+    one, ``names`` being ``switch_names``; and where it sits, ``PEAK_SITES``); compiled once
+    and shared (data, speeds, windows and filter coefficients are arguments). Where ``names``
+    hold peak1 the first data argument switches the primary peak on or off (module
+    docstring), before the form's code."""
     key = (_vehicle_key(vehicle), names, solver.dt, solver.t_end, solver.save_dt,
            solver.method, solver.smoothing_m, solver.smoothing_N, channels, fit_t0, filtered,
            peak_form, peak_site)
@@ -168,9 +176,12 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
     model_cols = tuple(CHANNELS[base_channel(c)][1] for c in channels)
     on_forces = np.array([base_channel(c) in FORCE_CHANNELS for c in channels])
     n_z = len(names)
+    switched = "peak1" in names
 
     def residual(theta, *args):
-        if peak_form in (SHARED, SWITCH):
+        if switched:
+            on, *args = args
+        if peak_form == SHARED:
             form, *args = args
         speeds, rel_t, data, inv_sigma, mask, huber_c, coeffs = args
         z = theta[:n_z]
@@ -178,12 +189,12 @@ def _compiled(vehicle, names, solver, channels, fit_t0, filtered=False, peak_for
         bounds_form = form if peak_form == SHARED else None if peak_form == SWITCH else peak_form
         veh = set_values(vehicle, names, from_unconstrained(z, names, vehicle, bounds_form,
                                                             peak_site))
+        if switched:  # off: ratio exactly 1, the peak's height (r - 1) F1 is 0 in every form
+            veh = eqx.tree_at(lambda v: v.honeycomb.peak_ratio1, veh,
+                              jnp.where(on, veh.honeycomb.peak_ratio1, 1.0))
         if peak_form == SHARED:
             veh = forms_vehicle(veh, form)
-        elif peak_form == SWITCH:  # off: ratio exactly 1, the peak's height (r - 1) F1 is 0
-            veh = eqx.tree_at(lambda v: v.honeycomb.peak_ratio1, veh,
-                              jnp.where(form, veh.honeycomb.peak_ratio1, 1.0))
-        elif peak_form is not None:
+        elif peak_form not in (None, SWITCH):
             veh = peak_form_vehicle(veh, peak_form)
         scenes = jl.Scene.batch(drop_height=0.0, sink_speed=speeds)
         if peak_site == FORCES:  # the drop without the peak; the peak on the force channels
@@ -300,7 +311,7 @@ class CalibrationProblem:
         jl.validate_vehicle(_without_primary_peak(self.vehicle) if peak_site == FORCES
                             else self.vehicle)
         self.peak_switch = bool(peak_switch)
-        self.peak_on = all(n in self.names for n in PEAK_PARAMS)
+        self.peak_on = "peak1" in self.names  # (with peak_switch: all of PEAK_PARAMS, checked)
         if self.peak_switch:
             hc = self.vehicle.honeycomb
             if self.shared_forms or peak_form is not None or "L_rise1" in self.names:
@@ -311,7 +322,8 @@ class CalibrationProblem:
                                      "peak only: the vehicle's primary peak has "
                                      + ("a rise (peak_rise1)" if hc.peak_rise1 is not None
                                         else "an exponential table (excess1)"))
-            if not self.peak_on and any(n in self.names for n in PEAK_PARAMS):
+            if any(n in self.names for n in PEAK_PARAMS) != all(n in self.names
+                                                                 for n in PEAK_PARAMS):
                 raise jl.ConfigError("peak_switch", peak_switch, "needs all of "
                                      + ", ".join(PEAK_PARAMS) + " among the fitted "
                                      "parameters or none")
@@ -407,12 +419,17 @@ class CalibrationProblem:
                          else switch_names(self.names) if self.peak_switch else self.names)
         self._canonical = set_values(self.vehicle, self._z_names,
                                      np.full(len(self._z_names), 0.5))
-        fns = _compiled(self._canonical, self._z_names, self.solver, channels,
-                        self.fit_touchdown, self.filtered,
-                        SHARED if self.shared_forms else SWITCH if self.peak_switch
-                        else peak_form, peak_site)
-        self._res_jit = fns[0]
-        if not (self.shared_forms or self.peak_switch):
+        self._fns = _compiled(self._canonical, self._z_names, self.solver, channels,
+                              self.fit_touchdown, self.filtered,
+                              SHARED if self.shared_forms else SWITCH if self.peak_switch
+                              else peak_form, peak_site)
+        self._res_jit = self._fns[0]
+        self._bind()
+
+    def _bind(self) -> None:
+        """This problem's residual and Jacobian functions on the compiled ones (``_fns``)."""
+        fns = self._fns
+        if self._z_names == self.names:
             self._res, self._jac = fns
             self._embed, self._z_cols = (lambda theta: theta), slice(None)
             self._z_src = np.arange(self.n_z)
@@ -443,6 +460,46 @@ class CalibrationProblem:
             return r, j, failed
 
         self._res, self._jac, self._embed = res, jac, embed
+
+    @property
+    def peak_switches_off(self) -> bool:
+        """Whether the compiled functions switch the primary crush peak off to the model
+        without it (``without_peak``): they fit peak1, and the vehicle holds no tabulated
+        excess (``Honeycomb.excess1``) that the peak's form leaves in place (the shared
+        forms and the tabulated ones build theirs from peak1; the law's forms keep the
+        vehicle's)."""
+        return "peak1" in self._z_names and (
+            self._canonical.honeycomb.excess1 is None or self.shared_forms
+            or self.peak_form in EXP_TABLE_SPAN)
+
+    def without_peak(self, vehicle: jl.Vehicle | None = None) -> CalibrationProblem:
+        """The problem's special case without the primary crush peak, on the same compiled
+        functions (``peak_switches_off``), which it compiles nothing for: the parameters
+        without the peak's (``SHAPE_PARAMS``; theta their coordinates, then the touchdown
+        shifts), the peak switched off at run time. ``vehicle`` (default: the problem's)
+        gives the start values, without its primary peak; its fixed values must be the
+        problem's."""
+        if not self.peak_switches_off:
+            raise jl.ConfigError("peak_switch", False, "the compiled functions cannot switch "
+                                 "the primary crush peak off: they do not fit peak1, or the "
+                                 "vehicle's tabulated peak (excess1) stays in their form")
+        names = tuple(n for n in self.names if n not in SHAPE_PARAMS)
+        if not names:
+            raise jl.ConfigError("params", ",".join(self.names), "only the crush peak's "
+                                 "parameters: the model without the peak fits nothing")
+        veh = _without_primary_peak(self.vehicle if vehicle is None else vehicle)
+        half = np.full(len(names), 0.5)
+        if _vehicle_key(set_values(veh, names, half)) != _vehicle_key(
+                set_values(_without_primary_peak(self.vehicle), names, half)):
+            raise jl.ConfigError("vehicle", "the one given", "its fixed values must be the "
+                                 "problem's, which its compiled functions hold")
+        new = copy.copy(self)
+        new.__dict__.pop("_args_cache", None)
+        new.names, new.vehicle, new.peak_on = names, jl.validate_vehicle(veh), False
+        new.n_z = len(names)
+        new.n_theta = new.n_z + (self.n_theta - self.n_z)
+        new._bind()
+        return new
 
     def windowed(self, window_s: float, channels=None, drops=None) -> CalibrationProblem:
         """The same problem (same compiled functions) fitting only the samples up to
@@ -504,6 +561,12 @@ class CalibrationProblem:
             _COMPILED[key] = jax.jit(jax.jacfwd(f) if jacobian else f)
         return _COMPILED[key]
 
+    @property
+    def _peak_off(self) -> bool:
+        """The primary peak switched off in the compiled functions (``without_peak``, or a
+        problem without the peak on ``peak_switch``'s)."""
+        return "peak1" in self._z_names and not self.peak_on
+
     def _z(self, theta) -> np.ndarray:
         """The compiled functions' parameter coordinates at ``theta`` (numpy)."""
         return np.append(np.asarray(theta, dtype=float), 0.0)[self._z_src]
@@ -522,7 +585,7 @@ class CalibrationProblem:
         veh = set_values(self.vehicle, self.names, self.values(theta))
         if self.peak_site == FORCES:
             return jl.validate_vehicle(_without_primary_peak(veh))
-        if self.peak_form is not None:
+        if self.peak_form is not None and not self._peak_off:
             veh = peak_form_vehicle(veh, self.peak_form)
         return jl.validate_vehicle(veh)
 
@@ -549,7 +612,7 @@ class CalibrationProblem:
                 jnp.asarray(self.huber_c, dtype=jnp.float64), jnp.asarray(self.coeffs))
         if self.shared_forms:  # the peak's form, an argument of the shared functions
             args = (jnp.asarray(self._code(), dtype=jnp.int32), *args)
-        elif self.peak_switch:  # the peak on or off, an argument of the switched functions
+        if "peak1" in self._z_names:  # the peak on or off, an argument of such functions
             args = (jnp.asarray(self.peak_on), *args)
         self._args_cache = (self.mask, self.huber_c, args)
         return args
@@ -557,15 +620,23 @@ class CalibrationProblem:
     def compile(self, theta) -> None:
         """Compile (or find compiled) both functions for this problem's shapes: the residual's
         in a second thread while the Jacobian's compiles here (XLA compiles without the
-        interpreter lock: on two cores the residual's compilation then costs no wall time)."""
+        interpreter lock: on two cores the residual's compilation then costs no wall time),
+        and after it, in that thread, the transforms of ``values`` and
+        ``transform_jacobian``, which every fit reads (otherwise compiled on its way)."""
         import threading
 
         th = jnp.asarray(theta, dtype=jnp.float64)
         args = self._args()
+
+        def second():
+            self._res(th, *args)[0].block_until_ready()
+            self.values(theta)
+            self.transform_jacobian(theta)
+
         # the residual traced here first: the Jacobian's trace then reuses its jaxpr instead
         # of tracing the landing again, while the residual compiles in the second thread
         self._res_jit.trace(self._embed(th), *args)
-        side = threading.Thread(target=lambda: self._res(th, *args)[0].block_until_ready())
+        side = threading.Thread(target=second)
         side.start()
         try:
             self._jac(th, *args)[0].block_until_ready()

@@ -269,15 +269,48 @@ def test_the_interval_names_the_parameters_held_fixed_it_is_conditional_on(
 
 
 @pytest.fixture(scope="module")
-def peak_fit_without_peak():
+def peak_fit_without_peak_programs():
     """The default fit with the primary crush peak (the parameters of --compare-models' peak
     model) of the rig's 0.2 m drop without one, noise only (/tmp's drop_chi1 record of the
-    report: the same truth, noise and stroke offset)."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        res = cal.fit(vr.drop_test(0.2, seed=7, crush_peak=0.0),
-                      cal_fit.DEFAULT_PARAMS + ("peak1", "L_peak1"))
-    return res, [w for w in caught if issubclass(w.category, cal.MisfitWarning)]
+    report: the same truth, noise and stroke offset), its MisfitWarnings, and the compiled
+    functions its problems asked for (``_problem._compiled``'s answers)."""
+    from calibration import _problem
+
+    programs, compiled = [], _problem._compiled
+
+    def spy(*args, **kwargs):
+        fns = compiled(*args, **kwargs)
+        programs.append(fns)
+        return fns
+
+    _problem._compiled = spy
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = cal.fit(vr.drop_test(0.2, seed=7, crush_peak=0.0),
+                          cal_fit.DEFAULT_PARAMS + ("peak1", "L_peak1"))
+    finally:
+        _problem._compiled = compiled
+    return res, [w for w in caught if issubclass(w.category, cal.MisfitWarning)], programs
+
+
+@pytest.fixture(scope="module")
+def peak_fit_without_peak(peak_fit_without_peak_programs):
+    res, warned, _ = peak_fit_without_peak_programs
+    return res, warned
+
+
+def test_the_no_peak_check_runs_on_the_fit_s_own_compiled_program(
+        peak_fit_without_peak_programs):
+    """The fit with the crush peak and its check against the model without it run on one
+    compiled program, the peak switched off at run time for the check: a program of the
+    check's own, compiled beside the fit's, took longer than the fit's optimisation (fails
+    where the check's fit builds one)."""
+    res, _, programs = peak_fit_without_peak_programs
+    check = res.diagnostics["no_peak_check"]
+    assert check["failed"] is None and np.isfinite(check["chi2_no_peak"])
+    assert programs and all(fns is programs[0] for fns in programs)
+    assert res.problem._res_jit is programs[0][0]
 
 
 def test_a_fit_with_the_peak_ends_no_worse_than_its_model_without_it(peak_fit_without_peak):
@@ -509,6 +542,48 @@ def test_the_switched_peak_is_the_law_s_peak_on_and_no_peak_off():
     with pytest.raises(jl.ConfigError, match="peak_switch.*an exponential table"):
         CalibrationProblem([drop], names + ("peak1", "L_peak1"), peak_switch=True,
                            vehicle=peak_form_vehicle(veh, "exp"), **kw)
+
+
+def test_a_peak_switched_off_is_the_model_without_it():
+    """A problem with the crush peak, its peak switched off (``without_peak``: the no-peak
+    check's problem, on the same compiled functions), has the residuals and Jacobian of the
+    plain model without a peak: up to rounding where the peak sits in the honeycomb (the law
+    with a zero excess), bit for bit on the force channels (a gain of exactly 1); every
+    column of the compiled Jacobian is finite, the dropped ones (the peak's) 0, and the other
+    parameters' values are those of the plain model (no bound depends on the held peak)."""
+    from calibration._parameters import FORCES
+    from calibration._problem import CalibrationProblem
+
+    drop = vr.drop_test(0.2, seed=5, crush_peak=0.0)
+    names = cal.DEFAULT_PARAMS
+    kw = dict(window_s=0.06, pre_s=cal_fit.PRE_S)
+    veh = switch_on(drop.vehicle, names + ("peak1", "L_peak1"))
+    plain = CalibrationProblem([drop], names, vehicle=drop.vehicle, **kw)
+    theta = plain.theta_from(None, [0.05])
+    for k, site, shared in ((1e-9, "honeycomb", True), (1e-9, "honeycomb", False),
+                            (0.0, FORCES, False)):
+        peak = CalibrationProblem([drop], names + ("peak1", "L_peak1"), vehicle=veh,
+                                  shared_forms=shared, peak_site=site, **kw)
+        off = peak.without_peak()
+        assert off._res_jit is peak._res_jit and off.names == names and not off.peak_on
+        for th in (theta, theta + np.array([0.1, -0.3, 0.2, -0.1, 0.05, 0.1, 0.0])):
+            r0, j0, _ = plain.residuals_and_jacobian(th)
+            r1, j1, _ = off.residuals_and_jacobian(th)
+            assert j1.shape == j0.shape == (r0.size, len(names) + 1)
+            scale = np.max(np.abs(j0), axis=0)
+            scale = np.where(scale > 0, scale, 1.0)  # F2's column is 0: x_L2 is not reached
+            np.testing.assert_allclose(r1, r0, rtol=0, atol=k * np.max(np.abs(r0)))
+            np.testing.assert_allclose(j1 / scale, j0 / scale, rtol=0, atol=10 * k)
+            np.testing.assert_array_equal(off.values(th), plain.values(th))
+            full = np.asarray(peak._fns[1](off._embed(th), *off._args())[1])
+            held = [c for c in range(full.shape[1] - 1) if c not in off._z_cols]
+            assert np.all(np.isfinite(full)) and len(held) == full.shape[1] - j1.shape[1]
+            assert np.all(full[:, held] == 0.0)
+        assert off.vehicle_at(theta).honeycomb.peak_ratio1 is None
+    with pytest.raises(jl.ConfigError, match="cannot switch the primary crush peak off"):
+        plain.without_peak()
+    with pytest.raises(jl.ConfigError, match="fixed values must be the problem's"):
+        peak.without_peak(set_values(veh, ("k_tan",), [2.0 * veh.ground.k_tan]))
 
 
 def test_the_cli_says_it_added_the_missing_peak_term_and_can_leave_it_out(tmp_path, capsys):
