@@ -395,7 +395,11 @@ class FitResult:
                    + " (fit_report.json, misfit.interval_not_bounded)"]
                   if self.diagnostics.get("interval_bounded") is False else []),
                 ""]
-        return "\n".join(head) + jl.vehicle_to_toml(self.vehicle)
+        # the fitted values against the vehicle the fit started from (a --config's values stay
+        # that file's, not fitted)
+        base = self.problem.vehicle if self.problem is not None else None
+        return "\n".join(head) + jl.vehicle_to_toml(self.vehicle, changed_by="FITTED",
+                                                     base=base)
 
     def traces(self) -> list[dict]:
         """Data and fitted model at the samples of the final window, per drop:

@@ -510,6 +510,11 @@ def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
     fitted = jl.load_vehicle(cli_fit / "fitted_vehicle.toml")
     rep = json.loads((cli_fit / "fit_report.json").read_text())
     assert set(rep["parameters"]) == set(NAMES)
+    # each fitted value says so beside it, not the paper's source of its own value
+    lines = (cli_fit / "fitted_vehicle.toml").read_text().splitlines()
+    for key in ("D_b_s_per_m", "k_b1_N_per_m", "F1_N"):
+        (line,) = [ln for ln in lines if ln.startswith(key + " = ")]
+        assert "FITTED: not the paper vehicle's value" in line, line
     for name, p in rep["parameters"].items():
         assert p["unit"] and p["std_error"] > 0 and p["identified"]
         assert float(get_values(fitted, (name,))[0]) == pytest.approx(p["value"], rel=1e-9)
