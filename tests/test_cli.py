@@ -296,13 +296,33 @@ def test_a_scene_key_that_is_no_table_is_refused_in_one_line(tmp_path, capsys, t
     assert err.count("\n") == 1 and ": scene = " in err and "must be a table" in err, err
 
 
+def test_a_scene_files_refusal_names_the_file_and_a_flags_the_flag(tmp_path, capsys):
+    """A bad value or unknown key in a --scene file is refused as the file's (it read as if a
+    flag had set scene.drop_height_m); a flag that overrides the file's value is named as
+    the flag."""
+    scene = tmp_path / "scene.toml"
+    out = ["--t-end", "0.01", "--no-plots", "--out", str(tmp_path / "o")]
+    for text, field in (("drop_height_m = -1.0\n", "scene.drop_height_m = -1.0"),
+                        ("drop_heigt_m = 1.0\n", "scene.drop_heigt_m = 1.0: unknown key")):
+        scene.write_text(text)
+        assert main(["simulate", "--scene", str(scene), *out]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith(
+            f"jaxland: error: --scene {scene}: {field}"), err
+    scene.write_text("drop_height_m = 0.1\n")
+    assert main(["simulate", "--scene", str(scene), "--drop-height", "-2", *out]) == 2
+    assert capsys.readouterr().err.startswith("jaxland: error: --drop-height = -2")
+    assert not (tmp_path / "o").exists()
+
+
 BIG = 10**400  # a TOML integer too large for a float
 
 
 @pytest.mark.parametrize("argv,text,needle", [
-    (["simulate", "--scene"], f"[scene]\ndrop_height_m = {BIG}\n", "scene.drop_height_m"),
+    (["simulate", "--scene"], f"[scene]\ndrop_height_m = {BIG}\n",
+     "--scene {path}: scene.drop_height_m"),  # a scene file's refusal names the file
     (["simulate", "--scene"], f"[scene]\nplateau_scale = [1, {BIG}, 1, 1]\n",
-     "scene.plateau_scale"),
+     "--scene {path}: scene.plateau_scale"),
     (["config", "--config"], f"[honeycomb]\nexcess1 = [{BIG}]\n",
      "--config {path}: honeycomb.excess1"),  # a vehicle file's refusal names the file
     (["montecarlo", "--n", str(BIG), str(Path(__file__).parents[1] / "examples"

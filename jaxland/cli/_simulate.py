@@ -71,13 +71,31 @@ _SCENE_FLAGS = (  # CLI flag -> scene TOML key (units in the names)
 
 
 def _scene_from_args(args):
-    from .._scene import read_scene_table, scene_from_dict
+    from .._scene import read_scene_table
 
     table = read_scene_table(args.scene, "--scene") if args.scene else {}
+    from_file = set(table)
     for flag, key in _SCENE_FLAGS:
         val = getattr(args, flag)
         if val is not None:
             table[key] = val
+            from_file.discard(key)
+    if args.touchdown_speed is not None:
+        from_file -= {"drop_height_m", "sink_speed_mps"}
+    try:
+        return _scene_of(args, table)
+    except ConfigError as err:  # a value of the file, named by the file (a flag's: by the flag)
+        key = err.field.removeprefix("scene.")
+        if key in from_file and err.field != key:
+            raise ConfigError(f"--scene {args.scene}: {err.field}", err.value, err.rule) from None
+        raise
+
+
+def _scene_of(args, table):
+    """The scene of ``table`` (the scene file's keys, the flags' over them) and
+    --touchdown-speed."""
+    from .._scene import scene_from_dict
+
     if args.touchdown_speed is not None:
         if args.drop_height is not None or args.sink_speed is not None:
             raise ConfigError("--touchdown-speed", args.touchdown_speed,
