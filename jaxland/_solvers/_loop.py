@@ -101,6 +101,13 @@ class Track(eqx.Module):
         return jnp.where(jnp.arange(capacity, dtype=jnp.int32) < self.n_events[..., None],
                          self.event_times[..., :capacity], jnp.nan)
 
+    def peaks_with(self, model: AbstractModel, ev: Evaluation) -> dict:
+        """The running maxima with the values of one evaluated state ``ev``; an upright
+        landing's only (after a tip-over the peaks stop, see ``update``)."""
+        values = model.peak_values(ev.record, ev.accel)
+        upright = self.tip_time < 0.0
+        return {k: jnp.where(upright, fmax(values[k], p), p) for k, p in self.peaks.items()}
+
     def update(self, model: AbstractModel, s, ev: Evaluation, e0, e_scale,
                check: bool = True, count: bool = True) -> Track:
         """With one evaluated state ``s``; ``check``: also the ledger and the failure checks
@@ -110,9 +117,7 @@ class Track(eqx.Module):
         # After a tip-over the body (which has no ground contact of its own) is not a landing
         # any more: peaks, the ledger and failure checks stop there; the tip itself counts.
         upright = self.tip_time < 0.0
-        values = model.peak_values(ev.record, ev.accel)
-        peaks = {k: jnp.where(upright, fmax(values[k], p), p)
-                 for k, p in self.peaks.items()}
+        peaks = self.peaks_with(model, ev)
         contact = model.contact_flag(ev.record)
         touched = (self.n_events > 0) | contact  # a foot has been on the ground
         tip_t = jnp.where(upright & touched & model.tipping(ev.record), s.t, self.tip_time)
@@ -227,13 +232,10 @@ def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict
                        jnp.where(track.n_events > 0,
                                  jnp.where(cut, int(Result.UNFINISHED), int(Result.SUCCESSFUL)),
                                  int(Result.NO_TOUCHDOWN)))
-    # the end state is a step's state too: its values join the peaks (a landing cut off while
-    # compressing peaks there), as its largest stroke does in ``final_summary``
-    values = model.peak_values(ev_end.record, ev_end.accel)
-    peaks = {k: jnp.where(track.tip_time < 0.0, fmax(values[k], p), p)
-             for k, p in track.peaks.items()}
     return dict(
-        **peaks,
+        # the end state is a step's state too: its values join the peaks (a landing cut off
+        # while compressing peaks there), as its largest stroke does in ``final_summary``
+        **track.peaks_with(model, ev_end),
         **model.final_summary(s_end, ev_end.record),
         event_times_s=track.events(),
         n_contact_changes=track.n_events,
