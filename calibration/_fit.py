@@ -123,6 +123,7 @@ from ._parameters import (
     check_peak_site,
     get_values,
     interval,
+    no_peak_names,
     peak_form_vehicle,
     set_values,
     switch_on,
@@ -1296,12 +1297,6 @@ def _least_chi2(runs: dict) -> FitResult:
     if best is None:
         raise error
     return best
-
-
-def no_peak_names(names) -> tuple:
-    """The parameters of a fit's special case without the primary crush peak: ``names``
-    without the peak's (``SHAPE_PARAMS``)."""
-    return tuple(n for n in names if n not in SHAPE_PARAMS)
 
 
 def wants_no_peak_check(names, inner: bool) -> bool:

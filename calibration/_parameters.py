@@ -54,7 +54,7 @@ import jaxland as jl
 __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_IF_OFF",
            "PEAK_FORMS", "RISE_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle",
            "forms_vehicle", "check_names", "get_values", "at_bound", "interval", "BOUND_MARGIN",
-           "set_values", "switch_on", "to_unconstrained", "from_unconstrained"]
+           "set_values", "switch_on", "to_unconstrained", "from_unconstrained", "no_peak_names"]
 
 # name -> (getter, unit, TOML key, transform, description)
 PARAMS = {
@@ -377,6 +377,12 @@ def forms_vehicle(vehicle: jl.Vehicle, form) -> jl.Vehicle:
     hc = vehicle.honeycomb
     kw = {f.name: getattr(hc, f.name) for f in dataclasses.fields(jl.Honeycomb)}
     return eqx.tree_at(lambda v: v.honeycomb, vehicle, _FormsHoneycomb(**kw, form=form))
+
+
+def no_peak_names(names) -> tuple:
+    """The parameters of a fit's special case without the primary crush peak: ``names``
+    without the peak's (``SHAPE_PARAMS``)."""
+    return tuple(n for n in names if n not in SHAPE_PARAMS)
 
 
 def switch_on(vehicle: jl.Vehicle, names) -> jl.Vehicle:

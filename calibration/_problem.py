@@ -75,11 +75,11 @@ from ._parameters import (
     PEAK_FORMS,
     PEAK_PARAMS,
     RISE_FORMS,
-    SHAPE_PARAMS,
     check_names,
     check_peak_site,
     forms_vehicle,
     from_unconstrained,
+    no_peak_names,
     peak_form_vehicle,
     set_values,
     to_unconstrained,
@@ -483,7 +483,7 @@ class CalibrationProblem:
             raise jl.ConfigError("peak_switch", False, "the compiled functions cannot switch "
                                  "the primary crush peak off: they do not fit peak1, or the "
                                  "vehicle's tabulated peak (excess1) stays in their form")
-        names = tuple(n for n in self.names if n not in SHAPE_PARAMS)
+        names = no_peak_names(self.names)
         if not names:
             raise jl.ConfigError("params", ",".join(self.names), "only the crush peak's "
                                  "parameters: the model without the peak fits nothing")
