@@ -119,6 +119,9 @@ def atomic_savefig(fig, path, dpi: int = 110) -> Path:
 
 
 MARKER = ".jaxland-output.json"  # in every output folder jaxland publishes
+# files a desktop's file manager writes into any folder it shows, and writes again: replacing
+# an output folder may drop them, so they never block a run into it
+DESKTOP_FILES = frozenset({".DS_Store", "Thumbs.db", "desktop.ini", ".directory"})
 # set by ``interrupt_handler``: a Ctrl-C that landed where Python swallows the exception (a
 # weak reference's callback, a finaliser) still stops the run before it publishes
 _INTERRUPTED = threading.Event()
@@ -140,7 +143,8 @@ def check_out(out, inputs=()) -> Path:
     """Refuse an output folder that jaxland may not replace: a file, a symbolic link, a path
     below a file, the current folder or one holding it, a folder holding one of the run's
     ``inputs`` (paths; None skipped), or a non-empty folder without jaxland's marker (someone
-    else's files, hidden ones included). Call it before any long computation."""
+    else's files, hidden ones included; a desktop's ``DESKTOP_FILES`` aside). Call it before
+    any long computation."""
     from ._errors import ConfigError
 
     out = Path(out)
@@ -166,7 +170,8 @@ def check_out(out, inputs=()) -> Path:
         if (p / MARKER).is_file():
             raise ConfigError("--out", str(out), f"lies inside {p}, a jaxland output folder "
                               "that its next run replaces as a whole: give a folder outside it")
-    if out.is_dir() and not (out / MARKER).exists() and any(out.iterdir()):
+    if out.is_dir() and not (out / MARKER).exists() and any(
+            p.name not in DESKTOP_FILES for p in out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
                           f"{MARKER}): give a new or empty folder, its files would be replaced")
     if out.is_dir():
@@ -193,7 +198,7 @@ def _written(folder: Path) -> list[str]:
 def _not_written_by_jaxland(out: Path) -> list[str]:
     """The files in ``out`` (a folder with jaxland's ``MARKER``) that its run did not write:
     those missing from the marker's list of files (markers without one: another jaxland
-    output's marker in a subfolder)."""
+    output's marker in a subfolder), a desktop's ``DESKTOP_FILES`` aside."""
     try:
         listed = json.loads((out / MARKER).read_text()).get("files")
     except (OSError, ValueError, AttributeError):
@@ -202,7 +207,7 @@ def _not_written_by_jaxland(out: Path) -> list[str]:
     if listed is None:
         return [f for f in present if f.endswith("/" + MARKER)]
     keep = set(listed) | {MARKER}
-    return [f for f in present if f not in keep]
+    return [f for f in present if f not in keep and Path(f).name not in DESKTOP_FILES]
 
 
 def _check_writable(out: Path, folder: Path) -> None:

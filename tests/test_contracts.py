@@ -170,6 +170,15 @@ def test_a_run_never_deletes_what_its_own_run_did_not_write(tmp_path, capsys):
     assert "notes.txt" in capsys.readouterr().err
     assert (outer / "notes.txt").read_text() == "mine"
     (outer / "notes.txt").unlink()
+    # what a desktop's file manager drops into a folder it shows blocks no run
+    (outer / ".DS_Store").write_bytes(b"\0")
+    (outer / "figures").mkdir(exist_ok=True)
+    (outer / "figures" / "Thumbs.db").write_bytes(b"\0")
+    assert _simulate(outer) == 0
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    (fresh / ".DS_Store").write_bytes(b"\0")
+    assert _simulate(fresh) == 0 and (fresh / "summary.json").is_file()
     # an output folder of an earlier version (no list of files) holding another run's output
     marker = outer / ".jaxland-output.json"
     record = json.loads(marker.read_text())
