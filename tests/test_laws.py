@@ -216,3 +216,21 @@ def test_contact_gradients_finite_at_zero_and_boundaries(d, d_max):
     for foot in (_x(0.0, 0.0), _x(1e-3, 0.0), _x(0.5, 0.2)):
         g = jax.grad(f, argnums=(0, 1, 2, 3))(_x(d)[0], _x(d_max)[0], foot, GR)
         assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in jax.tree.leaves(g))
+
+
+@pytest.mark.parametrize("stretch", [0.0, 1e-3])
+def test_tangential_force_without_normal_force_has_no_derivative(stretch):
+    """Without a normal force the tangential force is 0 for every stretch, so its derivative
+    by the foot's position is 0, also at zero stretch (a foot in the air that does not move
+    sideways), and the anchor follows the foot (derivative 1); with a normal force and zero
+    stretch the foot sticks on a spring of k_tan."""
+    def force_and_anchor(x, normal):
+        out = laws.tangential_contact((x, 0.0), (0.0, 0.0), normal, GR)
+        return jnp.stack([out.force[0], out.anchor[0]])
+
+    air = np.asarray(jax.jacfwd(force_and_anchor)(stretch, 0.0))
+    np.testing.assert_array_equal(air, [0.0, 1.0])
+    np.testing.assert_array_equal(np.asarray(jax.jacrev(force_and_anchor)(stretch, 0.0)),
+                                  [0.0, 1.0])
+    stuck = np.asarray(jax.jacfwd(force_and_anchor)(0.0, 1000.0))
+    np.testing.assert_array_equal(stuck, [-float(GR.k_tan), 0.0])

@@ -115,9 +115,13 @@ def tangential_contact(foot_t, anchor_prev, normal_force, ground: Ground,
     uy = foot_t[1] - anchor_prev[1]
     n = safe_hypot(ux, uy)
     limit = ground.mu * normal_force
-    slipping = ground.k_tan * n > limit
+    # no normal force holds no stretch: the anchor follows the foot, also where the stretch is
+    # exactly 0 (a foot in the air without sideways motion), whose stick branch would give the
+    # force, 0 for every stretch, the derivative of a spring
+    slipping = (ground.k_tan * n > limit) | ~(limit > 0.0)
     if smooth == 0.0:
-        scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(slipping, n, 1.0)), 1.0)
+        moved = slipping & (n > 0.0)  # n = 0 slips only without a normal force: scale 0
+        scale = jnp.where(slipping, limit / (ground.k_tan * jnp.where(moved, n, 1.0)), 1.0)
     else:  # stretch kept: min(n, limit / k_tan), rounded; 0 <= n_kept <= n
         n_kept = soft_min(n, limit / ground.k_tan, smooth)
         pos = n > 0.0
