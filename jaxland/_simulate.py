@@ -377,6 +377,21 @@ def check_step(solver: Solver, vehicle: Vehicle, model: AbstractModel) -> None:
                           f"{what} <= that")
 
 
+def _check_save_interval(solver: Solver, given: float | None) -> None:
+    """Refuse a ``save_dt`` the caller gave (``solver`` validated) that would run the landing
+    a step or more past ``t_end``: a run ends on a whole save interval, and one that ``t_end``
+    does not fill runs on to its end, where a touchdown or an impact after ``t_end`` changes
+    the outcome."""
+    if given is None:
+        return
+    reached = solver.n_steps * solver.dt
+    if reached - solver.t_end >= solver.dt * (1.0 - 1e-6):
+        raise ConfigError("solver.save_dt", given, "must divide t_end = "
+                          f"{solver.t_end:g} s into whole intervals (it gives "
+                          f"{solver.t_end / given:.6g}): a run ends on a whole save interval, "
+                          f"and this one would run to {reached:g} s")
+
+
 def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
              dt: float | None = None, t_end: float = 1.2, save_dt: float | None = None,
              model: str = "auto", method="euler", **solver_options) -> Landing:
@@ -440,6 +455,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
             refuse_unsteppable(vehicle, limit, t_end)
         check_step(solver, vehicle, mod)
     solver.validate()
+    _check_save_interval(solver, save_dt)
     traj, summary = _landing_jit(vehicle, scene, solver, mod)
     retried = None
     if chosen and Result(int(summary["result"])).failed and not isinstance(method, Tsit5):

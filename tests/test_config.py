@@ -208,6 +208,18 @@ def test_a_scene_or_setting_of_the_wrong_shape_is_refused_by_name(make, needle):
     assert str(err.value).startswith(needle), str(err.value)
 
 
+def test_a_save_interval_that_runs_past_t_end_is_refused():
+    """A run ends on a whole save interval: a given save_dt that t_end does not fill would run
+    on (0.21 s asked, 0.4 s run, and a touchdown at 0.23 s reported for a drop that has none
+    by 0.21 s). One within a step of t_end is a step's rounding, as a dt that does not divide
+    t_end."""
+    with pytest.raises(jl.ConfigError, match=r"solver\.save_dt = 0\.2: must divide t_end = "
+                       r"0\.21 s .* would run to 0\.4 s"):
+        jl.simulate(jl.Scene(drop_height=0.25), t_end=0.21, save_dt=0.2)
+    out = jl.simulate(t_end=0.01, dt=3e-5, save_dt=3e-5).outcomes
+    assert 0.01 < out["t_end_s"] < 0.01 + 3e-5
+
+
 def test_bad_solver_is_refused():
     with pytest.raises(jl.ConfigError, match=r"solver\.dt"):
         jl.simulate(dt=-1e-5)
