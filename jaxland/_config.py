@@ -144,8 +144,7 @@ def vehicle_from_dict(data: dict, *, validate: bool = True) -> Vehicle:
         merged["honeycomb"]["F1_N"], merged["honeycomb"]["F2_N"] = plateau_forces_from_cells(full)
     body = merged["body"]
     n_legs = body["n_legs"]
-    if isinstance(n_legs, bool) or not isinstance(n_legs, int) or not 3 <= n_legs <= 12:
-        raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
+    check_n_legs(n_legs)
     for section in ("body", "leg", "honeycomb", "ground"):
         for key, val in merged[section].items():
             for v in val if isinstance(val, list) else [val]:  # a list: each entry
@@ -279,6 +278,13 @@ def _fail(section, f, val, rule):
     raise ConfigError(f"{section}.{md['toml']}", shown, f"must be {rule}{either} ({md['doc']})")
 
 
+def check_n_legs(n_legs) -> None:
+    """Refuse a leg count the models do not hold: the legs stand evenly around the axis, and
+    fewer than three stand on no area."""
+    if isinstance(n_legs, bool) or not isinstance(n_legs, int) or not 3 <= n_legs <= 12:
+        raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
+
+
 def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     """Check every field against its rule and the cross-field rules (``fields_only``: each
     field against its own rule only); return ``veh`` if valid.
@@ -286,6 +292,7 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     Raises ``ConfigError`` naming the TOML key, the value (in TOML units) and the rule. Leaves
     that are tracers (inside jit/grad) are skipped; batched leaves are checked element-wise.
     """
+    check_n_legs(veh.n_legs)
     for section, mod, f in vehicle_fields(veh):
         val = concrete(getattr(mod, f.name))
         if val is None:

@@ -24,7 +24,7 @@ from ._config import paper_vehicle, validate_vehicle, vehicle_fields
 from ._errors import ConfigError, SimulationError
 from ._files import atomic_write_csv, atomic_write_text, flat_columns, json_text
 from ._models import MODELS, AbstractModel
-from ._params import Vehicle, field_info
+from ._params import Vehicle
 from ._scene import Scene, batch_axes, is_symmetric
 from ._solvers import (
     CLOSURE_LIMIT,
@@ -421,9 +421,10 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         if obj is not None and not isinstance(obj, cls):
             raise ConfigError(name, type(obj).__name__, f"must be a jaxland.{cls.__name__}")
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
-    for f in field_info(Vehicle):  # the body's parameters: one vehicle has one of each
-        if jnp.ndim(getattr(vehicle, f.name)) != 0:
-            raise ConfigError(f"body.{f.metadata['toml']}", jnp.shape(getattr(vehicle, f.name)),
+    for section, mod, f in vehicle_fields(vehicle):  # one vehicle has one of each, per leg too
+        val = getattr(mod, f.name)  # None: an extension left out
+        if val is not None and jnp.ndim(val) != 0:
+            raise ConfigError(f"{section}.{f.metadata['toml']}", jnp.shape(val),
                               "must be one number: simulate takes one vehicle (for a batch, "
                               "jax.vmap over jaxland.landing)")
     scene.validate(vehicle.n_legs)

@@ -1,6 +1,8 @@
 """Full 3-D vehicle: reduction to the quarter model, symmetry, conservation laws, tip-over
 against an independent rigid-body criterion, differentiability, scene validation."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -65,7 +67,17 @@ def test_a_landing_outside_the_envelope_says_so_and_bad_scenes_are_named():
                           "scene = 'dict': must be a jaxland.Scene"),
                          (lambda: jl.simulate(Scene(), eqx.tree_at(
                              lambda x: x.m_body, v, jnp.array([1000.0, 1200.0]))),
-                          r"body.m_body_kg = \(2,\): must be one number")):
+                          r"body.m_body_kg = \(2,\): must be one number"),
+                         (lambda: jl.simulate(Scene(), eqx.tree_at(
+                             lambda x: x.leg.D_b, v, jnp.ones(4))),
+                          r"leg.D_b_s_per_m = \(4,\): must be one number"),
+                         (lambda: jl.simulate(Scene(), eqx.tree_at(
+                             lambda x: x.honeycomb.F1, v, jnp.array([5e3, 4e3]))),
+                          r"honeycomb.F1_N = \(2,\): must be one number"),
+                         (lambda: jl.simulate(Scene(), dataclasses.replace(v, n_legs=2)),
+                          r"body.n_legs = 2: must be an integer in \[3, 12\]"),
+                         (lambda: jl.simulate(Scene(), dataclasses.replace(v, n_legs=4.0)),
+                          r"body.n_legs = 4.0: must be an integer")):
         with pytest.raises(jl.ConfigError, match=needle):
             make()
 
