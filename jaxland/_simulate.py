@@ -102,9 +102,13 @@ def landings(vehicle: Vehicle, scenes: Scene, solver: Solver = Solver(),
     """``landing`` vmapped over a ``Scene.batch``: every output gains a leading batch axis.
     Only the batched fields are mapped; the rest stay constants of the compiled loop."""
     scenes.check_shapes(vehicle.n_legs)  # by value, before the vmap traces them
+    axes = batch_axes(scenes)
+    if not jax.tree.leaves(axes):
+        raise ConfigError("scenes", "<one scene>", "must be a batch (jaxland.Scene.batch); "
+                          "for one scene use jaxland.landing")
     model = get_model(model, scenes)
     return jax.vmap(lambda s: landing(vehicle, s, solver, model),
-                    in_axes=(batch_axes(scenes),))(scenes)
+                    in_axes=(axes,))(scenes)
 
 
 @functools.partial(jax.jit, static_argnums=(2, 3))

@@ -74,6 +74,8 @@ def test_a_landing_outside_the_envelope_says_so_and_bad_scenes_are_named():
                          (lambda: jl.simulate(Scene(), eqx.tree_at(
                              lambda x: x.honeycomb.F1, v, jnp.array([5e3, 4e3]))),
                           r"honeycomb.F1_N = \(2,\): must be one number"),
+                         (lambda: jl.landings(v, Scene(), solver, "quarter"),
+                          "scenes = .*: must be a batch"),
                          (lambda: jl.simulate(Scene(), dataclasses.replace(v, n_legs=2)),
                           r"body.n_legs = 2: must be an integer in \[3, 12\]"),
                          (lambda: jl.simulate(Scene(), dataclasses.replace(v, n_legs=4.0)),
