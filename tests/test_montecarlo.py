@@ -20,6 +20,7 @@ from jaxland import (
     sample_scenes,
     wilson_interval,
 )
+from jaxland._files import flat_columns
 
 QUARTER_SPEC = dict(
     dispersion={"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
@@ -412,6 +413,16 @@ def test_failed_samples_are_counted_and_the_rest_is_intact():
         one = jl.simulate(jl.Scene.from_touchdown_speed(float(v[i])), t_end=0.1).outcomes
         np.testing.assert_allclose(res.outputs["max_stroke_m"][i, 0], one["max_stroke_m"],
                                    rtol=1e-9)
+    # what the files hold: a failed sample's outcomes are empty, not its diverged run's
+    cols = res.columns()
+    outcome = [k for k in cols if k not in ("sample", "failure_code", "dt_s", "retried")
+               and k not in res.inputs]
+    assert {"leg0_max_stroke_m", "bottomed_out", "tipped_over"} <= set(outcome)
+    raw = flat_columns(res.outputs)
+    for k in outcome:
+        assert np.isnan(cols[k][failed]).all(), k
+        np.testing.assert_array_equal(cols[k][~failed], np.asarray(raw[k], float)[~failed])
+    assert np.isfinite(cols["dt_s"]).all() and cols["sink_speed_mps"][failed].size
 
 
 def test_failed_samples_are_retried_with_implicit_damping():

@@ -126,9 +126,15 @@ def _compile(fn, shapes, sharding):
         lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), shapes)).compile()
 
 
+# per-sample columns that describe how a sample ran, not its outcome: kept for a failed one
+RUN_COLUMNS = ("dt_s", "retried", "t_end_s")
+
+
 @dataclass
 class MonteCarloResult:
-    """Per-sample inputs and outcomes (numpy), failure reasons, and the summary."""
+    """Per-sample inputs and outcomes (numpy), failure reasons, and the summary. A failed
+    sample's ``outputs`` (``failure`` in ``FAILED_CODES``) are the numbers its failed run left,
+    which no statistic uses; ``columns``, what the files hold, leaves them empty."""
 
     inputs: dict
     outputs: dict
@@ -142,9 +148,22 @@ class MonteCarloResult:
     t_end_longer: dict | None = None
 
     def columns(self) -> dict:
-        """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names."""
+        """One flat column per quantity (per-leg arrays as leg{i}_...), units in the names.
+        A failed sample's outcomes are NaN (a flag column then holds 0/1 and NaN): its run
+        diverged or left the envelope, and its numbers are no landing's; the step it ran
+        with (``dt_s``) and ``retried`` stay."""
+        failed = np.isin(self.failure, FAILED_CODES)
+        outputs = self.outputs
+        if failed.any():
+            outputs = {}
+            for key, v in self.outputs.items():
+                v = np.asarray(v)
+                if key not in RUN_COLUMNS:
+                    v = v.astype(float)  # a copy: the result keeps its own
+                    v[failed] = np.nan
+                outputs[key] = v
         return {"sample": np.arange(self.failure.size),
-                **flat_columns(self.inputs, self.outputs), "failure_code": self.failure}
+                **flat_columns(self.inputs, outputs), "failure_code": self.failure}
 
     def save(self, out_dir, plots: bool = True) -> list[Path]:
         """Write samples.csv and samples.npz (every sample with its inputs), summary.json,
