@@ -133,6 +133,8 @@ from ._problem import (
     INTEGRATORS,
     MS,
     PLAIN,
+    SAVE_DT,
+    WINDOW_MIN_S,
     CalibrationProblem,
     _without_primary_peak,
     check_integrator,
@@ -1654,11 +1656,12 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
               dt: float = 1e-5, integrator: str = INTEGRATOR, smoothing_m: float | None = None,
               smoothing_N: float | None = None, peak_form: str | None = None,
               model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
-              peak_site: str = HONEYCOMB) -> FitSettings:
+              peak_site: str = HONEYCOMB, save_dt: float = SAVE_DT) -> FitSettings:
     """``fit``'s arguments checked (each bad one refused by name with ``jaxland.ConfigError``)
     before any compilation, so that a caller can refuse them before it announces a fit.
-    ``save_dt``, ``channels`` and ``fit_touchdown`` are checked where they are used, by
-    ``CalibrationProblem``."""
+    ``channels`` and ``fit_touchdown`` are checked where they are used, by
+    ``CalibrationProblem``, and ``save_dt`` there too: here only as the interval ``dt``
+    must divide."""
     if isinstance(drops, DropTest):
         drops = [drops]
     drops = list(drops)
@@ -1679,9 +1682,10 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     integrator, smoothing_m, smoothing_N = check_integrator(integrator, smoothing_m,
                                                             smoothing_N)
     windows = tuple(float(w) for w in windows)
-    if not windows or any(not (w > 0 and math.isfinite(w)) for w in windows) or list(
-            windows) != sorted(windows):
-        raise jl.ConfigError("windows", list(windows), "must be increasing positive numbers [s]")
+    if not windows or any(not (w >= WINDOW_MIN_S and math.isfinite(w)) for w in windows) or (
+            list(windows) != sorted(windows)):
+        raise jl.ConfigError("windows", list(windows), "must be increasing numbers >= "
+                             f"{WINDOW_MIN_S:g} s")
     base = drops[0].vehicle if vehicle is None else vehicle
     jl.validate_vehicle(base)
     check_peak_form(names, peak_form)
@@ -1695,6 +1699,12 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
                              f"{integrator} for the start vehicle)")
+    if isinstance(save_dt, (int, float)) and save_dt > 0 and not (
+            dt <= save_dt * (1 + 1e-9) and abs(save_dt / dt - round(save_dt / dt))
+            <= 1e-6 * save_dt / dt):
+        raise jl.ConfigError("dt", dt, f"must divide the model's sampling interval, "
+                             f"{save_dt:g} s, into whole steps (e.g. {save_dt:g} or "
+                             f"{save_dt / 2:g} s)")
     start_values = get_values(start_vehicle, names)
     for d in drops:  # the fit's problem refuses it too (as window_s), but after the banner
         if d.duration_after_touchdown_s < windows[-1] - 0.5 / d.sample_rate_Hz:
@@ -1721,7 +1731,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         windows=WINDOWS_S, refine_window_s: float | str | None = AUTO,
         robust: float | None = ROBUST_K, multistart: bool = True, method: str = "lm",
         max_iter: int = 60,
-        dt: float = 1e-5, save_dt: float = 2e-5, integrator: str = INTEGRATOR,
+        dt: float = 1e-5, save_dt: float = SAVE_DT, integrator: str = INTEGRATOR,
         smoothing_m: float | None = None, smoothing_N: float | None = None,
         fit_touchdown: bool = True, channels=None, peak_form: str | None = None,
         model_form: bool | str = "auto", peak_model_term: bool | str = "auto",
@@ -1797,7 +1807,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     warn = _no_warning if _inner else warnings.warn
     checked = check_fit(drops, params, vehicle=vehicle, start=start, windows=windows,
                         refine_window_s=refine_window_s, robust=robust, method=method,
-                        max_iter=max_iter, dt=dt, integrator=integrator,
+                        max_iter=max_iter, dt=dt, save_dt=save_dt, integrator=integrator,
                         smoothing_m=smoothing_m, smoothing_N=smoothing_N,
                         peak_form=peak_form, model_form=model_form,
                         peak_model_term=peak_model_term, peak_site=peak_site)

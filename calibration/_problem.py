@@ -100,6 +100,10 @@ _COMPILED: dict = {}  # compiled residual/Jacobian functions, shared by problems
 INTEGRATORS = FIXED_STEP_METHODS
 
 
+SAVE_DT = 2e-5  # s, the model's sampling interval, interpolated to the records' samples
+WINDOW_MIN_S = 1e-3  # s, the shortest fit window after touchdown
+
+
 def check_integrator(integrator, smoothing_m, smoothing_N) -> tuple[str, float, float]:
     """Validate the integrator settings; (method, smoothing_m, smoothing_N) as plain values.
     Errors name the field, the value and the rule."""
@@ -272,7 +276,7 @@ class CalibrationProblem:
 
     def __init__(self, drops: list[DropTest], params=None, *, vehicle: jl.Vehicle | None = None,
                  window_s: float = 0.1, pre_s: float = 0.005, dt: float = 1e-5,
-                 save_dt: float = 2e-5, integrator: str = "euler", smoothing_m: float = 0.0,
+                 save_dt: float = SAVE_DT, integrator: str = "euler", smoothing_m: float = 0.0,
                  smoothing_N: float = 0.0, fit_touchdown: bool = True, channels=None,
                  peak_form: str | None = None, shared_forms: bool = False,
                  peak_switch: bool = False, peak_site: str = HONEYCOMB):
@@ -330,11 +334,10 @@ class CalibrationProblem:
             if not self.peak_on and hc.peak_ratio1 is not None:  # (rise, table: refused above)
                 raise jl.ConfigError("peak_switch", peak_switch, "switched off, it would "
                                      "remove the vehicle's own primary crush peak")
-        for name, val in (("window_s", window_s), ("pre_s", pre_s)):
+        for name, val, least in (("window_s", window_s, WINDOW_MIN_S), ("pre_s", pre_s, 0.0)):
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not (
-                    np.isfinite(val) and val >= (0.0 if name == "pre_s" else 1e-3)):
-                raise jl.ConfigError(name, val, "must be a finite number >= "
-                                     f"{'0' if name == 'pre_s' else '0.001'} s")
+                    np.isfinite(val) and val >= least):
+                raise jl.ConfigError(name, val, f"must be a finite number >= {least:g} s")
         for d in drops:
             if d.duration_after_touchdown_s < window_s - 0.5 / d.sample_rate_Hz:
                 raise jl.ConfigError("window_s", window_s, f"longer than the record "

@@ -21,13 +21,12 @@ __all__ = ["add_subcommands"]
 
 
 def _floats(flag: str, text: str) -> list[float]:
+    if not text.strip():
+        raise jl.ConfigError(flag, text, "must give at least one number")
     try:
-        vals = [float(x) for x in text.split(",") if x.strip()]
+        return [float(x) for x in text.split(",")]  # an empty entry is a typo: refused
     except ValueError:
         raise jl.ConfigError(flag, text, "must be comma-separated numbers") from None
-    if not vals:
-        raise jl.ConfigError(flag, text, "must give at least one number")
-    return vals
 
 
 def _start(text: str | None) -> dict | None:

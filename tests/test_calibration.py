@@ -798,6 +798,14 @@ def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_v
                                                                   "twice"),
     (["fit", "DATA/drop_h0.20m.toml", "--dt", "1"], "--dt = 1.0: must be in"),
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.1,x"], "comma-separated"),
+    (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.01,,0.1"], "comma-separated"),
+    (["fit", "DATA/drop_h0.20m.toml", "--windows", "1e-9,0.05"], "--windows = '1e-9,0.05': "
+                                                                 "must be increasing numbers "
+                                                                 ">= 0.001 s"),
+    # the step must divide the model's 2e-5 s sampling (it named solver.save_dt)
+    (["fit", "DATA/drop_h0.20m.toml", "--dt", "3e-5"], "--dt = 3e-05: must divide the model's "
+                                                       "sampling interval, 2e-05 s"),
+    (["fit", "DATA/drop_h0.20m.toml", "--dt", "1.5e-5"], "--dt = 1.5e-05: must divide"),
     (["fit", "DATA/missing.toml"], "does not exist"),
     (["fit", "DATA/drop_h0.20m.toml", "--integrator", "rk4"], "--integrator = 'rk4'"),
     (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "-5"], "--smoothing-n = -5.0"),
