@@ -83,6 +83,9 @@ def test_a_landing_without_touchdown_is_no_touchdown_not_stable():
     assert res.outcomes["result"] == "no_touchdown"
     # no first impact to read a stroke of (it read the run's max stroke, 1e-15 m of preload)
     assert res.outcomes["first_impact_stroke_m"] is None
+    # and it says so, with the fall's time: sqrt(2 x 1 m / 9.81 m/s^2) = 0.452 s
+    assert res.outcomes["note"].startswith("no foot touched the ground before t_end = 0.1 s")
+    assert "takes 0.452 s" in res.outcomes["note"]
     spec = jl.MonteCarloSpec(dispersion={"sink_speed_mps": jl.Distribution("uniform", low=0.0,
                                                                            high=0.5)},
                              fixed={"drop_height_m": 2.0}, n=4, t_end=0.05)
