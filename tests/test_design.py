@@ -459,6 +459,9 @@ high = 2.5
      "jaxland: error: design.dt_s = 0.001: exceeds the stability limit"),
     ('dist = "uniform"\nlow = 1.5\nhigh = 2.5', 'dist = "normal"\nmean = 100.0\nstd = 1.0',
      "jaxland: error: dispersion.sink_speed_mps = "),
+    # a verification too small for any verdict (it ran the whole design, then exit 5)
+    ("n = 20\nseed = 1", "n = 19\nseed = 1",
+     "jaxland: error: montecarlo.n = 19: must be >= 20 (or --verify-n 0: no verification)"),
 ])
 def test_cli_refuses_design_inputs_before_the_banner(tmp_path, capsys, old, new, line):
     """The design's input checks (the baseline inside the bounds, the step, the drawn scenes
@@ -478,6 +481,7 @@ def test_cli_refuses_design_inputs_before_the_banner(tmp_path, capsys, old, new,
     (["--iterations", "-1"], "--iterations = -1: must be >= 0"),
     (["--verify-n", "-1"], "--verify-n = -1: must be >= 0"),
     (["--verify-n", "100000000000"], "--verify-n = 100000000000: its per-sample results"),
+    (["--verify-n", "8"], "--verify-n = 8: must be >= 20"),
 ])
 def test_cli_checks_a_flag_by_the_rule_of_the_key_it_overrides(tmp_path, capsys, flags, line):
     """--iterations skipped design.iterations' bound and started the run; --verify-n was
