@@ -205,6 +205,25 @@ def test_simulate_refuses_bad_config_file(tmp_path, capsys):
     assert "ground.gamma = 1.5" in err and "[0, 1)" in err
 
 
+@pytest.mark.parametrize("argv", [
+    ["config", "--config", ""], ["simulate", "--config", ""], ["simulate", "--scene", ""],
+    ["fit", "DATA", "--config", ""], ["design", "SPEC", "--config", ""],
+    ["montecarlo", "SPEC", "--config", ""]])
+def test_an_empty_file_flag_is_refused_not_taken_as_none(tmp_path, capsys, argv):
+    """An unset shell variable (--config "$VEHICLE") ran the paper's vehicle or the default
+    scene: the empty flag is refused before any work."""
+    examples = Path(__file__).parents[1] / "examples"
+    spec = {"design": "design_paper_gear.toml"}.get(argv[0], "montecarlo_dispersed.toml")
+    argv = [str(Path(__file__).parents[1] / "data" / "synthetic" / "drop_h0.20m.toml")
+            if a == "DATA" else str(examples / spec) if a == "SPEC" else a for a in argv]
+    out = [] if argv[0] == "config" else ["--out", str(tmp_path / "o")]
+    assert main([*argv, *out]) == 2
+    flag = "--scene" if "--scene" in argv else "--config"
+    assert capsys.readouterr().err == f"jaxland: error: {flag} = '': is empty: give a file, " \
+                                      "or leave the flag out\n"
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("text", ["", "# the paper's gear\n", "[ground]\n[body]\n"])
 def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(tmp_path, capsys,
                                                                               text):

@@ -137,6 +137,14 @@ def _join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+def _refuse_empty_paths(args) -> None:
+    """An empty file flag (an unset shell variable: --config "$VEHICLE") is refused, not taken
+    as no flag, which would run the paper's vehicle or the default scene instead."""
+    for name in ("config", "scene"):
+        if getattr(args, name, None) == "":
+            raise ConfigError(f"--{name}", "", "is empty: give a file, or leave the flag out")
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(_join_negative_values(argv))
@@ -155,6 +163,7 @@ def main(argv=None) -> int:
     if own:
         signal.signal(signal.SIGINT, interrupt_handler)
     try:
+        _refuse_empty_paths(args)
         return args.func(args)
     except ConfigError as err:
         print(f"jaxland: error: {err}", file=sys.stderr)
