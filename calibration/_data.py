@@ -534,7 +534,8 @@ class DropTest:
         the leg's mass (the body's share): 0.93 to 1.0 for the ground's normal force and 0.52
         to 0.67 for the strut's buffer force on the bundled records and rig drops of 0.01 to
         1 m, a tenth of that in g. Refused by name below ``ACCEL_SWING_MIN`` of the smaller
-        implied swing; a record without a force channel is not checked."""
+        implied swing, and above ``PLAUSIBLE_FACTOR`` times it (a unit a thousand times off);
+        a record without a force channel is not checked."""
         m = float(self.vehicle.m_quarter)
         corrected = self.corrected
 
@@ -557,6 +558,12 @@ class DropTest:
                            f"leg's {m:.4g} kg ({implied:.4g} m/s^2; records in m/s^2 give 0.5 "
                            f"to 1), and is {a / implied:.2g} of it: an acceleration in g? (a "
                            "body_accel_g column is converted)")
+            if a > PLAUSIBLE_FACTOR * implied:
+                raise _err(f"{self.source}: {col}", f"swing {a:.4g} m/s^2", "must be at most "
+                           f"{PLAUSIBLE_FACTOR:g} x the swing the force channels imply for the "
+                           f"leg's {m:.4g} kg ({implied:.4g} m/s^2; records in m/s^2 give 0.5 "
+                           f"to 1), and is {a / implied:.3g} x it: an acceleration in mm/s^2 "
+                           "under an _mps2 header, or a gain error of the accelerometer?")
 
     def _check_free_fall(self) -> None:
         """The drop height the free fall from release to touchdown implies against the

@@ -313,11 +313,15 @@ def _wrong(ch, col, how):
     (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: x / 9.80665),
      r"body_accel_mps2 = 'swing \d\.\d+ m/s\^2': must be at least 0\.25 of .* is 0\.1\d "
      r"of it: an acceleration in g"),
+    (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: x * 1e3),
+     r"body_accel_mps2 = 'swing [\d.e+]+ m/s\^2': must be at most 10 x .* is [\d.e+]+ x it: an "
+     r"acceleration in mm/s\^2"),
 ])
 def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
     """What no drop of this vehicle records: a stroke beyond the strut's length, one that runs
     negative through the impact, a force that never reaches a tenth of the leg's weight, a
-    body acceleration that swings a tenth as far as the forces say (g under an m/s^2 header)."""
+    body acceleration that swings a tenth as far as the forces say (g under an m/s^2 header)
+    or a thousand times as far (mm/s^2; predict compared it, 99.9 % off)."""
     t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.2, seed=4)
     cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2)  # as recorded
     with pytest.raises(jl.ConfigError, match=needle):
