@@ -25,6 +25,18 @@ def test_config_prints_loadable_toml(capsys):
     assert float(veh.honeycomb.F1) == float(jl.paper_vehicle().honeycomb.F1)
 
 
+def test_a_landing_run_again_at_a_smaller_step_says_so(tmp_path, capsys):
+    """A 30 m/s touchdown fails at the default step and runs again at the step its forces
+    need: the summary records it (retried_from_dt_s), and the screen says it too."""
+    assert main(["simulate", "--touchdown-speed", "30", "--t-end", "0.02", "--no-plots",
+                 "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["retried_from_dt_s"] == 1e-5 > summary["dt_s"]
+    assert (f"failed numerically at the default step 1e-05 s and ran again at "
+            f"{summary['dt_s']:g} s") in err
+
+
 def test_console_script_entry_point():
     out = subprocess.run([sys.executable, "-m", "jaxland.cli", "config"], capture_output=True,
                          text=True, check=True)
@@ -36,6 +48,8 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     assert main(["simulate", "--drop-height", "0.1", "--t-end", T_END, "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "first-impact stroke" in printed and "energy ledger closure" in printed
+    # the quarter model's energies are one leg's: the screen says so
+    assert "energy dissipated (one leg's share)" in printed
     with (out / "trajectory.csv").open() as fh:
         rows = list(csv.reader(fh))
     assert tuple(rows[0]) == QuarterModel.COLUMNS

@@ -27,6 +27,8 @@ def cmd_config(args) -> int:
 
 
 def _print_summary(o: dict) -> None:
+    # the quarter model carries a quarter of the body on one leg: its energies are that share
+    share = " (one leg's share)" if o["model"] == "quarter" else ""
     rows = [
         ("touchdown", _fmt(o["touchdown_time_s"], 1, "s")),
         ("impacts (start-end, s)", ", ".join(
@@ -47,8 +49,8 @@ def _print_summary(o: dict) -> None:
         ("peak body acceleration", _fmt(o["peak_body_accel_mps2"], 1, "m/s^2")),
         ("peak foot acceleration", _fmt(o["peak_foot_accel_mps2"], 1, "m/s^2")),
         ("foot slip distance", _fmt(o["slip_distance_m"], 1e3, "mm")),
-        ("energy dissipated", _fmt(o["energy_dissipated_J"], 1, "J")),
-        ("energy ledger closure", f"{o['energy_closure_max_J']:.3g} J "
+        ("energy dissipated" + share, _fmt(o["energy_dissipated_J"], 1, "J")),
+        ("energy ledger closure" + share, f"{o['energy_closure_max_J']:.3g} J "
                                   + ("(nothing dissipated: no touchdown)"
                                      if o["energy_closure_rel"] is None else
                                      f"({o['energy_closure_rel']:.2e} relative, limit "
@@ -180,6 +182,10 @@ def cmd_simulate(args) -> int:
               f"interval ({result.solver.save_dt:g} s); give a t_end that is a multiple of it",
               file=sys.stderr)
     _print_summary(result.outcomes)
+    if "retried_from_dt_s" in result.outcomes:
+        print(f"  note: the landing failed numerically at the default step "
+              f"{result.outcomes['retried_from_dt_s']:g} s and ran again at "
+              f"{result.solver.dt:g} s, the step its forces need", file=sys.stderr)
     if "note" in result.outcomes:
         print(f"  note: {result.outcomes['note']}", file=sys.stderr)
     print(f"wrote {out}/trajectory.csv, summary.json, scene.toml, vehicle.toml, "
