@@ -192,21 +192,31 @@ def load_vehicle(path, what: str | None = None) -> Vehicle:
 
 
 def _breakpoint_error(hc: Honeycomb, names: tuple[str, ...], rule: str):
-    """Raise the honeycomb breakpoint rule ``rule`` naming, of the fields it involves
-    (``names``, all positive by their own rules), the one furthest from the paper vehicle's
-    value by ratio either way: the likeliest slip (a stiffness typed in the wrong unit), not a
-    field the user left alone. A tie names the first."""
-    paper = paper_vehicle().honeycomb
-    info = {f.name: f for f in field_info(Honeycomb)}
+    """Raise the honeycomb breakpoint rule ``rule`` naming the likeliest culprit of the
+    fields it involves (``names``): ``_culprit_error``."""
+    _culprit_error({"honeycomb": hc}, [("honeycomb", n) for n in names], rule)
 
-    def off(name):
-        val = np.asarray(concrete(getattr(hc, name)), dtype=float)
-        return float(np.max(np.abs(np.log(val / float(getattr(paper, name))))))
 
-    name = max(names, key=off)
-    f = info[name]
-    val = np.asarray(concrete(getattr(hc, name)), dtype=float).flat[0] / f.metadata["to_si"]
-    raise ConfigError(f"honeycomb.{f.metadata['toml']}", float(f"{val:.12g}"), rule)
+def _culprit_error(modules: dict, fields: list[tuple[str, str]], rule: str):
+    """Raise the cross-field rule ``rule`` naming, of the ``(section, field)`` pairs it
+    involves (all positive by their own rules; ``modules``: section -> the vehicle's module),
+    the one furthest from the paper vehicle's value by ratio either way: the likeliest slip
+    (a stiffness typed in the wrong unit), not a field the user left alone. A tie names the
+    first."""
+    paper = paper_vehicle()
+    paper_mods = {"body": paper, "leg": paper.leg, "honeycomb": paper.honeycomb,
+                  "ground": paper.ground}
+
+    def off(pair):
+        section, name = pair
+        val = np.asarray(concrete(getattr(modules[section], name)), dtype=float)
+        return float(np.max(np.abs(np.log(val / float(getattr(paper_mods[section], name))))))
+
+    section, name = max(fields, key=off)
+    f = {f.name: f for f in field_info(type(modules[section]))}[name]
+    val = np.asarray(concrete(getattr(modules[section], name)), dtype=float)
+    val = val.flat[0] / f.metadata["to_si"]
+    raise ConfigError(f"{section}.{f.metadata['toml']}", float(f"{val:.12g}"), rule)
 
 
 def paper_vehicle() -> Vehicle:
@@ -335,9 +345,9 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     leg = veh.leg
     L, th, H2 = concrete(leg.L_h0), concrete(leg.theta_b), concrete(leg.H2)
     if x4 is not None and L is not None and np.any(~(x4 < L)):
-        raise ConfigError("honeycomb.x_L4_mm", float(np.max(x4)) * 1e3,
-                          f"the buffer stroke must be shorter than the main strut, "
-                          f"L_h0 = {float(np.min(L)) * 1e3:.4g} mm")
+        _culprit_error({"honeycomb": hc, "leg": leg}, [("honeycomb", "x_L4"), ("leg", "L_h0")],
+                       f"the buffer stroke x_L4 = {float(np.max(x4)) * 1e3:.6g} mm must be "
+                       f"shorter than the main strut L_h0 = {float(np.min(L)) * 1e3:.6g} mm")
     if all(x is not None for x in (L, th, H2)) and np.any(~(L * np.sin(th) > H2 * 1.05)):
         raise ConfigError("leg.L_h0_m", float(np.min(L)),
                           "the foot must lie clearly below the auxiliary joint A "

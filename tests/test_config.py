@@ -117,6 +117,9 @@ BAD = [
     ({"honeycomb": {"k_b1_N_per_m": 0.0}}, "honeycomb.k_b1_N_per_m", "0.0", "> 0"),
     ({"ground": {"k_tan_N_per_m": -5.0}}, "ground.k_tan_N_per_m", "-5.0", "> 0"),
     ({"honeycomb": {"x_L4_mm": 5000.0}}, "honeycomb.x_L4_mm", "5000", "shorter than the main"),
+    # the strut shortened, not the buffer: named by what the user changed (it blamed x_L4_mm)
+    ({"leg": {"L_h0_m": 0.1}}, "leg.L_h0_m", "0.1", "x_L4 = 183.23 mm must be shorter than the "
+                                                     "main strut L_h0 = 100 mm"),
     ({"honeycomb": {"cells": 5}}, "honeycomb.cells", "5", "must be a table"),
     ({"honeycomb": {"cells": {"secondary_cell_size_mm": 100.0}}},
      "honeycomb.F2_N (from [honeycomb.cells])", "65.8", "must exceed F1_N"),
