@@ -92,6 +92,11 @@ def test_a_landing_without_touchdown_is_no_touchdown_not_stable():
     mc = jl.run_montecarlo(spec, progress=False)
     assert mc.summary["n_no_touchdown"] == 4 and mc.summary["n_failed"] == 0
     assert mc.summary["tip_over"]["n"] == 0  # counted apart, never as safe landings
+    # over no landing a probability has no interval either (it read [0, 1] as if computed)
+    bot = mc.summary["bottoming"]
+    assert bot["probability"] is None and bot["ci95_wilson"] is None
+    assert bot["all_landings"]["range"] is None and bot["all_landings"]["ci95_wilson"] is None
+    assert mc.summary["sensitivity"]["not_estimated"].startswith("0 successful landing(s)")
 
 
 def test_a_failed_landing_has_nan_derivatives_and_a_good_one_keeps_them():

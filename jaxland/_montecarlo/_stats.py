@@ -24,9 +24,10 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
 
 def proportion(flags) -> dict:
     """How many of some landings carry a flag (a boolean array): count, n, probability (None
-    over no landing: 0/0 is no probability) and its 95 % Wilson interval."""
+    over no landing: 0/0 is no probability) and its 95 % Wilson interval (None with it)."""
     k, n = int(np.sum(flags)), int(np.size(flags))
-    return dict(count=k, n=n, probability=k / n if n else None, ci95_wilson=wilson_interval(k, n))
+    return dict(count=k, n=n, probability=k / n if n else None,
+                ci95_wilson=wilson_interval(k, n) if n else None)
 
 
 # why the quarter model has no tip-over probability (a summary's tip_over["reason"])
@@ -68,7 +69,7 @@ def over_all_landings(p: dict, flags_unfinished, n_failed: int = 0) -> dict:
     most = p["count"] + u + f
     return dict(p, all_landings=dict(
         n=n, n_unfinished=u, n_failed=f, range=[now / n, most / n] if n else None,
-        ci95_wilson=[wilson_interval(now, n)[0], wilson_interval(most, n)[1]]))
+        ci95_wilson=[wilson_interval(now, n)[0], wilson_interval(most, n)[1]] if n else None))
 
 
 def probability_text(p: dict, nd: int = 3) -> str:
@@ -115,6 +116,10 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> dict:
                 cols.append((x - x.mean()) / x.std())
                 names.append(name if arr.shape[1] == 1 else f"{name}[leg{i}]")
     y = np.asarray(target, dtype=float)[ok]
+    if y.size <= 1:  # before "no input varies": over no landing nothing can
+        return dict(ranking=[], not_estimated=(
+            f"{y.size} successful landing(s); the regression needs more than one per "
+            "dispersed input and leg"))
     if not cols:
         return dict(ranking=[], not_estimated="no dispersed input varies over the successful "
                     "landings")
