@@ -26,7 +26,9 @@ def synthetic_result() -> jl.MonteCarloResult:
                "slip_distance_m": rng.uniform(0, 0.1, (n, 4)),
                "min_stability_margin_m": rng.uniform(-0.2, 0.5, n),
                "tipped_over": np.array(TIPPED)}
-    prob = dict(count=2, n=5, probability=0.4, ci95_wilson=[0.1, 0.8], modelled=True)
+    prob = dict(count=2, n=5, probability=0.4, ci95_wilson=[0.1, 0.8], modelled=True,
+                all_landings=dict(n=9, n_unfinished=2, n_failed=2, range=[0.333, 0.667],
+                                  ci95_wilson=[0.12, 0.9]))
     summary = dict(n=n, model="full", n_succeeded=5, n_failed=2, n_unfinished=2,
                    n_no_touchdown=1, tip_over=prob, bottoming={**prob, "count": 0},
                    sensitivity=dict(target="min_stability_margin_m", ranking=[
@@ -56,5 +58,9 @@ def test_the_tip_over_map_names_unfinished_and_untouched_landings_apart(tmp_path
     assert counts in ax.get_title()
     assert "5 successful, 2 failed, 2 unfinished, 1 without touchdown;" in \
         figs["mc_histograms.png"]._suptitle.get_text()
+    # each probability with where it lies over all landings (over the successful ones it is
+    # biased): the title showed the biased number alone
+    assert ("P(tip-over) = 0.4 [0.1, 0.8]; with the 2 unfinished and 2 failed: 0.333 to 0.667 "
+            "(95% CI [0.12, 0.9])") in figs["mc_histograms.png"]._suptitle.get_text()
     hist = figs["mc_histograms.png"].axes[0]
     assert sum(p.get_height() for p in hist.patches) == 5  # the successful landings only

@@ -84,6 +84,19 @@ def probability_text(p: dict, nd: int = 3) -> str:
     return f"{p['probability']:.{nd}g} [{lo:.{nd}g}, {hi:.{nd}g}]"
 
 
+def all_landings_text(p: dict) -> str:
+    """Where a probability lies with the unfinished and the failed landings
+    (``over_all_landings``), to follow its report line or title; nothing where there is
+    none."""
+    a = p.get("all_landings")
+    if not a or not (a["n_unfinished"] or a["n_failed"]):
+        return ""
+    (lo, hi), (clo, chi) = a["range"], a["ci95_wilson"]
+    which = " and ".join(f"{k} {name}" for k, name in ((a["n_unfinished"], "unfinished"),
+                                                        (a["n_failed"], "failed")) if k)
+    return (f"; with the {which}: {lo:.4g} to {hi:.4g} (95% CI [{clo:.4g}, {chi:.4g}])")
+
+
 def percentiles(x) -> dict | None:
     """Tails and centre of a sample: p01, p05, p50, p95, p99, min, max, mean (None if empty)."""
     x = np.asarray(x, dtype=float)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._montecarlo._stats import probability_text
+from .._montecarlo._stats import all_landings_text, probability_text
 from .._solvers import FAILED_CODES, Result
 from ._landing import _save
 
@@ -70,10 +70,13 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
     rows = _outcomes(result)
     s = result.summary
     tippable = s["tip_over"].get("modelled", True)  # the quarter model cannot tip
-    tip = (f"P(tip-over) = {probability_text(s['tip_over'])}" if tippable
-           else "tip-over not modelled")
-    title = (f"{s['n']} landings ({s['model']} model): {_counts_text(s)}; {tip}, "
-             f"P(bottoming) = {probability_text(s['bottoming'])}")
+    # each probability with where it lies over all landings: over the successful ones alone
+    # it is biased where some are unfinished or failed
+    tip = (f"P(tip-over) = {probability_text(s['tip_over'])}"
+           f"{all_landings_text(s['tip_over'])}" if tippable else "tip-over not modelled")
+    title = (f"{s['n']} landings ({s['model']} model): {_counts_text(s)};\n{tip};\n"
+             f"P(bottoming) = {probability_text(s['bottoming'])}"
+             f"{all_landings_text(s['bottoming'])}")
     paths = []
 
     fig = Figure(figsize=(4.2 * len(rows), 3.6), layout="constrained")

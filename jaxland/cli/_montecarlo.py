@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from .. import use_batch_fusion
 from .._checks import named_as
+from .._montecarlo._stats import all_landings_text
 from ._common import out_dir, use_cpu_cores
 
 # envelopes whose low tail is the danger (the others: the high tail)
@@ -38,18 +39,6 @@ def _no_successful_landing(s: dict) -> None:
     raise SimulationError(f"none of the {s['n']} landings succeeded ({text}): there is no "
                           f"probability or envelope to report; rerun with montecarlo.dt_s "
                           f"below {s['dt_s']:g} s{again}")
-
-
-def _all_landings_text(p: dict) -> str:
-    """Where a probability lies with the unfinished and the failed landings
-    (``over_all_landings``), for its report line; nothing where there is none."""
-    a = p.get("all_landings")
-    if not a or not (a["n_unfinished"] or a["n_failed"]):
-        return ""
-    (lo, hi), (clo, chi) = a["range"], a["ci95_wilson"]
-    which = " and ".join(f"{k} {name}" for k, name in ((a["n_unfinished"], "unfinished"),
-                                                        (a["n_failed"], "failed")) if k)
-    return (f"; with the {which}: {lo:.4g} to {hi:.4g} (95% CI [{clo:.4g}, {chi:.4g}])")
 
 
 def _retried_text(result) -> str:
@@ -139,11 +128,11 @@ def cmd_montecarlo(args) -> int:
     if tip["modelled"]:
         print(f"  P(tip-over)         {tip['probability']:.4g}  95% CI "
               f"[{tip['ci95_wilson'][0]:.4g}, {tip['ci95_wilson'][1]:.4g}]  "
-              f"({tip['count']}/{tip['n']}){_all_landings_text(tip)}")
+              f"({tip['count']}/{tip['n']}){all_landings_text(tip)}")
     else:  # no probability to print: a 0 would read as computed
         print(f"  P(tip-over)         not modelled: {tip['reason']}")
     print(f"  P(bottoming out)    {bot['probability']:.4g}  95% CI [{bot['ci95_wilson'][0]:.4g}, "
-          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']}){_all_landings_text(bot)}")
+          f"{bot['ci95_wilson'][1]:.4g}]  ({bot['count']}/{bot['n']}){all_landings_text(bot)}")
     for name, env in s["envelopes"].items():
         if not env:
             continue
