@@ -172,6 +172,8 @@ def test_cli_shards_over_one_device_per_core(quarter_run, tmp_path):
                           (["--n", "0"], "--n = 0: must be >= 1"),
                           (["--seed", "-1"], "--seed = -1: must be >= 0"),
                           (["--chunk", "0"], "--chunk = 0: must be >= 1"),
+                          (["--coordinator", "bad", "--num-processes", "2", "--process-id",
+                            "0"], "--coordinator = 'bad': must be host:port"),
                           # the spec's own bad value is its key's, whatever the flags
                           (["--n", "10", "--spec-n", "0"], "montecarlo.n = 0: must be >= 1")):
         cmd = cli

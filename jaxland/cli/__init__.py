@@ -92,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--n", type=int, help="number of landings (overrides the spec)")
     m.add_argument("--seed", type=int, help="random seed (overrides the spec)")
     m.add_argument("--chunk", type=int, help="landings per compiled batch (bounds memory; "
-                   "default 64 3-D or 512 quarter landings on a CPU, 131072 on a GPU)")
+                   "default 64 3-D or 512 quarter landings on a CPU, 131072 on a GPU; "
+                   "rounded up to a multiple of the devices, as summary.json's chunk records)")
     m.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
     m.add_argument("--out", default="out/montecarlo",
                    help="output folder (default out/montecarlo)")

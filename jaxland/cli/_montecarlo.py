@@ -87,7 +87,8 @@ def cmd_montecarlo(args) -> int:
         ("montecarlo.n", "--n", args.n), ("montecarlo.seed", "--seed", args.seed),
         ("chunk", "--chunk", args.chunk), ("num_processes", "--num-processes",
                                            args.num_processes),
-        ("process_id", "--process-id", args.process_id)) if v is not None}
+        ("process_id", "--process-id", args.process_id),
+        ("coordinator", "--coordinator", args.coordinator)) if v is not None}
     with named_as(flags):
         if args.coordinator is not None:  # one of several processes; process 0 writes outputs
             init_distributed(args.coordinator, args.num_processes, args.process_id)
