@@ -334,6 +334,10 @@ def read_scene_table(path, what: str = "scene") -> dict:
     data = read_toml(path, what)
     if "scene" in data and len(data) > 1:
         extra = sorted(set(data) - {"scene"})[0]
+        if not isinstance(data[extra], dict):  # a key above [scene]: it belongs inside it
+            raise ConfigError(f"{what} {path}: {extra}", data[extra],
+                              "stands outside the [scene] table: a file with a [scene] table "
+                              "holds its keys inside it")
         raise ConfigError(f"{what} {path}: {extra}", "<table>",
                           "a scene file holds the [scene] table only (vehicle parameters "
                           "belong in --config; friction = ... inside [scene] overrides mu)")

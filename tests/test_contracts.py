@@ -233,6 +233,11 @@ def test_a_scene_file_with_other_tables_is_refused(tmp_path, capsys):
     path.write_text("[scene]\ndrop_height_m = 0.1\n[ground]\nmu = 0.05\n")
     assert main(["simulate", "--scene", str(path), "--out", str(tmp_path / "o")]) == 2
     assert "ground" in capsys.readouterr().err
+    # a key above the [scene] table is named with its value and where it belongs (it read
+    # roll_deg = '<table>')
+    path.write_text("roll_deg = 3\n[scene]\ndrop_height_m = 0.1\n")
+    assert main(["simulate", "--scene", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "roll_deg = 3: stands outside the [scene] table" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("fixed,field", [
