@@ -370,6 +370,9 @@ BAD = [
     (("design", "t_end_s"), 1e6, "design.t_end_s", "must be <= 100 s"),
     (("constraints", "stroke"), {"margin_mm": 20.0, "measure": "normal", "level": 0.0},
      "constraints.stroke.level", "(0, 1)"),
+    # a level the measure does not use (it was refused with CVaR's rule at 1.0, or taken)
+    (("constraints", "stroke"), {"margin_mm": 20.0, "measure": "max", "level": 1.0},
+     "constraints.stroke.level", "is not used by measure = max"),
     # Monte Carlo settings the verification sets itself: refused, not silently ignored
     (("montecarlo", "model"), "quarter", "montecarlo.model", "design.model"),
     (("montecarlo", "retry"), False, "montecarlo.retry", "always reruns"),

@@ -215,6 +215,9 @@ class DesignSpec:
 def _measure(prefix, table) -> tuple[str, float]:
     measure = table.get("measure", "max" if prefix.startswith("constraints") else "cvar")
     Choice(MEASURES)(f"{prefix}.measure", measure)
+    if measure in ("max", "mean") and "level" in table:
+        raise ConfigError(f"{prefix}.level", table["level"], f"is not used by measure = "
+                          f"{measure} (only cvar and normal take a level): leave it out")
     level = Number()(f"{prefix}.level", table.get("level", 0.9))
     if not 0.0 <= level < 1.0:
         raise ConfigError(f"{prefix}.level", level, "must be in [0, 1) (CVaR: the mean of the "
