@@ -255,6 +255,14 @@ def test_truncnormal_far_in_a_tail_is_refused_when_read():
         jl.Distribution.from_dict("sink_speed_mps", dict(dist="truncnormal", mean=1.0, std=0.1,
                                                          low=5.0, high=6.0))
     assert err.value.field == "dispersion.sink_speed_mps"
+    # a normal far wider than bounds around its mean holds as little, and is nearly uniform
+    # on them: it samples well, and is taken (it was refused by its mass alone)
+    wide = jl.Distribution.from_dict("sink_speed_mps", dict(dist="truncnormal", mean=2.0,
+                                                            std=1e6, low=1.0, high=3.0))
+    spec = jl.MonteCarloSpec(dispersion={"sink_speed_mps": wide}, n=20000, seed=3)
+    x = jl.sample_scenes(spec, 0, spec.n)[1]["sink_speed_mps"]
+    assert 1.0 < x.min() and x.max() < 3.0
+    assert abs(x.mean() - 2.0) < 0.02 and abs(x.std() - 2.0 / np.sqrt(12.0)) < 0.01
 
 
 def test_a_per_leg_value_needs_one_entry_per_leg():

@@ -137,7 +137,11 @@ class Distribution:
         if kind == "truncnormal":
             mass = _normal_mass((vals["low"] - vals["mean"]) / vals["std"],
                                 (vals["high"] - vals["mean"]) / vals["std"])
-            if mass < TRUNCNORMAL_MIN_MASS:
+            # an interval holding the mean samples well however little mass it holds (a
+            # normal far wider than its bounds is nearly uniform on them); one in a tail
+            # collapses onto its bound
+            tail = not vals["low"] <= vals["mean"] <= vals["high"]
+            if tail and mass < TRUNCNORMAL_MIN_MASS:
                 raise ConfigError(f"dispersion.{name}", f"[{vals['low']}, {vals['high']}]",
                                   f"holds only {mass:.2g} of the normal's probability "
                                   f"(mean {vals['mean']}, std {vals['std']}); the bounds must "
