@@ -117,6 +117,9 @@ def test_adaptive_stall_is_reported():
         jl.simulate(method="tsit5", max_steps=200, t_end=T_END, rtol=1e-8, atol=1e-11)
     t_stop = float(str(err.value).split("stopped at t = ")[1].split(" s")[0])
     assert 0.0 < t_stop < T_END  # where it stopped, not the unreached save points' inf
+    # a tolerance no float64 step can meet is refused before the run (it stalled there)
+    with pytest.raises(jl.ConfigError, match=r"solver\.rtol = 1e-20: must be >= 1e-14"):
+        jl.simulate(method="tsit5", t_end=T_END, rtol=1e-20)
 
 
 @pytest.mark.parametrize("method", ["euler_implicit", "verlet"])

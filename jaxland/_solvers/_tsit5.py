@@ -17,6 +17,9 @@ from ._base import MAX_STEPS, AbstractIntegrator, Result, positive
 from ._impulse import check_adjoint
 from ._loop import Track, record, setup, summary
 
+# the tightest relative tolerance a float64 step can meet: a few times its rounding (2.2e-16)
+RTOL_MIN = 1e-14
+
 
 class Tsit5(AbstractIntegrator):
     """diffrax's Tsit5 with a PIDController (integral gain only, the classic controller) on the
@@ -44,6 +47,9 @@ class Tsit5(AbstractIntegrator):
     def validate(self):
         positive("solver", "rtol", self.rtol, "")
         positive("solver", "atol", self.atol, "")
+        if self.rtol < RTOL_MIN:  # no float64 step meets it: the run would stall at max_steps
+            raise ConfigError("solver.rtol", self.rtol, f"must be >= {RTOL_MIN:g}: below a "
+                              "few float64 roundings no step can meet it")
         if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int):
             raise ConfigError("solver.max_steps", self.max_steps, "must be an integer >= 1")
         # no run takes more steps than MAX_STEPS, whatever its method; a budget far beyond it
