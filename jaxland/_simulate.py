@@ -426,8 +426,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
             raise ConfigError(name, type(obj).__name__, f"must be a jaxland.{cls.__name__}")
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     for section, mod, f in vehicle_fields(vehicle):  # one vehicle has one of each, per leg too
-        val = getattr(mod, f.name)  # None: an extension left out
-        if val is not None and jnp.ndim(val) != 0:
+        val = getattr(mod, f.name)  # None: an extension left out; a table is a 1-D array
+        if val is not None and jnp.ndim(val) != (1 if f.metadata.get("table") else 0):
             raise ConfigError(f"{section}.{f.metadata['toml']}", jnp.shape(val),
                               "must be one number: simulate takes one vehicle (for a batch, "
                               "jax.vmap over jaxland.landing)")
