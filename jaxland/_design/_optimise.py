@@ -186,11 +186,6 @@ def optimise_design(spec: DesignSpec, vehicle: Vehicle | None = None, *,
                           f"{int(np.sum(per['no_touchdown']))} of {prob.count} design scenes do "
                           "not touch down within it: raise it, or start the scenes nearer the "
                           "ground (drop_height_m)")
-    if np.all(per["unfinished"]):  # no scene's impact to design on
-        raise ConfigError("design.t_end_s", spec.t_end,
-                          f"every design scene ({prob.count} of {prob.count}) is still in its "
-                          "impact at it, so no stroke or peak the design would be judged on is "
-                          "final: raise it")
     if np.any(per["failed"]) or not np.all(np.isfinite(vec)):
         raise SimulationError(
             f"{int(np.sum(per['failed']))} of {spec.n_scenes} design scenes fail numerically at "

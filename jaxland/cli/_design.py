@@ -80,6 +80,13 @@ def _cmd_design(args) -> int:
         with named_as({} if args.verify_n is None else
                             {"montecarlo.n": ("--verify-n", args.verify_n)}):
             check_verification(problem)
+            # a verification too small for any verdict could only end "not verified" (exit
+            # 5) after the whole design; a Python caller may still run one, to look at it
+            if spec.montecarlo.n < MIN_JUDGED:
+                raise jl.ConfigError(
+                    "montecarlo.n", spec.montecarlo.n, f"must be >= {MIN_JUDGED} (or "
+                    f"--verify-n 0: no verification): a constraint's 95 % interval needs "
+                    f"{MIN_JUDGED} landings, so fewer can never confirm the design")
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
