@@ -368,6 +368,9 @@ class FitResult:
         are one."""
         if stopped_at_cap(self.stages):
             return "the last stage stopped at its iteration cap; these values are not a minimum"
+        disagree = starts_disagree(self.settings.get("multistart"))
+        if disagree:
+            return disagree
         return no_peak_failure(self.diagnostics.get("no_peak_check"))
 
     def reported_errors(self) -> tuple[str, np.ndarray]:
@@ -458,6 +461,19 @@ def _starts_agree(candidates) -> bool:
     losses lie within AGREE_REL of it."""
     best = min(c["loss"] for c in candidates)
     return sum(c["loss"] - best <= AGREE_REL * max(abs(best), 1e-12) for c in candidates) >= 2
+
+
+def starts_disagree(info: dict | None) -> str | None:
+    """Why a fit's basin is not known to be the best (``settings["multistart"]``): its
+    starts, all run, ended in as many different minima, so the lowest of them may be a local
+    one (a start far from the truth finds a wrong basin and the record's misfit then reads as
+    the model's). None where two agreed, or where one start ran."""
+    if not info or info.get("starts_agree", True) or info["n_starts_tried"] < 2:
+        return None
+    losses = ", ".join(f"{x:.4g}" for x in info["start_losses"])
+    return (f"its {info['n_starts_tried']} starts ended in as many minima ({info['selected_by']}"
+            f": {losses}), so the lowest may not be the best; give a start nearer the truth "
+            "(--start) and see whether two agree")
 
 
 def _until_two_agree(from_start, n: int, threads: int) -> list:
@@ -1919,6 +1935,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
     stages += candidates[chosen]["stages"]
     multistart_info = dict(
         n_starts_tried=len(candidates), chosen_start=chosen + 1,
+        starts_agree=len(candidates) < 2 or _starts_agree(candidates),
         start_losses=[c["loss"] for c in candidates],
         starts=[dict(zip(names, problem.values(st).tolist())) for st in starts[:len(candidates)]],
         selected_by=f"loss on the {stages_w[n_ms - 1] * 1e3:g} ms window" if n_ms else None)
@@ -2134,7 +2151,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         worst = "; ".join(
             f"{w['drop']}: {w['channel']} {_window_text(*w['window_s'])} "
             f"({w['rms_noise_units']:.3g} x noise)" for w in unc["where"])
-        short = no_peak_failure(no_peak_check)
+        short = starts_disagree(multistart_info) or no_peak_failure(no_peak_check)
         warn(("the data contradict the model: " if short is None else
               "the residuals misfit, but NOT CONVERGED: " + short + "; so the misfit below "
               "is the optimiser's, not evidence against the model: ") + "; ".join(unc["misfit"])

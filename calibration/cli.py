@@ -304,10 +304,13 @@ def _cmd_fit(args) -> int:
               f"{args.max_iter}) before converging: the values below are not a minimum; "
               "raise --max-iter" + ("" if result.method == "lm" else " or use --method lm"),
               file=sys.stderr)
+    from ._fit import starts_disagree
+
     short = None if capped else result.not_converged()
-    if short is not None:  # the fit with the crush peak ended worse than the one without
-        print(f"jaxland fit: warning: NOT CONVERGED: {short}; fit without the peak's "
-              "parameters, or from a start nearer the record", file=sys.stderr)
+    if short is not None:  # starts in different minima, or the crush peak's fit ended worse
+        advice = ("" if starts_disagree(result.settings.get("multistart")) else
+                  "; fit without the peak's parameters, or from a start nearer the record")
+        print(f"jaxland fit: warning: NOT CONVERGED: {short}{advice}", file=sys.stderr)
     verb = "fitted" if result.converged else "NOT CONVERGED,"
     print(f"{verb} in {result.wall_s:.1f} s ({sum(s['iterations'] for s in result.stages)} "
           f"iterations); residual variance factor {result.sigma2:.3g}, lag-1 residual "
