@@ -205,6 +205,9 @@ class MisfitWarning(UserWarning):
 # (``_predict.read_fit_status``)
 HEADER_FIT = "# Calibrated by `jaxland fit` (calibration package) against: "
 HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): "
+# the parameters the fit held (active ones), which every interval is conditional on: predict
+# names a file that holds them differently as edited
+HEADER_HELD = "# held at the vehicle's values (every interval is conditional on them): "
 HEADER_MISFIT = "# MISFIT: "
 HEADER_NOT_CONVERGED = "# NOT CONVERGED: "
 HEADER_NOT_BOUNDED = "# NO TRUSTED INTERVAL: "
@@ -382,10 +385,11 @@ class FitResult:
 
     def to_toml(self) -> str:
         """The fitted vehicle as a jaxland config (``jaxland simulate --config``); its header
-        names the records, the fitted values with the errors the fit reports, and the
-        residuals' misfit where there is one."""
+        names the records, the fitted values with the errors the fit reports, the values it
+        held, and the residuals' misfit where there is one."""
         interval, errors = self.reported_errors()
         misfit = self.diagnostics.get("misfit") or []
+        held = {n: h for n, h in self.held_fixed().items() if h["active"]}
         head = [HEADER_FIT + ", ".join(d.source for d in self.drops),
                 HEADER_VALUES.format(interval=interval) + ", ".join(
                     f"{n} = {v:.6g} +/- {s:.2g} {PARAMS[n][1]}" if ok else
@@ -394,6 +398,8 @@ class FitResult:
                     f"{n} = {v:.6g} {PARAMS[n][1]} ({NOT_IDENTIFIED}; started at {v0:.6g})"
                     for n, v, s, ok, v0 in zip(self.names, self.values, errors,
                                                self.identified, self.start_values)),
+                *([HEADER_HELD + ", ".join(f"{n} = {h['value']:.6g} {h['unit']}"
+                                           for n, h in held.items())] if held else []),
                 *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
                 *([] if self.converged else [HEADER_NOT_CONVERGED + self.not_converged()]),

@@ -200,12 +200,14 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     rel_std_error, unit, note}}``, the header's rounded numbers; std_error None where the
     fit gave none) and ``uncertainty`` (how far the prediction carries it: not at all).
 
-    With ``vehicle`` (the file as loaded), ``edited`` lists each fitted value the file now
-    holds differently from its header (``edited_since_fit``); an edited file is not sound and
-    carries the flag ``EDITED SINCE THE FIT: <name>``: its predictions are not the fit's."""
+    With ``vehicle`` (the file as loaded), ``edited`` lists each fitted value, and each value
+    the fit held (``held``: true), that the file now holds differently from its header
+    (``edited_since_fit``); an edited file is not sound and carries the flag ``EDITED SINCE
+    THE FIT: <name>``: its predictions are not the fit's."""
     from ._fit import (
         AT_BOUND,
         HEADER_FIT,
+        HEADER_HELD,
         HEADER_MISFIT,
         HEADER_NOT_BOUNDED,
         HEADER_NOT_CONVERGED,
@@ -234,6 +236,8 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
             params[m["name"]] = dict(
                 value=v, std_error=se, unit=m["unit"], note=m["note"],
                 rel_std_error=None if se is None or not v else se / abs(v))
+    held = {m["name"]: dict(value=_number(m["value"]), unit=m["unit"])
+            for m in _ENTRY.finditer(after(HEADER_HELD) or "")}
     misfit, capped = after(HEADER_MISFIT), after(HEADER_NOT_CONVERGED)
     unbounded = after(HEADER_NOT_BOUNDED)
     flags = (["MISFIT"] if misfit is not None else []) + (
@@ -242,7 +246,9 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         f"{'NOT IDENTIFIED' if NOT_IDENTIFIED in p['note'] else 'AT A BOUND'}: {n}"
         for n, p in params.items() if p["note"] and (NOT_IDENTIFIED in p["note"]
                                                       or AT_BOUND in p["note"])]
-    edited = [] if vehicle is None else edited_since_fit(params, vehicle)
+    edited = [] if vehicle is None else (
+        edited_since_fit(params, vehicle)
+        + [dict(e, held=True) for e in edited_since_fit(held, vehicle)])
     flags += [f"{EDITED}: {e['name']}" for e in edited]
     return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
                 misfit=misfit, not_converged=capped, interval_not_bounded=unbounded,

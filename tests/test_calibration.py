@@ -724,6 +724,16 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     assert f"warning: {head}" in cap.err and head in cap.out and "sound" not in cap.out
     rep = json.loads((out / "prediction_drop_h0.30m.json").read_text())["fit_status"]
     assert not rep["sound"] and rep["edited"][0]["file"] == 4e6
+    # a value the fit held (every interval is conditional on it) is the fit's too: an edit of
+    # one was not seen (chi x 10 and mu 0.1 moved a prediction's max stroke by 23 %)
+    assert "# held at the vehicle's values" in sound.read_text()
+    held = tmp_path / "held.toml"
+    held.write_text(sound.read_text().replace("chi_s_per_m = 0.0002", "chi_s_per_m = 0.002"))
+    assert held.read_text() != sound.read_text()
+    status = read_fit_status(held, jl.load_vehicle(held))
+    assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: chi"]
+    assert status["edited"] == [dict(name="chi", key="ground.chi_s_per_m", file=0.002,
+                                     fitted=0.0002, unit="s/m", held=True)]
 
 
 def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tmp_path,
