@@ -436,10 +436,20 @@ def _cmd_predict(args) -> int:
     if status["from_fit"] and not status["sound"]:
         print(f"jaxland predict: warning: {lines[0]}", file=sys.stderr)
     preds = [predict(vehicle, d) for d in drops]
-    for p, path in zip(preds, args.data):  # each prediction names what it was run from
+    from jaxland._files import run_environment
+
+    environment = run_environment()
+    for p, path, d in zip(preds, args.data, drops):  # each names what it was run from
+        meta, data, *cfg = d.files
         p.inputs = dict(vehicle_config=str(Path(args.config).resolve()),
                         vehicle_as_run="vehicle.toml", data=str(Path(path).resolve()),
-                        jaxland_version=jl.__version__)
+                        jaxland_version=jl.__version__,
+                        # each file with its SHA-256: whether the file at that path is still
+                        # the one used (a refit replaces the fit's folder as a whole)
+                        files=dict(vehicle_config=_file_record(args.config),
+                                   metadata=_file_record(meta), data_file=_file_record(data),
+                                   drop_vehicle_config=_file_record(cfg[0]) if cfg else None),
+                        environment=environment)
         p.fit_status = status
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
         (staging / "vehicle.toml").write_text(f"# the vehicle predicted with (--config "

@@ -9,6 +9,7 @@ reproduced bit for bit: that is why recovery is checked to 0.5 %, not to round-o
 """
 
 import argparse
+import hashlib
 import json
 import math
 import tomllib
@@ -590,6 +591,13 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     # and each prediction names the files it came from
     assert rep["inputs"]["vehicle_config"] == str((cli_fit / "fitted_vehicle.toml").resolve())
     assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
+    # with their SHA-256 (a refit replaces the fit's folder) and the software it ran on
+    files = rep["inputs"]["files"]
+    assert files["vehicle_config"]["sha256"] == hashlib.sha256(
+        (cli_fit / "fitted_vehicle.toml").read_bytes()).hexdigest()
+    assert files["data_file"]["sha256"] == hashlib.sha256(
+        (DATA / "drop_h0.30m.csv").read_bytes()).hexdigest()
+    assert rep["inputs"]["environment"]["jax"] == jax.__version__
 
 
 @pytest.mark.parametrize("section,key,value", [
