@@ -102,8 +102,15 @@ def plot_prediction(pred, path: Path) -> Path:
     d = pred.drop
     data = d.corrected
     chans = list(data)
-    fig = _figure(figsize=(11, 2.3 * len(chans) + 0.8))
-    axs = np.atleast_1d(fig.subplots(len(chans), 1, sharex=True, squeeze=False)[:, 0])
+    lines = [f"{k}: data {v['data']:.5g}, model {v['model']:.5g}, error {v['rel_error']:+.2%}"
+             for k, v in pred.metrics.items()]
+    # the metrics get a panel of their own below the traces: inside the first axes a record
+    # of several legs' channels ran above it and under its legend
+    text_h = 0.14 * len(lines) + 0.3  # inches, at 7 pt
+    fig = _figure(figsize=(11, 2.3 * len(chans) + 0.8 + text_h))
+    grid = fig.add_gridspec(len(chans) + 1, 1, height_ratios=[2.3] * len(chans) + [text_h])
+    axs = [fig.add_subplot(grid[0, 0])]
+    axs += [fig.add_subplot(grid[i, 0], sharex=axs[0]) for i in range(1, len(chans))]
     t_rel = d.time_s - pred.touchdown_time_s
     for ax, c in zip(axs, chans):
         label, scale = _label(c)
@@ -113,12 +120,13 @@ def plot_prediction(pred, path: Path) -> Path:
                 color="C3", label="prediction")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
+    for ax in axs[:-1]:
+        ax.tick_params(labelbottom=False)
     axs[-1].set_xlabel("time after touchdown [ms]")
-    lines = [f"{k}: data {v['data']:.5g}, model {v['model']:.5g}, error {v['rel_error']:+.2%}"
-             for k, v in pred.metrics.items()]
-    axs[0].text(0.99, 0.04, "\n".join(lines), transform=axs[0].transAxes, ha="right",
-                va="bottom", fontsize=7, family="monospace",
-                bbox=dict(facecolor="white", alpha=0.85, edgecolor="0.7"))
+    box = fig.add_subplot(grid[-1, 0])
+    box.axis("off")
+    box.text(0.0, 1.0, "\n".join(lines), transform=box.transAxes, ha="left", va="top",
+             fontsize=7, family="monospace")
     axs[0].legend(loc="upper right")
     fig.suptitle(f"prediction of {d.name}" + (" (SYNTHETIC data)" if d.synthetic else ""))
     return atomic_savefig(fig, path)

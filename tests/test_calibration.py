@@ -1056,3 +1056,22 @@ def test_the_guides_worked_example_prints_what_the_fit_computes(cli_fit):
     for name, (value, se) in shown.items():
         assert rep[name]["value"] == pytest.approx(value, rel=1e-4), name
         assert rep[name]["std_error_total"] == pytest.approx(se, rel=0.1), name
+
+
+def test_the_prediction_figure_gives_its_metrics_a_panel_of_their_own(tmp_path, monkeypatch):
+    """The lab record (four legs' channels, 16 metrics): the metrics box sat inside the first
+    trace's axes, ran above it and under its legend, hiding five errors. Now every metric's
+    line is in a panel of its own below the traces, and no trace axes holds text."""
+    from calibration import _plots
+
+    figs = []
+    monkeypatch.setattr(_plots, "atomic_savefig", lambda fig, path: figs.append(fig) or path)
+    drop = cal.load_drop_test(DATA / "drop_h0.20m_lab.toml")
+    pred = cal.predict(drop.vehicle, drop)
+    _plots.plot_prediction(pred, tmp_path / "p.png")
+    (fig,) = figs
+    *traces, panel = fig.axes
+    assert len(traces) == len(drop.corrected) and not panel.axison
+    (text,) = panel.texts
+    assert len(pred.metrics) >= 16 and all(k in text.get_text() for k in pred.metrics)
+    assert all(not ax.texts for ax in traces)
