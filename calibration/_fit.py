@@ -208,6 +208,9 @@ HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): 
 # the parameters the fit held (active ones), which every interval is conditional on: predict
 # names a file that holds them differently as edited
 HEADER_HELD = "# held at the vehicle's values (every interval is conditional on them): "
+# a fit's warnings that its values are biased beyond the misfit (``FitResult.cautions``):
+# "# CAUTION (FLAG): text", each FLAG a flag of predict's
+HEADER_CAUTION = "# CAUTION ({flag}): "
 HEADER_MISFIT = "# MISFIT: "
 HEADER_NOT_CONVERGED = "# NOT CONVERGED: "
 HEADER_NOT_BOUNDED = "# NO TRUSTED INTERVAL: "
@@ -376,6 +379,29 @@ class FitResult:
             return disagree
         return no_peak_failure(self.diagnostics.get("no_peak_check"))
 
+    def cautions(self) -> list[tuple[str, str]]:
+        """The fit's warnings that its values are biased beyond what its misfit says, as
+        (flag, text) for the header that predict reads: the crush peak in the force channels
+        only (the honeycomb's values take up a force the motion does not show), a peak form
+        the data reject, and a motion that misfits with the peak on the force channels."""
+        d, out = self.diagnostics, []
+        where = d.get("peak_location")
+        if where is not None and where.get("force_only"):
+            out.append(("PEAK IN THE FORCES ONLY", "the crush peak shows in the force channels "
+                        "only: the honeycomb's values take up a force the motion does not show "
+                        "(fit_report.json, misfit.peak_location)"))
+        mform, form = d.get("model_form"), self.settings.get("peak_form")
+        if mform is not None and form is not None and form not in mform["plausible"]:
+            out.append(("FORM REJECTED", f"the data reject the crush peak's {form} form; the "
+                        f"{mform['best_supported']} form is the best supported (fit_report.json, "
+                        "misfit.model_form)"))
+        site = d.get("peak_site_check")
+        if site is not None and site.get("misfit"):
+            out.append(("MOTION MISFITS", "the peak sits on the force channels and the motion "
+                        "misfits: the motion shows crush work the model lacks, and the values "
+                        "are biased (fit_report.json, misfit.peak_site_check)"))
+        return out
+
     def reported_errors(self) -> tuple[str, np.ndarray]:
         """The standard errors the fit reports (``diagnostics["interval"]``): the classical
         ones only where the residuals look like the noise, else the HAC or the total ones."""
@@ -403,6 +429,7 @@ class FitResult:
                 *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
                 *([] if self.converged else [HEADER_NOT_CONVERGED + self.not_converged()]),
+                *(HEADER_CAUTION.format(flag=flag) + text for flag, text in self.cautions()),
                 *([HEADER_NOT_BOUNDED + "; ".join(self.diagnostics["interval_not_bounded"])
                    + " (fit_report.json, misfit.interval_not_bounded)"]
                   if self.diagnostics.get("interval_bounded") is False else []),

@@ -193,9 +193,10 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     """What the header of a vehicle file written by ``jaxland fit`` (``fitted_vehicle.toml``,
     ``FitResult.to_toml``) says of its fit: ``{"from_fit": False}`` for a file without that
     header; else ``from_fit``, ``fitted_against`` (the records), ``sound`` (no flag),
-    ``flags`` (``MISFIT``, ``NOT CONVERGED``, ``NO TRUSTED INTERVAL``, and a parameter ``NOT
-    IDENTIFIED`` or ``AT A BOUND``), the ``misfit``, ``not_converged`` and
-    ``interval_not_bounded`` lines' text (None where absent), the
+    ``flags`` (``MISFIT``, ``NOT CONVERGED``, ``NO TRUSTED INTERVAL``, each CAUTION's flag,
+    and a parameter ``NOT IDENTIFIED`` or ``AT A BOUND``), the ``misfit``, ``not_converged``
+    and ``interval_not_bounded`` lines' text (None where absent), ``cautions`` ({flag:
+    text}), the
     ``interval`` the errors are, ``parameters`` (``{name: {value, std_error,
     rel_std_error, unit, note}}``, the header's rounded numbers; std_error None where the
     fit gave none) and ``uncertainty`` (how far the prediction carries it: not at all).
@@ -206,6 +207,7 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     THE FIT: <name>``: its predictions are not the fit's."""
     from ._fit import (
         AT_BOUND,
+        HEADER_CAUTION,
         HEADER_FIT,
         HEADER_HELD,
         HEADER_MISFIT,
@@ -240,9 +242,13 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
             for m in _ENTRY.finditer(after(HEADER_HELD) or "")}
     misfit, capped = after(HEADER_MISFIT), after(HEADER_NOT_CONVERGED)
     unbounded = after(HEADER_NOT_BOUNDED)
+    caution_head = HEADER_CAUTION.split("{flag}")
+    cautions = {x[len(caution_head[0]):].partition(caution_head[1])[0]:
+                x.partition(caution_head[1])[2]
+                for x in head if x.startswith(caution_head[0])}
     flags = (["MISFIT"] if misfit is not None else []) + (
         ["NOT CONVERGED"] if capped is not None else []) + (
-        ["NO TRUSTED INTERVAL"] if unbounded is not None else []) + [
+        ["NO TRUSTED INTERVAL"] if unbounded is not None else []) + list(cautions) + [
         f"{'NOT IDENTIFIED' if NOT_IDENTIFIED in p['note'] else 'AT A BOUND'}: {n}"
         for n, p in params.items() if p["note"] and (NOT_IDENTIFIED in p["note"]
                                                       or AT_BOUND in p["note"])]
@@ -252,6 +258,7 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     flags += [f"{EDITED}: {e['name']}" for e in edited]
     return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
                 misfit=misfit, not_converged=capped, interval_not_bounded=unbounded,
+                cautions=cautions,
                 interval=interval or None,
                 parameters=params, uncertainty=NO_BAND,
                 **({} if vehicle is None else {"edited": edited}))

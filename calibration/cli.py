@@ -501,6 +501,7 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
                       ("NO TRUSTED INTERVAL", "interval_not_bounded")):
         if status[key] is not None:
             lines.append(f"  {flag}: {status[key]}")
+    lines += [f"  {flag}: {text}" for flag, text in status.get("cautions", {}).items()]
     params = status["parameters"]
     if params:
         lines.append(f"  fitted values (+/- {status['interval']}): " + ", ".join(

@@ -732,6 +732,18 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     assert f"warning: {head}" in cap.err and head in cap.out and "sound" not in cap.out
     rep = json.loads((out / "prediction_drop_h0.30m.json").read_text())["fit_status"]
     assert not rep["sound"] and rep["edited"][0]["file"] == 4e6
+    # a fit's cautions reach predict: its force-only crush peak was printed by the fit, and
+    # predict called the file flagged only MISFIT
+    warned = cal.FitResult(**{**{k: getattr(res, k) for k in (
+        "names", "values", "std_errors", "correlation", "covariance", "identified",
+        "start_values", "vehicle", "stages", "drops")}, "diagnostics": dict(
+            res.diagnostics, peak_location=dict(force_only=True))})
+    cautious = tmp_path / "cautious.toml"
+    cautious.write_text(warned.to_toml())
+    status = read_fit_status(cautious, jl.load_vehicle(cautious))
+    assert not status["sound"] and status["flags"] == ["PEAK IN THE FORCES ONLY"]
+    assert status["cautions"]["PEAK IN THE FORCES ONLY"].startswith(
+        "the crush peak shows in the force channels only")
     # a value the fit held (every interval is conditional on it) is the fit's too: an edit of
     # one was not seen (chi x 10 and mu 0.1 moved a prediction's max stroke by 23 %)
     assert "# held at the vehicle's values" in sound.read_text()
