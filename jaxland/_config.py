@@ -10,6 +10,7 @@ from honeycomb cell data with Wierzbicki's crush formula (``[honeycomb.cells]``)
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 
@@ -291,7 +292,8 @@ def _fail(section, f, val, rule):
 def check_n_legs(n_legs) -> None:
     """Refuse a leg count the models do not hold: the legs stand evenly around the axis, and
     fewer than three stand on no area."""
-    if isinstance(n_legs, bool) or not isinstance(n_legs, int) or not 3 <= n_legs <= 12:
+    if (isinstance(n_legs, bool) or not isinstance(n_legs, numbers.Integral)
+            or not 3 <= n_legs <= 12):
         raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
 
 

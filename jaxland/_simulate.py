@@ -403,7 +403,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     paper's 0.2 m drop) with ``method`` (an integrator, ``jaxland.Euler()`` ..., or its name:
     "euler", "euler_implicit", "verlet", "leapfrog", "impulse", "tsit5") at step ``dt`` [s]
     for ``t_end`` [s], sampling the trajectory every ``save_dt`` [s] (default: the smallest
-    multiple of dt that is at least 1e-4 s). ``solver_options`` are the named method's options
+    multiple of dt that is at least 1e-4 s; one given must divide ``t_end`` to within a step,
+    since a run ends on a whole save interval). ``solver_options`` are the named method's options
     (``impulse``, ``rtol``, ``atol``, ``max_steps``, ``adjoint``) and the switch smoothing
     (``smoothing_m``, ``smoothing_N``).
 
@@ -427,10 +428,12 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     vehicle = paper_vehicle() if vehicle is None else validate_vehicle(vehicle)
     for section, mod, f in vehicle_fields(vehicle):  # one vehicle has one of each, per leg too
         val = getattr(mod, f.name)  # None: an extension left out; a table is a 1-D array
-        if val is not None and jnp.ndim(val) != (1 if f.metadata.get("table") else 0):
+        table = bool(f.metadata.get("table"))
+        if val is not None and jnp.ndim(val) != (1 if table else 0):
             raise ConfigError(f"{section}.{f.metadata['toml']}", jnp.shape(val),
-                              "must be one number: simulate takes one vehicle (for a batch, "
-                              "jax.vmap over jaxland.landing)")
+                              ("must be one list of numbers (a table)" if table else
+                               "must be one number") + ": simulate takes one vehicle (for a "
+                              "batch, jax.vmap over jaxland.landing)")
     scene.validate(vehicle.n_legs)
     if jax.tree.leaves(batch_axes(scene)):  # some field is batched
         raise ConfigError("scene", "<batch>", "simulate takes one scene; for a batch use "

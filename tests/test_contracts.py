@@ -263,6 +263,9 @@ def test_truncnormal_far_in_a_tail_is_refused_when_read():
     x = jl.sample_scenes(spec, 0, spec.n)[1]["sink_speed_mps"]
     assert 1.0 < x.min() and x.max() < 3.0
     assert abs(x.mean() - 2.0) < 0.02 and abs(x.std() - 2.0 / np.sqrt(12.0)) < 0.01
+    # so is one whose mean lies just outside its bounds, within a standard deviation
+    jl.Distribution.from_dict("sink_speed_mps", dict(dist="truncnormal", mean=0.99, std=1e6,
+                                                     low=1.0, high=3.0))
 
 
 def test_a_per_leg_value_needs_one_entry_per_leg():

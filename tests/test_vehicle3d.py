@@ -2,6 +2,7 @@
 against an independent rigid-body criterion, differentiability, scene validation."""
 
 import dataclasses
+import warnings
 
 import equinox as eqx
 import jax
@@ -82,6 +83,10 @@ def test_a_landing_outside_the_envelope_says_so_and_bad_scenes_are_named():
                           r"body.n_legs = 4.0: must be an integer")):
         with pytest.raises(jl.ConfigError, match=needle):
             make()
+    with warnings.catch_warnings():  # equinox warns of an array as a static field
+        warnings.simplefilter("ignore")
+        four = dataclasses.replace(v, n_legs=np.int64(4))
+    assert jl.validate_vehicle(four) is four  # a numpy integer is an integer
 
 
 @pytest.mark.parametrize("scene", [

@@ -137,10 +137,12 @@ class Distribution:
         if kind == "truncnormal":
             mass = _normal_mass((vals["low"] - vals["mean"]) / vals["std"],
                                 (vals["high"] - vals["mean"]) / vals["std"])
-            # an interval holding the mean samples well however little mass it holds (a
-            # normal far wider than its bounds is nearly uniform on them); one in a tail
-            # collapses onto its bound
-            tail = not vals["low"] <= vals["mean"] <= vals["high"]
+            # an interval within a standard deviation of the mean samples well however little
+            # mass it holds (a normal far wider than its bounds is nearly uniform on them);
+            # one far in a tail collapses onto its bound
+            a = (vals["low"] - vals["mean"]) / vals["std"]
+            b = (vals["high"] - vals["mean"]) / vals["std"]
+            tail = a * b > 0.0 and min(abs(a), abs(b)) > 1.0
             if tail and mass < TRUNCNORMAL_MIN_MASS:
                 raise ConfigError(f"dispersion.{name}", f"[{vals['low']}, {vals['high']}]",
                                   f"holds only {mass:.2g} of the normal's probability "

@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
     s.add_argument("--save-dt", type=float, default=None,
                    help="output sample interval [s] (default: the smallest whole multiple "
-                        "of dt that is at least 1e-4 s)")
+                        "of dt that is at least 1e-4 s; one given must divide --t-end)")
     s.add_argument("--out", default="out/simulate", help="output folder (default out/simulate)")
     s.add_argument("--no-plots", action="store_true", help="skip the figures")
     s.set_defaults(func=cmd_simulate)
