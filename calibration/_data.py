@@ -534,7 +534,8 @@ class DropTest:
         the leg's mass (the body's share): 0.93 to 1.0 for the ground's normal force and 0.52
         to 0.67 for the strut's buffer force on the bundled records and rig drops of 0.01 to
         1 m, a tenth of that in g. Refused by name below ``ACCEL_SWING_MIN`` of the smaller
-        implied swing, and above ``PLAUSIBLE_FACTOR`` times it (a unit a thousand times off);
+        implied swing, and above ``PLAUSIBLE_FACTOR`` times the larger (a unit a thousand times
+        off);
         a record without a force channel is not checked."""
         m = float(self.vehicle.m_quarter)
         corrected = self.corrected
@@ -549,7 +550,10 @@ class DropTest:
         forces = [c for c in corrected if base_channel(c) in ("normal_force_N", "buffer_force_N")]
         if not (acc and forces):
             return
+        # the least a force channel implies bounds the swing from below, the most from above:
+        # a leg that barely loaded tightens neither
         implied = min(swing(c) / m for c in forces)
+        most = max(swing(c) / m for c in forces)
         for col in acc:
             a = swing(col)
             if a < ACCEL_SWING_MIN * implied:
@@ -558,11 +562,11 @@ class DropTest:
                            f"leg's {m:.4g} kg ({implied:.4g} m/s^2; records in m/s^2 give 0.5 "
                            f"to 1), and is {a / implied:.2g} of it: an acceleration in g? (a "
                            "body_accel_g column is converted)")
-            if a > PLAUSIBLE_FACTOR * implied:
+            if a > PLAUSIBLE_FACTOR * most:
                 raise _err(f"{self.source}: {col}", f"swing {a:.4g} m/s^2", "must be at most "
                            f"{PLAUSIBLE_FACTOR:g} x the swing the force channels imply for the "
-                           f"leg's {m:.4g} kg ({implied:.4g} m/s^2; records in m/s^2 give 0.5 "
-                           f"to 1), and is {a / implied:.3g} x it: an acceleration in mm/s^2 "
+                           f"leg's {m:.4g} kg ({most:.4g} m/s^2; records in m/s^2 give 0.5 "
+                           f"to 1), and is {a / most:.3g} x it: an acceleration in mm/s^2 "
                            "under an _mps2 header, or a gain error of the accelerometer?")
 
     def _check_free_fall(self) -> None:

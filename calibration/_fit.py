@@ -365,8 +365,9 @@ class FitResult:
 
     @property
     def converged(self) -> bool:
-        """The last stage ended at a minimum, not at its iteration cap, and a fit with the
-        crush peak no worse than its special case without it (``no_peak_failure``)."""
+        """The last stage ended at a minimum, not at its iteration cap, two starts reached it
+        (``starts_disagree``), and a fit with the crush peak ended no worse than its special
+        case without it (``no_peak_failure``)."""
         return self.not_converged() is None
 
     def not_converged(self) -> str | None:
@@ -497,16 +498,16 @@ def _starts_agree(candidates) -> bool:
 
 
 def starts_disagree(info: dict | None) -> str | None:
-    """Why a fit's basin is not known to be the best (``settings["multistart"]``): its
-    starts, all run, ended in as many different minima, so the lowest of them may be a local
-    one (a start far from the truth finds a wrong basin and the record's misfit then reads as
-    the model's). None where two agreed, or where one start ran."""
+    """Why a fit's basin is not known to be the best (``settings["multistart"]``): all of its
+    starts ran and no second one reached the lowest loss (``_starts_agree``), so that minimum
+    may be a local one (a start far from the truth finds a wrong basin, and the record's
+    misfit then reads as the model's). None where two agreed, or where one start ran."""
     if not info or info.get("starts_agree", True) or info["n_starts_tried"] < 2:
         return None
     losses = ", ".join(f"{x:.4g}" for x in info["start_losses"])
-    return (f"its {info['n_starts_tried']} starts ended in as many minima ({info['selected_by']}"
-            f": {losses}), so the lowest may not be the best; give a start nearer the truth "
-            "(--start) and see whether two agree")
+    return (f"no two of its {info['n_starts_tried']} starts reached the lowest loss "
+            f"({info['selected_by']}: {losses}), so it may be a local minimum; give a start "
+            "nearer the truth (--start) and see whether two agree")
 
 
 def _until_two_agree(from_start, n: int, threads: int) -> list:

@@ -104,8 +104,8 @@ def plot_prediction(pred, path: Path) -> Path:
     chans = list(data)
     lines = [f"{k}: data {v['data']:.5g}, model {v['model']:.5g}, error {v['rel_error']:+.2%}"
              for k, v in pred.metrics.items()]
-    # the metrics get a panel of their own below the traces: inside the first axes a record
-    # of several legs' channels ran above it and under its legend
+    # the metrics get a panel of their own below the traces: a record of several legs'
+    # channels has more lines than the first axes holds beside its legend
     text_h = 0.14 * len(lines) + 0.3  # inches, at 7 pt
     fig = _figure(figsize=(11, 2.3 * len(chans) + 0.8 + text_h))
     grid = fig.add_gridspec(len(chans) + 1, 1, height_ratios=[2.3] * len(chans) + [text_h])

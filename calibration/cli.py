@@ -548,7 +548,8 @@ def add_subcommands(subparsers) -> None:
                    help="lm: Levenberg-Marquardt on the jacfwd Jacobian (default); lbfgs: "
                         "optax.lbfgs")
     f.add_argument("--max-iter", type=int, default=60, help="iterations per stage (default 60)")
-    f.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5)")
+    f.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5; "
+                   "it must divide the model's 2e-5 s sampling: 2e-5, 1e-5, 5e-6 ...)")
     f.add_argument("--integrator", default=INTEGRATOR,
                    help=f"the model's integrator, one of {', '.join(INTEGRATORS)} (default "
                         f"{INTEGRATOR})")
