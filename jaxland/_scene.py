@@ -146,20 +146,25 @@ class Scene(eqx.Module):
                 out[name] = jnp.broadcast_to(val, (n,))
         return cls(**out)
 
-    def touchdown_speed(self, g=9.81):
-        """Vertical speed at first contact [m/s] of the free fall from the scene's clearance,
-        the attitude held: sqrt(v0^2 + 2 g h) on level ground. On a slope the clearance is
+    def fall_time(self, g=9.81):
+        """Time [s] of the free fall from the scene's clearance to first contact, the attitude
+        held: (sqrt(v0^2 + 2 g h) - v0) / g on level ground. On a slope the clearance is
         measured along the ground normal n and the body falls vertically while its horizontal
         motion moves it across the slope, so the clearance h + a t - (v0 t + g t^2 / 2) n_z
-        (a = horizontal velocity . n) reaches 0 at t*, and the speed is v0 + g t*."""
+        (a = horizontal velocity . n) reaches 0 at this t*."""
         v0, h = self.sink_speed, self.drop_height
-        level = jnp.sqrt(v0**2 + 2.0 * g * h)
         nz = jnp.cos(self.slope)
         a = self.horizontal_speed * jnp.sin(self.slope) * jnp.cos(self.heading
                                                                   - self.slope_direction)
         b = v0 * nz - a
-        t = (jnp.sqrt(b * b + 2.0 * g * nz * h) - b) / (g * nz)
-        return jnp.where(self.slope == 0.0, level, v0 + g * t)
+        return (jnp.sqrt(b * b + 2.0 * g * nz * h) - b) / (g * nz)
+
+    def touchdown_speed(self, g=9.81):
+        """Vertical speed at first contact [m/s] of the free fall from the scene's clearance
+        (``fall_time``): sqrt(v0^2 + 2 g h) on level ground, v0 + g t* on a slope."""
+        v0, h = self.sink_speed, self.drop_height
+        level = jnp.sqrt(v0**2 + 2.0 * g * h)
+        return jnp.where(self.slope == 0.0, level, v0 + g * self.fall_time(g))
 
     def inside_envelope(self):
         """True (a jnp bool, also under jit and vmap) if every field lies in the documented

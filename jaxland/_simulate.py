@@ -485,8 +485,8 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
                             "no ground contact of its own, is not modelled physically, and "
                             "peaks and checks stop there")
     elif outcomes["classification"] == "no_touchdown":
-        g, h, v = float(vehicle.g), float(scene.drop_height), float(scene.sink_speed)
-        fall = (math.sqrt(v * v + 2.0 * g * h) - v) / g
+        h, v = float(scene.drop_height), float(scene.sink_speed)
+        fall = float(scene.fall_time(float(vehicle.g)))
         outcomes["note"] = (f"{Result.NO_TOUCHDOWN.message} = {solver.t_end:g} s: the outcomes "
                             f"are the free fall's; a vertical fall of {h:g} m at {v:g} m/s "
                             f"takes {fall:.3g} s, so raise t_end")

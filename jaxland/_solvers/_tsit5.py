@@ -83,8 +83,7 @@ class Tsit5(AbstractIntegrator):
         veh, derived = st.vehicle, st.derived
         ts = jnp.arange(solver.n_saves, dtype=jnp.float64) * solver.save_dt
         t1 = solver.n_saves * solver.save_dt
-        g, v0, h = veh.g, scene.sink_speed, scene.drop_height
-        t_touch = (jnp.sqrt(v0 * v0 + 2.0 * g * h) - v0) / g
+        t_touch = scene.fall_time(veh.g)
         term = diffrax.ODETerm(lambda t, y, args: model.ode_rates(veh, t, y, scene, derived))
         controller = diffrax.ClipStepSizeController(
             diffrax.PIDController(rtol=self.rtol, atol=self.atol, pcoeff=0.0, icoeff=1.0,
