@@ -104,6 +104,7 @@ import numpy as np
 
 import jaxland as jl
 from jaxland._files import json_text
+from jaxland._solvers._base import _whole_steps
 
 from ._data import CHANNELS, DropTest, _highpass_noise, base_channel
 from ._optim import lbfgs, levenberg_marquardt
@@ -1749,9 +1750,7 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     if not (isinstance(dt, (int, float)) and 0 < dt <= limit):
         raise jl.ConfigError("dt", dt, f"must be in (0, {limit:.3g}] s (the stability limit of "
                              f"{integrator} for the start vehicle)")
-    if isinstance(save_dt, (int, float)) and save_dt > 0 and not (
-            dt <= save_dt * (1 + 1e-9) and abs(save_dt / dt - round(save_dt / dt))
-            <= 1e-6 * save_dt / dt):
+    if isinstance(save_dt, (int, float)) and save_dt > 0 and not _whole_steps(save_dt, dt):
         raise jl.ConfigError("dt", dt, f"must divide the model's sampling interval, "
                              f"{save_dt:g} s, into whole steps (e.g. {save_dt:g} or "
                              f"{save_dt / 2:g} s)")

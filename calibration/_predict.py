@@ -242,10 +242,8 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
             for m in _ENTRY.finditer(after(HEADER_HELD) or "")}
     misfit, capped = after(HEADER_MISFIT), after(HEADER_NOT_CONVERGED)
     unbounded = after(HEADER_NOT_BOUNDED)
-    caution_head = HEADER_CAUTION.split("{flag}")
-    cautions = {x[len(caution_head[0]):].partition(caution_head[1])[0]:
-                x.partition(caution_head[1])[2]
-                for x in head if x.startswith(caution_head[0])}
+    before, after_flag = HEADER_CAUTION.split("{flag}")
+    cautions = dict(x[len(before):].split(after_flag, 1) for x in head if x.startswith(before))
     flags = (["MISFIT"] if misfit is not None else []) + (
         ["NOT CONVERGED"] if capped is not None else []) + (
         ["NO TRUSTED INTERVAL"] if unbounded is not None else []) + list(cautions) + [

@@ -135,13 +135,12 @@ class Distribution:
             raise ConfigError(f"dispersion.{name}.high", vals["high"],
                               f"must exceed low = {vals['low']}")
         if kind == "truncnormal":
-            mass = _normal_mass((vals["low"] - vals["mean"]) / vals["std"],
-                                (vals["high"] - vals["mean"]) / vals["std"])
+            a = (vals["low"] - vals["mean"]) / vals["std"]  # the bounds in standard deviations
+            b = (vals["high"] - vals["mean"]) / vals["std"]
+            mass = _normal_mass(a, b)
             # an interval within a standard deviation of the mean samples well however little
             # mass it holds (a normal far wider than its bounds is nearly uniform on them);
             # one far in a tail collapses onto its bound
-            a = (vals["low"] - vals["mean"]) / vals["std"]
-            b = (vals["high"] - vals["mean"]) / vals["std"]
             tail = a * b > 0.0 and min(abs(a), abs(b)) > 1.0
             if tail and mass < TRUNCNORMAL_MIN_MASS:
                 raise ConfigError(f"dispersion.{name}", f"[{vals['low']}, {vals['high']}]",
