@@ -124,10 +124,12 @@ from ._parameters import (
     check_peak_site,
     get_values,
     interval,
+    interval95,
     no_peak_names,
     peak_form_vehicle,
     set_values,
     switch_on,
+    value_range,
 )
 from ._problem import (
     FORCE_CHANNELS,
@@ -258,12 +260,26 @@ class FitResult:
     theta: np.ndarray = field(default=None, repr=False)
     settings: dict = field(default_factory=dict)
     inputs: dict = field(default_factory=dict)  # what a caller ran it from (the CLI's files)
+    # name -> (lo, hi) the fit's transform maps onto at the fitted values (hi None: open);
+    # ``interval95`` maps the reported errors into it
+    ranges: dict = field(default_factory=dict)
 
     def value(self, name: str) -> float:
         return float(self.values[self.names.index(name)])
 
     def std_error(self, name: str) -> float:
         return float(self.std_errors[self.names.index(name)])
+
+    def interval95(self, name: str, std_error: float) -> list[float] | None:
+        """The 95 % interval of a fitted value from ``std_error`` (``_parameters.interval95``:
+        inside the parameter's range); None where the value is not identified or at a bound
+        of the vehicle's rules (no interval holds there) or the range is unknown."""
+        i = self.names.index(name)
+        if (name not in self.ranges or not self.identified[i]
+                or name in self.diagnostics.get("at_bound", ())):
+            return None
+        out = interval95(float(self.values[i]), float(std_error), *self.ranges[name])
+        return None if out is None else [float(x) if math.isfinite(x) else None for x in out]
 
     def report(self) -> dict:
         """Everything about the fit, JSON-ready, units in the keys."""
@@ -284,6 +300,10 @@ class FitResult:
                 else None,
                 std_error_total=num(self.std_errors_total[i])
                 if self.std_errors_total is not None else None,
+                ci95=self.interval95(n, reported[i]),
+                range=(None if n not in self.ranges else
+                       [num(self.ranges[n][0]), None if self.ranges[n][1] is None
+                        else num(self.ranges[n][1])]),
                 start=num(self.start_values[i]), identified=bool(self.identified[i]),
                 at_bound=n in self.diagnostics.get("at_bound", ()),
                 config_key=PARAMS[n][2], description=PARAMS[n][4])
@@ -315,6 +335,12 @@ class FitResult:
                        rel_std_error="1; the reported interval's standard error "
                                      "(interval_reported) over |value|",
                        rel_std_error_classical="1; std_error over |value|",
+                       ci95="same unit as the value; the 95 % interval of the reported "
+                            "standard error, +/- 1.96 of it in the fit's own coordinates "
+                            "(log or logit of the range), so inside range; null where not "
+                            "identified or at a bound; an upper end null: unbounded",
+                       range="same unit as the value; the values the fit could reach at "
+                             "the others' fitted values (upper end null: none)",
                        std_error="same unit as the value; Gauss-Newton, residual-variance "
                                  "scaled (holds for white residuals)",
                        std_error_hac="same unit as the value; HAC sandwich, Bartlett window "
@@ -2250,7 +2276,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
             peak_location=where_peak, peak_site_check=site_check),
         loss=final.robust(huber_c).loss(theta), stages=stages, history=history, warnings=msgs,
         method=method, wall_s=time.perf_counter() - t_start, drops=drops, problem=final,
-        theta=theta,
+        theta=theta, ranges={n: value_range(n, names, values, final.vehicle, final.peak_form,
+                                            peak_site) for n in names},
         settings=dict(windows_s=list(windows), refine_window_s=stages_w[-1]
                       if len(stages_w) > len(windows) else None,
                       refine_window_requested_s=(REFINE_WINDOW_S if refine_window_s == AUTO

@@ -411,13 +411,32 @@ def _cmd_fit(args) -> int:
         others = {"std_error": f"classical +/- {result.std_errors[i]:.2g}",
                   "std_error_hac": f"HAC +/- {result.std_errors_hac[i]:.2g}"}
         others.pop(interval, None)
+        # where the value +/- 1.96 errors leaves the range its law allows, the 95 % interval
+        # taken in the fit's own coordinates stays inside it
+        ci, (lo, hi) = result.interval95(n, errors[i]), result.ranges.get(n, (-math.inf, None))
+        outside = ci is not None and (result.values[i] - 1.96 * errors[i] <= lo or (
+            hi is not None and result.values[i] + 1.96 * errors[i] >= hi))
+        inside = (f"; 95 % {_end(ci[0], lo, hi)} to {_end(ci[1], lo, hi)}, inside its range"
+                  if outside else "")
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {errors[i]:.2g} {PARAMS[n][1]} "
               f"({interval}; {', '.join(others.values())}; "
-              f"start {result.start_values[i]:.6g}){flag}")
+              f"start {result.start_values[i]:.6g}{inside}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
           + (", model_comparison.json" if cmp is not None else "")
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
+
+
+def _end(x, lo, hi) -> str:
+    """An interval's end to 4 digits, or to as many as keep it off the range's ends (lo, hi)
+    that it lies strictly inside; None: unbounded."""
+    if x is None:
+        return "inf"
+    for digits in (4, 7, 10, 17):
+        text = f"{x:.{digits}g}"
+        if float(text) not in (lo, hi):
+            return text
+    return text
 
 
 def _cmd_predict(args) -> int:

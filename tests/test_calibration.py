@@ -518,6 +518,8 @@ def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
         assert "FITTED: not the paper vehicle's value" in line, line
     for name, p in rep["parameters"].items():
         assert p["unit"] and p["std_error"] > 0 and p["identified"]
+        lo, hi = p["range"]
+        assert lo < p["ci95"][0] < p["value"] < p["ci95"][1] and (hi is None or p["ci95"][1] < hi)
         assert float(get_values(fitted, (name,))[0]) == pytest.approx(p["value"], rel=1e-9)
     assert len(rep["correlation"]["matrix"]) == 6
     assert set(rep["residual_rms"]["drop_h0.20m"]) == set(cal.CHANNELS)

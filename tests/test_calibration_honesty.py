@@ -1074,3 +1074,35 @@ def test_a_fit_whose_starts_end_in_different_minima_is_not_converged():
     assert not res.converged
     assert res.not_converged().startswith("no two of its 4 starts reached the lowest loss")
     assert "# NOT CONVERGED: no two of its 4 starts" in res.to_toml()
+    # its gamma near 1 (0.994 +/- 0.035): value +/- 1.96 errors leaves (0, 1) and misses the
+    # truth, 0.4; the 95 % interval in the fit's coordinates stays inside and covers it
+    g = res.report()["parameters"]["gamma"]
+    err = g["rel_std_error"] * g["value"]
+    assert g["value"] + 1.96 * err > 1.0 and not g["value"] - 1.96 * err < 0.4
+    assert 0.0 < g["ci95"][0] < 0.4 < g["ci95"][1] < 1.0 and g["range"] == [0.0, 1.0]
+
+
+def test_the_95_interval_stays_inside_the_range_the_fit_transforms_onto():
+    """interval95 is +/- 1.96 standard errors in the fit's own coordinates (log(x - lo),
+    logit((x - lo) / (hi - lo))), mapped back: inside the range by construction, and value +/-
+    1.96 standard errors where the error is small against the distance to the range's ends."""
+    from calibration._parameters import interval95
+    # small errors: the symmetric interval to first order
+    for v, se, lo, hi in ((2.6e6, 1e3, 0.0, None), (0.4, 1e-4, 0.0, 1.0),
+                          (8500.0, 0.5, 5300.0, None), (1.2, 1e-5, 1.0, 1.6)):
+        a, b = interval95(v, se, lo, hi)
+        assert a == pytest.approx(v - 1.96 * se, rel=1e-6) and b == pytest.approx(
+            v + 1.96 * se, rel=1e-6)
+    # large errors: inside the range, symmetric in the transformed coordinate
+    a, b = interval95(0.994, 0.035, 0.0, 1.0)
+    logit = lambda x: math.log(x / (1.0 - x))  # noqa: E731
+    half = 1.96 * 0.035 / (0.994 * 0.006)
+    assert 0.0 < a < b < 1.0
+    assert logit(a) == pytest.approx(logit(0.994) - half, rel=1e-9)
+    assert logit(b) == pytest.approx(logit(0.994) + half, rel=1e-9)
+    a, b = interval95(1e3, 2e3, 0.0, None)  # log scale: geometric about the value
+    assert a > 0 and a * b == pytest.approx(1e6, rel=1e-12)
+    a, b = interval95(6e3, 1e3, 5e3, None)  # F2 above F1: the gap's log
+    assert a > 5e3 and (a - 5e3) * (b - 5e3) == pytest.approx(1e6, rel=1e-12)
+    assert interval95(1.0, 1e6, 0.0, None)[1] == math.inf
+    assert interval95(0.5, math.nan, 0.0, 1.0) is None and interval95(1.0, 0.1, 0.0, 1.0) is None
