@@ -1055,6 +1055,18 @@ def design_wall() -> str:
                    "set-up and judging [s]", "total [s]"], rows)
 
 
+def design_convergence() -> str:
+    d = _load("design.json")["convergence"]
+    rows = [[label, f"{r['settings'].get('patience', '-')}", f"{r['iterations_run']}",
+             f"{r['best_mps2']:.4g} (iteration {r['best_iteration']})",
+             "never" if r["iterations_to_1pct"] is None else
+             f"iteration {r['iterations_to_1pct']} ({r['wall_to_1pct_s']:.1f} s)",
+             f"{r['wall_s']:.1f}"] for label, r in d["runs"].items()]
+    return _table(["run", "patience", "iterations run", "best [m/s^2]",
+                   f"within 1 % of the best found ({d['best_overall_mps2']:.4g} m/s^2)",
+                   "wall [s]"], rows)
+
+
 def design_devices() -> str:
     d = _load("design.json")["device_split"]
     rows = [[f"{r['devices']}", f"{r['first_evaluation_s']:.1f}", f"{r['iteration_wall_s']:.2f}",
@@ -1249,6 +1261,7 @@ TABLES = {
     "design-verification": design_verification,
     "design-variables": design_variables,
     "design-wall": design_wall,
+    "design-convergence": design_convergence,
     "design-devices": design_devices,
     "design-step": design_step,
     "readme-paper-peak": readme_paper_peak,
