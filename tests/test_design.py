@@ -393,6 +393,27 @@ def test_cell_bounds_that_allow_a_weak_secondary_name_a_bound_the_spec_gives():
                                      "cell bounds allow F2 = "), str(err.value)
 
 
+def test_cell_variables_refuse_cells_that_do_not_give_the_baseline_gear():
+    """A cell variable sets F1 and F2 from the cells: with the paper's cells on a baseline of
+    F1 6000 N and F2 12000 N the start was silently the paper's gear (5024 N, 9093 N), and the
+    verification credited the design with the swap. Refused by name; the paper's own vehicle,
+    whose plateaus those cells give, is taken."""
+    spec = copy.deepcopy(ROBUST)
+    del spec["variables"]["F1_N"]
+    spec["variables"]["primary_foil_thickness_mm"] = dict(low=0.06, high=0.08)
+    paper = jl.paper_vehicle()
+    problem = DesignProblem(design_spec_from_dict(copy.deepcopy(spec)), paper)
+    assert problem.z0.shape == (len(spec["variables"]),)
+    other = dataclasses.replace(paper, honeycomb=dataclasses.replace(
+        paper.honeycomb, F1=6000.0, k_b1=6000.0 / (paper.honeycomb.F1 / paper.honeycomb.k_b1),
+        F2=12000.0, k_b3=6000.0 / ((paper.honeycomb.F2 - paper.honeycomb.F1)
+                                   / paper.honeycomb.k_b3)))
+    with pytest.raises(jl.ConfigError) as err:
+        DesignProblem(design_spec_from_dict(spec), other)
+    assert err.value.field == "cells.primary_foil_thickness_mm", str(err.value)
+    assert "where the baseline vehicle has F1 = 6000 N" in err.value.rule
+
+
 def test_a_vehicle_no_step_can_run_is_named_not_the_designs_step():
     """No bound moves a 1e-300 kg foot's stability limit (0 s): the design refuses the
     vehicle's field, not design.dt_s."""

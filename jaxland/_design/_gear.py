@@ -6,9 +6,11 @@ import math
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from .._config import PAPER_CELLS
 from .._crush import foil_ratio, plateau_force
+from .._errors import ConfigError
 from .._params import Vehicle
 from ._spec import CELL_VARS
 
@@ -36,7 +38,7 @@ def gear_mass_kg(vehicle: Vehicle, cells: dict | None = None):
     * the pair of auxiliary struts: steel tubes of axial stiffness k_a / 2 each over their rest
       length L: mass = rho L (k L / E) = rho k_a L^2 / E for the pair.
 
-    The main strut (fixed length) and body are not counted. With the paper's gear: 0.02 kg of
+    The main strut (fixed length) and body are not counted. With the paper's gear: 0.08 kg of
     honeycomb and 0.81 kg of auxiliary struts per leg; the struts dominate.
     """
     cells = PAPER_CELLS if cells is None else cells
@@ -77,6 +79,31 @@ def apply_design(vehicle: Vehicle, values: dict, cells: dict | None = None) -> V
                        tuple(jnp.asarray(x, jnp.float64) for x in (
                            values.get("k_a_N_per_m", leg.k_a),
                            values.get("theta_b_deg", leg.theta_b), values.get("R_m", leg.R))))
+
+
+CELLS_RTOL = 1e-3  # the cells' plateau forces against the baseline's: a force given to four
+# digits (the paper's F1 5024.4 N, its cells' 5024.37 N)
+
+
+def check_cells(vehicle: Vehicle, names, cells: dict) -> None:
+    """Refuse cell variables whose cells (``cells``: the spec's ``[cells]``, the paper's where
+    not given) do not give the baseline vehicle's plateau forces: a cell variable sets both F1
+    and F2 from the cells (``apply_design``), so the start would silently be another gear."""
+    if not any(n in CELL_VARS for n in names):
+        return
+    hc = vehicle.honeycomb
+    for stage, given in (("primary", hc.F1), ("secondary", hc.F2)):
+        force = float(cells_force(cells[f"{stage}_cell_size_mm"] * 1e-3,
+                                  cells[f"{stage}_foil_thickness_mm"] * 1e-3, cells))
+        have = np.asarray(given, dtype=float)
+        if not np.all(np.abs(have - force) <= CELLS_RTOL * np.abs(have)):
+            name = "F1" if stage == "primary" else "F2"
+            raise ConfigError(
+                f"cells.{stage}_foil_thickness_mm", cells[f"{stage}_foil_thickness_mm"],
+                f"the [cells] (the paper's where not given) give the {stage} plateau force "
+                f"{force:.6g} N where the baseline vehicle has {name} = "
+                f"{float(np.max(have)):.6g} N: a cell variable starts from these cells, so "
+                "give the baseline's cells in [cells] (or design F1_N and F2_N instead)")
 
 
 def baseline_value(vehicle: Vehicle, name: str, cells: dict) -> float:

@@ -23,7 +23,7 @@ from .._params import Vehicle
 from .._scene import Scene
 from .._simulate import landings, refuse_unsteppable
 from .._solvers import Result, Solver, stable_step
-from ._gear import apply_design, baseline_value, cells_force, gear_mass_kg
+from ._gear import apply_design, baseline_value, cells_force, check_cells, gear_mass_kg
 from ._spec import (
     CELL_VARS,
     CONSTRAINTS,
@@ -224,6 +224,7 @@ class DesignProblem:
                               "keep the dispersion inside the envelope (truncnormal, uniform)"
                               ) from None
         check_bounds(spec, self.vehicle)
+        check_cells(self.vehicle, spec.names, self.cells)
         self._stiffest: dict = {}  # per method: stiffest_step's answer
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
                                       baseline_value(self.vehicle, v.name, self.cells))
