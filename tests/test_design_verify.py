@@ -64,6 +64,42 @@ def test_the_history_runs_across_rounds(closed):
     its = [h["iteration"] for h in res.history]
     assert its == list(range(len(its)))
     assert {h["round"] for h in res.history} == set(range(len(res.verification["rounds"])))
+    # the returned iterate in the history's numbering, and the steps taken over the rounds
+    # (each round's iteration 0 evaluates the design it starts from)
+    assert res.history[res.best_iteration]["values"] == res.values
+    rounds = len(res.verification["rounds"])
+    assert res.iterations_run == len(its) - rounds == res.report()["iterations"]
+    assert res.iterations_run <= (SPEC["design"]["iterations"] + (rounds - 1)
+                                  * SPEC["design"]["reoptimise_iterations"])
+
+
+def test_a_reoptimisation_that_ends_infeasible_returns_the_last_verified_design():
+    """Round 0's design is feasible on its 4 scenes and 11 of 40 fresh landings violate a
+    tight max stroke limit; 2 re-optimisation steps on the 6 scenes end infeasible. The loop
+    returned that infeasible result with no verification at all (its record and its reason
+    lost); it returns round 0's design with its verification, not verified, saying why."""
+    spec = dict(
+        design=dict(iterations=4, n_scenes=4, scene_seed=0, model="quarter", method="verlet",
+                    dt_s=8e-5, t_end_s=0.2, learning_rate=0.2, verify_rounds=1, verify_add=2,
+                    reoptimise_iterations=2),
+        objective=dict(measure="cvar", level=0.5),
+        variables={"F1_N": dict(low=2000.0, high=8000.0), "x_L2_mm": dict(low=20.0, high=150.0)},
+        constraints=dict(stroke=dict(margin_mm=108.0, measure="max")),
+        montecarlo=dict(n=40, seed=1, dt_s=2e-5, t_end_s=0.2),
+        fixed=dict(drop_height_m=0.0),
+        dispersion={"sink_speed_mps": dict(dist="truncnormal", mean=2.0, std=0.3, low=1.0,
+                                           high=3.0)})
+    res = jl.design_verified(jl.design_spec_from_dict(spec))
+    v = res.verification
+    assert res.status == "feasible" and v is not None and not v["verified"]
+    assert v["reason"].startswith("the re-optimisation of round 1 with 2 violating landing(s) "
+                                  "added found no feasible design")
+    assert v["rounds"][0]["unmet"] == ["stroke"] and len(v["added_landings"]) == 1
+    assert v["after"]["seed"] == v["rounds"][0]["seed"] and v["before"] is not None
+    # round 0's design, on round 0's scenes; the failed round stays in the history
+    assert res.problem.count == 4 and res.history[res.best_iteration]["round"] == 0
+    assert res.history[res.best_iteration]["values"] == res.values
+    assert {h["round"] for h in res.history} == {0, 1}
 
 
 def test_bootstrap_interval_of_the_mean_matches_the_normal_theory():

@@ -45,7 +45,7 @@ class DesignResult:
     compile_s: float
     multipliers: list
     penalty: float
-    best_iteration: int = 0  # the iteration whose iterate is returned
+    best_iteration: int = 0  # the iteration whose iterate is returned (history's numbering)
     verification: dict | None = None
     mc_before: object = None
     mc_after: object = None
@@ -57,6 +57,12 @@ class DesignResult:
     @property
     def baseline(self) -> Vehicle:
         return self.problem.vehicle
+
+    @property
+    def iterations_run(self) -> int:
+        """Optimiser steps over every round: the history less each round's start (its
+        iteration 0, the evaluation it steps from)."""
+        return len(self.history) - len({rec.get("round", 0) for rec in self.history})
 
     def to_toml(self) -> str:
         """The designed vehicle as a config TOML (``jaxland simulate --config`` loads it)."""
@@ -107,7 +113,7 @@ class DesignResult:
                         dt_s=spec.dt, t_end_s=spec.t_end, devices=prob.devices,
                         dispersion={k: vars(v) for k, v in spec.montecarlo.dispersion.items()},
                         fixed=spec.montecarlo.fixed),
-            iterations=len(self.history) - 1,
+            iterations=self.iterations_run,
             wall_s=self.wall_s,
             compile_s=self.compile_s,
             multipliers=self.multipliers,

@@ -428,19 +428,25 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         say(f"round {r}: re-optimising with {len(picks)} violating landing(s) added "
             f"({sum(len(i) for _, i in added)} in all, {problem.scenes.sink_speed.shape[0]} "
             "scenes)")
-        start_values = result.start_values
-        result = optimise_design(spec, iterations=spec.reoptimise_iterations, progress=progress,
+        start_values, verified_last = result.start_values, result
+        tagged = None if progress is None else (
+            lambda rec, r=r: progress(dict(rec, round=r, of=spec.reoptimise_iterations)))
+        result = optimise_design(spec, iterations=spec.reoptimise_iterations, progress=tagged,
                                  problem=problem,
                                  start=si)
-        for rec in result.history:
+        for rec in result.history:  # one numbering over the rounds, as the figure draws them
             rec["round"] = r
             rec["iteration"] += len(history)
+        result.best_iteration += len(history)
         history += result.history
         result.start_values = start_values
         vec0, _, per0 = problem.evaluate(problem.z0)
         result.at_start = _summaries(problem, vec0, per0, problem.z0)
-        if result.status != "feasible":
-            reason = "the re-optimisation with the added landings found no feasible design"
+        if result.status != "feasible":  # the last verified design stands, not verified
+            reason = (f"the re-optimisation of round {r} with {len(picks)} violating "
+                      f"landing(s) added found no feasible design; the design of round {r - 1} "
+                      "is returned with its verification")
+            result = verified_last
             break
         seed = _fresh_seed(spec, r)
         verify_design(result, n=n, seed=seed, progress=mc_progress, before=False,

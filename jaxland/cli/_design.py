@@ -36,7 +36,9 @@ def _progress(quiet: bool, total: int):
     def show(rec: dict) -> None:
         cons = "  ".join(f"{k} {v:+.3f}" for k, v in rec["constraints"].items())
         vals = "  ".join(f"{k} {v:.5g}" for k, v in rec["values"].items())
-        line(f"iter {rec['iteration']:3d}/{total}  objective "
+        # a re-optimisation round counts its own iterations (``of``)
+        head = f"round {rec['round']} " if rec.get("round") else ""
+        line(f"{head}iter {rec['iteration']:3d}/{rec.get('of', total)}  objective "
              f"{rec['objective_measure_mps2']:.4g} m/s^2  g: {cons}  rho {rec['penalty']:.3g}"
              f"{'  REJECTED' if rec['rejected'] else ''}  |  {vals}  {rec['wall_s']:6.1f} s")
     return show
@@ -112,7 +114,7 @@ def _cmd_design(args) -> int:
             result.plot(staging / "figures")
     total = time.perf_counter() - t0
     print(f"jaxland design: total {total:.1f} s (last optimisation {result.wall_s:.1f} s)")
-    print(f"design {result.status} after {len(result.history) - 1} iterations in "
+    print(f"design {result.status} after {result.iterations_run} iterations in "
           f"{result.wall_s:.1f} s (compile {result.compile_s:.1f} s)")
     for v in result.problem.variables:
         print(f"  {v.name:<28} {result.start_values[v.name]:<12.6g} -> "
