@@ -414,6 +414,21 @@ def test_cell_variables_refuse_cells_that_do_not_give_the_baseline_gear():
     assert "where the baseline vehicle has F1 = 6000 N" in err.value.rule
 
 
+def test_design_scenes_that_cannot_touch_down_are_refused_before_compiling():
+    """From 1 m at a sink speed of at most 2.6 m/s the fall takes at least 0.26 s, longer than
+    design.t_end_s = 0.15 s: refused when the problem is built, as the montecarlo.t_end_s of
+    a spec is, instead of after the first compiled evaluation."""
+    spec = copy.deepcopy(ROBUST)
+    spec["fixed"]["drop_height_m"] = 1.0
+    spec["montecarlo"]["t_end_s"] = 1.0
+    with pytest.raises(jl.ConfigError) as err:
+        DesignProblem(design_spec_from_dict(spec))
+    assert err.value.field == "design.t_end_s" and err.value.value == 0.15
+    assert err.value.rule.startswith("4 of 4 design scenes do not touch down within it")
+    spec["design"]["t_end_s"] = 0.4  # every fall ends by 0.32 s
+    DesignProblem(design_spec_from_dict(spec))
+
+
 def test_a_vehicle_no_step_can_run_is_named_not_the_designs_step():
     """No bound moves a 1e-300 kg foot's stability limit (0 s): the design refuses the
     vehicle's field, not design.dt_s."""
@@ -612,6 +627,8 @@ def test_design_scenes_that_never_touch_down_are_named_not_called_numerical(tmp_
     err = capsys.readouterr().err
     assert ("design.t_end_s = 0.1: 2 of 2 design scenes do not touch down within it" in err
             and "numerical" not in err)
+    # before the banner: one line, no compiled evaluation first
+    assert err.startswith("jaxland: error: design.t_end_s") and err.count("\n") == 1, err
 
 
 def test_cli_writes_design_report_and_figures(tmp_path, capsys):

@@ -225,6 +225,7 @@ class DesignProblem:
                               ) from None
         check_bounds(spec, self.vehicle)
         check_cells(self.vehicle, spec.names, self.cells)
+        self._check_touchdown()
         self._stiffest: dict = {}  # per method: stiffest_step's answer
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
                                       baseline_value(self.vehicle, v.name, self.cells))
@@ -262,6 +263,22 @@ class DesignProblem:
             else:
                 vals[v.name] = lo + (hi - lo) * s
         return vals
+
+    def _check_touchdown(self) -> None:
+        """Refuse, before any compilation, design scenes whose free fall outlasts
+        design.t_end_s. Exact for a body that does not turn (``Scene.fall_time``); a turning
+        one can lower a foot sooner, so its scenes are left to the first evaluation's check."""
+        sc = self.scenes
+        still = np.all([np.asarray(getattr(sc, k)) == 0.0
+                        for k in ("roll_rate", "pitch_rate", "yaw_rate")], axis=0)
+        fall = np.asarray(sc.fall_time(float(self.vehicle.g)))
+        late = still & (fall > self.spec.t_end)
+        if np.any(late):
+            raise ConfigError("design.t_end_s", self.spec.t_end,
+                              f"{int(np.sum(late))} of {self.count} design scenes do not touch "
+                              f"down within it (the first of them at {np.min(fall[late]):.3g} "
+                              "s): raise it, or start the scenes nearer the ground "
+                              "(drop_height_m)")
 
     def to_z(self, values: dict, check: bool = False) -> np.ndarray:
         """Unconstrained coordinates of design values (SI)."""
