@@ -501,6 +501,10 @@ high = 2.5
     # a verification too small for any verdict (it ran the whole design, then exit 5)
     ("n = 20\nseed = 1", "n = 19\nseed = 1",
      "jaxland: error: montecarlo.n = 19: must be >= 20 (or --verify-n 0: no verification)"),
+    # a max constraint 20 clean landings cannot meet at a 5 % tolerance (it ran the whole
+    # design, then exit 5: "needs 73 landings without a violation")
+    ("violation_tolerance = 0.2 ", "violation_tolerance = 0.05 ",
+     "jaxland: error: montecarlo.n = 20: must be >= 73 for constraints.stroke (measure = max)"),
 ])
 def test_cli_refuses_design_inputs_before_the_banner(tmp_path, capsys, old, new, line):
     """The design's input checks (the baseline inside the bounds, the step, the drawn scenes

@@ -56,7 +56,7 @@ def _cmd_design(args) -> int:
         load_design_spec,
         optimise_design,
     )
-    from .._design._verify import MIN_JUDGED
+    from .._design._verify import MIN_JUDGED, clean_landings_needed
     from .._montecarlo import MonteCarloSpec
 
     out = out_dir(args.out, (args.spec, args.config))
@@ -89,6 +89,18 @@ def _cmd_design(args) -> int:
                     "montecarlo.n", spec.montecarlo.n, f"must be >= {MIN_JUDGED} (or "
                     f"--verify-n 0: no verification): a constraint's 95 % interval needs "
                     f"{MIN_JUDGED} landings, so fewer can never confirm the design")
+            # likewise a max constraint, met only by enough landings none of which violates it
+            for c in spec.constraints:
+                need = clean_landings_needed(c.violation_tolerance)
+                if c.measure == "max" and spec.montecarlo.n < need:
+                    raise jl.ConfigError(
+                        "montecarlo.n", spec.montecarlo.n,
+                        f"must be >= {need} for constraints.{c.name} (measure = max), or "
+                        "--verify-n 0: no verification: it is met only where no verification "
+                        "landing violates it and the 95 % upper bound on its violation "
+                        f"probability is within violation_tolerance = "
+                        f"{c.violation_tolerance:g}, which takes {need} landings (or raise the "
+                        "tolerance)")
     print(f"jaxland design: {len(spec.variables)} variables ({', '.join(spec.names)}), "
           f"{spec.n_scenes} scenes, {spec.resolved_model()} model, {spec.iterations} iterations",
           file=sys.stderr)
