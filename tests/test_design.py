@@ -658,6 +658,14 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     assert report["inputs"]["arguments"]["out"] == str(out)
     assert report["environment"]["jaxland"] == jl.__version__
     assert report["scenes"]["method"] == "euler"
+    # every [design] setting as run, and a max measure's tolerance instead of a level
+    settings = tomllib.loads(TINY)["design"]
+    assert {k: report["design_settings"][k] for k in settings} == settings
+    assert {"verify_rounds", "verify_add", "reoptimise_iterations",
+            "penalty_max"} <= set(report["design_settings"])
+    (stroke,) = report["constraints"]
+    assert stroke["level"] is None and stroke["violation_tolerance"] == 0.2
+    assert report["objective"]["level"] is None  # measure = "max"
     baseline = jl.vehicle_from_dict(tomllib.loads(report["baseline_vehicle_toml"]))
     assert jl.vehicle_to_toml(baseline) == jl.vehicle_to_toml(jl.paper_vehicle())
     veh = jl.load_vehicle(out / "design_vehicle.toml")

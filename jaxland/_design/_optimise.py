@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -93,22 +94,33 @@ class DesignResult:
                            adam_b1=spec.adam_b1, adam_b2=spec.adam_b2,
                            outer_every=spec.outer_every, penalty=spec.penalty,
                            penalty_growth=spec.penalty_growth,
+                           penalty_max=spec.penalty_max,
                            feasibility_tol=spec.feasibility_tol, patience=spec.patience,
                            stop_rtol=spec.stop_rtol),
             best_iteration=self.best_iteration,
+            # the [design] table as run (defaults filled in, --iterations applied)
+            design_settings={f.metadata["toml"]: getattr(spec, f.name)
+                             for f in dataclasses.fields(spec) if "toml" in f.metadata},
             smoothing=("none: peaks are the integrator's running maxima at every step, "
                        "differentiated at the step where they occur"),
             variables=[dict(name=v.name, unit=VARIABLES[v.name].unit, low=v.low, high=v.high,
                             scale=v.scale, start=self.start_values[v.name],
                             design=self.values[v.name]) for v in prob.variables],
             objective=dict(quantity="peak_body_accel_mps2", measure=spec.objective.measure,
-                           level=spec.objective.level, mass_weight=spec.objective.mass_weight),
+                           level=(spec.objective.level if spec.objective.measure in (
+                               "cvar", "normal") else None),
+                           mass_weight=spec.objective.mass_weight),
             # [cells]: the gear-mass proxy's flow stress and section; with cell variables also
             # the cells that set F1 and F2
             cells=dict(spec.cells),
             constraints=[dict(name=c.name, rule=CONSTRAINTS[c.name].rule,
-                              threshold_si=c.threshold, measure=c.measure, level=c.level,
-                              scale_si=c.scale) for c in spec.constraints],
+                              threshold_si=c.threshold, measure=c.measure,
+                              # max and mean take no level (a spec giving one is refused)
+                              level=c.level if c.measure in ("cvar", "normal") else None,
+                              scale_si=c.scale,
+                              **({"violation_tolerance": c.violation_tolerance}
+                                 if c.measure == "max" else {}))
+                         for c in spec.constraints],
             scenes=dict(n=spec.n_scenes, seed=spec.scene_seed, method=spec.method,
                         dt_s=spec.dt, t_end_s=spec.t_end, devices=prob.devices,
                         dispersion={k: vars(v) for k, v in spec.montecarlo.dispersion.items()},
