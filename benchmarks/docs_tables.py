@@ -986,7 +986,9 @@ def _continued(x) -> str:
     if not runs:
         return "none cut off"
     return (f"{runs[0]['n']} cut off; run on to "
-            + ", then ".join(f"{c['t_end_s']:g} s ({c['n_unfinished_after']} left)" for c in runs))
+            + ", then ".join(f"{c['t_end_s']:g} s ({c['n_unfinished_after']} left"
+                             + (f", {c['wall_s']:.1f} s" if c.get("wall_s") is not None else "")
+                             + ")" for c in runs))
 
 
 def design_verification() -> str:
