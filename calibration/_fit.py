@@ -103,7 +103,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
-from jaxland._files import json_text
+from jaxland._files import json_text, run_environment
 from jaxland._solvers._base import _whole_steps
 
 from ._data import CHANNELS, DropTest, _highpass_noise, base_channel
@@ -326,7 +326,8 @@ class FitResult:
             method=self.method, stages=self.stages, wall_s=self.wall_s,
             settings=self.settings,
             **({"inputs": self.inputs} if self.inputs else {}),
-            environment=dict(jaxland=jl.__version__, jax=jax.__version__),
+            # the versions and XLA flags it ran on, as every jaxland output records them
+            environment=run_environment(),
             drops=[d.summary() for d in self.drops],
             history=[dict(stage=h["stage"], iteration=h["iteration"], loss=h["loss"],
                           wall_s=h["wall_s"], values=dict(zip(self.names, h["values"])))

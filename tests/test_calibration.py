@@ -12,12 +12,14 @@ import argparse
 import hashlib
 import json
 import math
+import os
 import tomllib
 import warnings
 from pathlib import Path
 
 import jax
 import numpy as np
+import optax
 import pytest
 
 import calibration as cal
@@ -559,7 +561,9 @@ def test_the_fit_report_records_its_inputs_and_versions(cli_fit):
     assert rep["settings"]["refine_window_note"] is None  # the records reach 0.15 s
     assert args["params"] == ",".join(NAMES) and args["start"] is None
     assert args["robust"] > 0 and args["max_iter"] == 60 and args["dt"] == 1e-5
-    assert rep["environment"] == dict(jaxland=jl.__version__, jax=jax.__version__)
+    assert rep["environment"] == dict(jaxland=jl.__version__, jax=jax.__version__,
+                                      optax=optax.__version__, backend=jax.default_backend(),
+                                      xla_flags=os.environ.get("XLA_FLAGS", ""))
 
 
 def test_crush_peak_and_offset_data_still_fit_close_to_the_truth(cli_fit):
