@@ -537,7 +537,7 @@ def test_cli_fit_writes_a_loadable_config_a_report_and_figures(cli_fit):
 def test_the_fit_report_records_its_inputs_and_versions(cli_fit):
     """fit_report.json names what it was made from: the drop test as given, the files its
     metadata named (absolute, with their SHA-256), the --config, every argument of the
-    command, and the jaxland and jax versions; strict JSON."""
+    command, and the versions, backend and XLA flags it ran on; strict JSON."""
     import hashlib
 
     def refuse(name):
