@@ -161,7 +161,8 @@ class Scene(eqx.Module):
 
     def touchdown_speed(self, g=9.81):
         """Vertical speed at first contact [m/s] of the free fall from the scene's clearance
-        (``fall_time``): sqrt(v0^2 + 2 g h) on level ground, v0 + g t* on a slope."""
+        (``fall_time``, the attitude held: no body rates): sqrt(v0^2 + 2 g h) on level
+        ground, v0 + g t* on a slope."""
         v0, h = self.sink_speed, self.drop_height
         level = jnp.sqrt(v0**2 + 2.0 * g * h)
         return jnp.where(self.slope == 0.0, level, v0 + g * self.fall_time(g))

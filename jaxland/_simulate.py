@@ -173,6 +173,18 @@ def _py(x):
     return x.item() if x.ndim == 0 else x.tolist()
 
 
+def _touchdown_speed(scene: Scene, g: float, t_contact: float | None) -> float | None:
+    """Vertical speed [m/s] of the body at first contact. The attitude held (no body rate):
+    ``Scene.touchdown_speed``. A turning body lowers a foot sooner or later than that, but its
+    centre of mass still falls freely, so its speed is v0 + g t at the first contact the run
+    logged (None without one)."""
+    turning = any(float(getattr(scene, k)) != 0.0
+                  for k in ("roll_rate", "pitch_rate", "yaw_rate"))
+    if not turning:
+        return float(scene.touchdown_speed(g))
+    return None if t_contact is None else float(scene.sink_speed) + g * float(t_contact)
+
+
 def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver: Solver,
               model: str) -> dict:
     s = {k: np.asarray(v) for k, v in summary.items()}
@@ -199,7 +211,8 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         "model": model,
         "drop_height_m": float(scene.drop_height),
         "sink_speed_mps": float(scene.sink_speed),
-        "touchdown_speed_mps": float(scene.touchdown_speed(float(vehicle.g))),
+        "touchdown_speed_mps": _touchdown_speed(scene, float(vehicle.g),
+                                                impacts[0][0] if impacts else None),
         "method": solver.method.name,
         "solver": {k: _py(v) for k, v in solver.method.options().items()},
         "save_dt_s": solver.save_dt,
