@@ -26,8 +26,9 @@ def test_config_prints_loadable_toml(capsys):
 
 
 def test_a_landing_run_again_at_a_smaller_step_says_so(tmp_path, capsys):
-    """A 30 m/s touchdown fails at the default step and runs again at the step its forces
-    need: the summary records it (retried_from_dt_s), and the screen says it too."""
+    """A 30 m/s touchdown fails at the default step and runs again at a step safe for the
+    forces its energy can reach: the summary records it (retried_from_dt_s), and the screen
+    says it too, and that the step is a bound's."""
     assert main(["simulate", "--touchdown-speed", "30", "--t-end", "0.02", "--no-plots",
                  "--out", str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
@@ -35,6 +36,7 @@ def test_a_landing_run_again_at_a_smaller_step_says_so(tmp_path, capsys):
     assert summary["retried_from_dt_s"] == 1e-5 > summary["dt_s"]
     assert (f"failed numerically at the default step 1e-05 s and ran again at "
             f"{summary['dt_s']:g} s") in err
+    assert "a bound that can lie far below the step the landing needs" in err
 
 
 def test_console_script_entry_point():

@@ -185,7 +185,10 @@ def cmd_simulate(args) -> int:
     if "retried_from_dt_s" in result.outcomes:
         print(f"  note: the landing failed numerically at the default step "
               f"{result.outcomes['retried_from_dt_s']:g} s and ran again at "
-              f"{result.solver.dt:g} s, the step its forces need", file=sys.stderr)
+              f"{result.solver.dt:g} s: half the stability limit at the largest forces this "
+              "scene's energy can reach, a bound that can lie far below the step the landing "
+              "needs (--dt runs it at one you choose, and a failure names the step it needs)",
+              file=sys.stderr)
     if "note" in result.outcomes:
         print(f"  note: {result.outcomes['note']}", file=sys.stderr)
     print(f"wrote {out}/trajectory.csv, summary.json, scene.toml, vehicle.toml, "
