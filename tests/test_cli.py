@@ -338,7 +338,10 @@ def test_a_scene_files_refusal_names_the_file_and_a_flags_the_flag(tmp_path, cap
     scene = tmp_path / "scene.toml"
     out = ["--t-end", "0.01", "--no-plots", "--out", str(tmp_path / "o")]
     for text, field in (("drop_height_m = -1.0\n", "scene.drop_height_m = -1.0"),
-                        ("drop_heigt_m = 1.0\n", "scene.drop_heigt_m = 1.0: unknown key")):
+                        ("drop_heigt_m = 1.0\n", "scene.drop_heigt_m = 1.0: unknown key"),
+                        # a per-leg value whose count only the vehicle decides
+                        ("plateau_scale = [1, 1]\n",
+                         "scene.plateau_scale = [1.0, 1.0]: must have one entry per leg")):
         scene.write_text(text)
         assert main(["simulate", "--scene", str(scene), *out]) == 2
         err = capsys.readouterr().err

@@ -72,7 +72,9 @@ _SCENE_FLAGS = (  # CLI flag -> scene TOML key (units in the names)
 )
 
 
-def _scene_from_args(args):
+def _scene_from_args(args, n_legs: int):
+    """The scene of --scene and the scene flags, checked against the vehicle's ``n_legs`` (a
+    per-leg value), a value of the file named by the file."""
     from .._scene import read_scene_table
 
     table = read_scene_table(args.scene, "--scene") if args.scene else {}
@@ -85,7 +87,7 @@ def _scene_from_args(args):
     if args.touchdown_speed is not None:
         from_file -= {"drop_height_m", "sink_speed_mps"}
     try:
-        return _scene_of(args, table)
+        return _scene_of(args, table).validate(n_legs)
     except ConfigError as err:  # a value of the file, named by the file (a flag's: by the flag)
         key = err.field.removeprefix("scene.")
         if key in from_file and err.field != key:
@@ -133,7 +135,7 @@ def cmd_simulate(args) -> int:
     options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
                if getattr(args, k) is not None}
     with named_as(_given_flags(args)):
-        scene = _scene_from_args(args)
+        scene = _scene_from_args(args, vehicle.n_legs)
         result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
                           model=args.model, method=args.method, **options)
     model = result.outcomes["model"]
