@@ -39,6 +39,23 @@ def test_a_landing_run_again_at_a_smaller_step_says_so(tmp_path, capsys):
     assert "a bound that can lie far below the step the landing needs" in err
 
 
+def test_a_stdout_its_reader_closes_is_named_not_called_a_refused_write(tmp_path):
+    """`jaxland simulate | head -1`: the folder is written whole before the report, so a pipe
+    closed by its reader was wrongly reported as "cannot write: Broken pipe" (the folder
+    untouched, the docs said). It says what happened, without a traceback."""
+    out = tmp_path / "o"
+    with subprocess.Popen([sys.executable, "-m", "jaxland.cli", "simulate", "--t-end", "0.25",
+                           "--no-plots", "--out", str(out)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True) as proc:
+        proc.stdout.close()  # the reader stops before the report, as head does after a line
+        err = proc.stderr.read()
+        assert proc.wait() == 1
+    assert err.strip() == ("jaxland: standard output closed by its reader: the printed report "
+                           "stops here (an output folder is written whole before its report, "
+                           "or not at all)"), err
+    assert (out / "summary.json").exists()
+
+
 def test_console_script_entry_point():
     out = subprocess.run([sys.executable, "-m", "jaxland.cli", "config"], capture_output=True,
                          text=True, check=True)

@@ -175,7 +175,16 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("jaxland: interrupted (nothing was written to the output folder)", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except OSError as err:  # a full disk, a closed pipe: the output folder is left untouched
+    except BrokenPipeError:  # the reader of stdout stopped (| head): the report stops here
+        # (stdout pointed at nothing, so that the interpreter's last flush does not fail too)
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        print("jaxland: standard output closed by its reader: the printed report stops here "
+              "(an output folder is written whole before its report, or not at all)",
+              file=sys.stderr)
+        return EXIT_OS
+    except OSError as err:  # a full disk: the output folder is left untouched
         print(f"jaxland: cannot write: {err}", file=sys.stderr)
         return EXIT_OS
     finally:
