@@ -100,6 +100,9 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--plateau-scale", "1", "1"], "--plateau-scale = [1.0, 1.0]: must have one entry per leg"),
     (["--method", "tsit5", "--max-steps", "1" + "0" * 20],
      "--max-steps = 100000000000000000000: must be <= 5e+08"),
+    # tsit5's dt is its first step: one longer than the run is the dt's mistake
+    (["--method", "tsit5", "--dt", "1"], "--dt = 1.0: must be <= t_end = 0.05 s (the first "
+     "step of tsit5)"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"

@@ -95,6 +95,9 @@ class AbstractIntegrator(eqx.Module):
 
     name: ClassVar[str]
     stability_reason: ClassVar[str]  # what sets its stability limit, for messages
+    # dt is only the first step's size (an adaptive method): a dt longer than the run is the
+    # dt's mistake, not t_end's
+    dt_is_first_step: ClassVar[bool] = False
 
     def validate(self) -> AbstractIntegrator:
         """Its options, each on its own; raises ``ConfigError`` naming the field."""
@@ -224,6 +227,9 @@ class Solver(eqx.Module):
         """All settings, and how they relate."""
         self.validate_values()
         if self.t_end < self.dt:
+            if self.method.dt_is_first_step:
+                raise ConfigError("solver.dt", self.dt, f"must be <= t_end = {self.t_end} s "
+                                  f"(the first step of {self.method.name})")
             raise ConfigError("solver.t_end", self.t_end, f"must be >= dt = {self.dt} s (one "
                               "step)")
         if self.save_dt < self.dt:

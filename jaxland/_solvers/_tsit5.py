@@ -39,6 +39,7 @@ class Tsit5(AbstractIntegrator):
 
     name: ClassVar[str] = "tsit5"
     stability_reason: ClassVar[str] = "adaptive: no fixed-step limit"
+    dt_is_first_step: ClassVar[bool] = True
 
     @property
     def differentiable(self) -> bool:
