@@ -156,6 +156,12 @@ FREE_FALL_ABS_M = 2e-3
 # a body acceleration swings through the impact by 0.5-1 of a force channel's swing over the
 # leg's mass (bundled records, rig drops of 0.01-1 m); in g by a tenth of that: refused below
 ACCEL_SWING_MIN = 0.25
+# ... and, read from a g column, above this many times the largest such swing (m/s^2 under a
+# body_accel_g header reads 9.81 times too large: 6 to 9 times it)
+ACCEL_SWING_MAX = 4.0
+# the body acceleration follows the force channels through the impact (correlation 0.95 to
+# 0.995 on the bundled records): below minus this, its sign is flipped
+ACCEL_ANTICORRELATION = 0.5
 # a force channel's peak above this many times what the vehicle can put on a leg in the drop
 # (DropTest.impact_bounds' force_max_N), or a stroke read from a mm column under 1 / this of
 # the least the drop's energy needs (stroke_min_m), is refused: the bundled records reach at
@@ -534,9 +540,11 @@ class DropTest:
         the leg's mass (the body's share): 0.93 to 1.0 for the ground's normal force and 0.52
         to 0.67 for the strut's buffer force on the bundled records and rig drops of 0.01 to
         1 m, a tenth of that in g. Refused by name below ``ACCEL_SWING_MIN`` of the smaller
-        implied swing, and above ``PLAUSIBLE_FACTOR`` times the larger (a unit a thousand times
-        off);
-        a record without a force channel is not checked."""
+        implied swing, above ``ACCEL_SWING_MAX`` times the larger for a column converted from
+        g (m/s^2 under a g header) and ``PLAUSIBLE_FACTOR`` times it otherwise (a unit a
+        thousand times off); and where it runs against every force channel
+        (correlation below -``ACCEL_ANTICORRELATION``: its sign flipped; the swing cannot
+        see a sign); a record without a force channel is not checked."""
         m = float(self.vehicle.m_quarter)
         corrected = self.corrected
 
@@ -562,12 +570,27 @@ class DropTest:
                            f"leg's {m:.4g} kg ({implied:.4g} m/s^2; records in m/s^2 give 0.5 "
                            f"to 1), and is {a / implied:.2g} of it: an acceleration in g? (a "
                            "body_accel_g column is converted)")
+            name, _, unit = self._as_written(col)
+            if unit == "g" and a > ACCEL_SWING_MAX * most:
+                raise _err(f"{self.source}: {name}", f"swing {a:.4g} m/s^2", "must be at most "
+                           f"{ACCEL_SWING_MAX:g} x the swing the force channels imply for the "
+                           f"leg's {m:.4g} kg ({most:.4g} m/s^2; records give 0.5 to 1), and "
+                           f"is {a / most:.3g} x it after the conversion from g (x 9.81): "
+                           "values in m/s^2 under a g header?")
             if a > PLAUSIBLE_FACTOR * most:
                 raise _err(f"{self.source}: {col}", f"swing {a:.4g} m/s^2", "must be at most "
                            f"{PLAUSIBLE_FACTOR:g} x the swing the force channels imply for the "
                            f"leg's {m:.4g} kg ({most:.4g} m/s^2; records in m/s^2 give 0.5 "
                            f"to 1), and is {a / most:.3g} x it: an acceleration in mm/s^2 "
                            "under an _mps2 header, or a gain error of the accelerometer?")
+            x = corrected[col][after]
+            corr = [float(np.corrcoef(x, corrected[c][after])[0, 1]) for c in forces
+                    if np.ptp(corrected[c][after]) > 0.0 and np.ptp(x) > 0.0]
+            if corr and max(corr) < -ACCEL_ANTICORRELATION:
+                raise _err(f"{self.source}: {name}", f"correlation {max(corr):.2f}",
+                           "with the force channels through the impact: the body acceleration "
+                           "runs against the forces that cause it (records give 0.95 to "
+                           "0.995): its sign flipped? (upward positive)")
 
     def _check_free_fall(self) -> None:
         """The drop height the free fall from release to touchdown implies against the

@@ -316,6 +316,14 @@ def _wrong(ch, col, how):
     (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: x * 1e3),
      r"body_accel_mps2 = 'swing [\d.e+]+ m/s\^2': must be at most 10 x .* is [\d.e+]+ x it: an "
      r"acceleration in mm/s\^2"),
+    # a flipped sign swings as far: it runs against the forces (it was read without a word)
+    (lambda ch: _wrong(ch, "body_accel_mps2", lambda x: -x),
+     r"body_accel_mps2 = 'correlation -0\.\d+': with the force channels .* sign flipped"),
+    # m/s^2 under a g header: converted, 9.81 times too large, under the 10 x of a mm/s^2
+    (lambda ch: {**{k: v for k, v in ch.items() if k != "body_accel_mps2"},
+                 "body_accel_g": ch["body_accel_mps2"]},
+     r"body_accel_g = 'swing [\d.e+]+ m/s\^2': must be at most 4 x .* values in m/s\^2 under "
+     r"a g header"),
 ])
 def test_a_wrong_unit_or_sign_is_refused_by_name(how, needle):
     """What no drop of this vehicle records: a stroke beyond the strut's length, one that runs
