@@ -156,6 +156,9 @@ FREE_FALL_ABS_M = 2e-3
 # a body acceleration swings through the impact by 0.5-1 of a force channel's swing over the
 # leg's mass (bundled records, rig drops of 0.01-1 m); in g by a tenth of that: refused below
 ACCEL_SWING_MIN = 0.25
+# a stroke beyond this many times the honeycomb's crush length x_L4: the bottoming stop ends
+# the stroke there, so it is a unit (inches: 39 times, cm: 100 times) or the wrong vehicle
+STROKE_PAST_CRUSH = 2.0
 # ... and, read from a g column, above this many times the largest such swing (m/s^2 under a
 # body_accel_g header reads 9.81 times too large: 6 to 9 times it)
 ACCEL_SWING_MAX = 4.0
@@ -455,6 +458,15 @@ class DropTest:
                 raise _err(f"{self.source}: {col}", f"{top:.4g} m", "exceeds the strut's "
                            f"length ({length:.4g} m, leg.L_h0_m): a stroke in mm? (a "
                            f"{col.replace('_m', '_mm')} column is converted)")
+            crush = float(np.max(np.asarray(v.honeycomb.x_L4)))
+            if top > STROKE_PAST_CRUSH * crush:  # the bottoming stop ends the stroke at x_L4
+                name, factor, unit = self._as_written(col)
+                raise _err(f"{self.source}: {name}", f"{top / factor:.4g} {unit}",
+                           f"exceeds {STROKE_PAST_CRUSH:g} x the honeycomb's crush length "
+                           f"({crush * 1e3:.4g} mm, honeycomb.x_L4_mm), where the bottoming "
+                           "stop ends the stroke: a stroke in inches or cm under a "
+                           f"{'stroke_mm' if unit == 'mm' else 'stroke_m'} header, or the "
+                           "vehicle's x_L4 not the gear's?")
             lo, hi = float(np.min(vals[after])), float(np.max(vals[after]))
             if -lo > 4.0 * max(hi, 0.0) and -lo > 20.0 * noise:
                 raise _err(f"{self.source}: {col}", f"{lo:.4g} m", "runs negative after "

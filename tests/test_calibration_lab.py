@@ -302,6 +302,9 @@ def _wrong(ch, col, how):
     (lambda ch: _wrong(ch, "stroke_m", lambda x: x * 1e3),
      r"stroke_m = '\d\d\.\d+ m': exceeds the strut's length.*in mm"),
     (lambda ch: _wrong(ch, "stroke_m", lambda x: -x), r"stroke_m = '-0\.0\d+ m': runs negative"),
+    # inches under an _m header: under the strut's length, but far past the crush length
+    (lambda ch: _wrong(ch, "stroke_m", lambda x: x / 0.0254),
+     r"stroke_m = '\d\.\d+ m': exceeds 2 x the honeycomb's crush length .* in inches"),
     (lambda ch: _wrong(ch, "normal_force_N", lambda x: x * 1e-3),
      "normal_force_N = 'peak .*under a tenth of the .* N the leg carries at rest.*kN"),
     (lambda ch: _wrong(ch, "buffer_force_N", lambda x: -x), "buffer_force_N.*sign flipped"),
