@@ -211,6 +211,9 @@ HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): 
 # the parameters the fit held (active ones), which every interval is conditional on: predict
 # names a file that holds them differently as edited
 HEADER_HELD = "# held at the vehicle's values (every interval is conditional on them): "
+# the law's extensions the fit held off (its values hold without them): predict names a file
+# that switches one on as edited
+HEADER_OFF = "# off in the fit (its values hold without them): "
 # a fit's warnings that its values are biased beyond the misfit (``FitResult.cautions``):
 # "# CAUTION (FLAG): text", each FLAG a flag of predict's
 HEADER_CAUTION = "# CAUTION ({flag}): "
@@ -444,7 +447,9 @@ class FitResult:
         held, and the residuals' misfit where there is one."""
         interval, errors = self.reported_errors()
         misfit = self.diagnostics.get("misfit") or []
-        held = {n: h for n, h in self.held_fixed().items() if h["active"]}
+        fixed = self.held_fixed()
+        held = {n: h for n, h in fixed.items() if h["active"]}
+        off = [n for n, h in fixed.items() if not h["active"]]
         head = [HEADER_FIT + ", ".join(d.source for d in self.drops),
                 HEADER_VALUES.format(interval=interval) + ", ".join(
                     f"{n} = {v:.6g} +/- {s:.2g} {PARAMS[n][1]}" if ok else
@@ -455,6 +460,7 @@ class FitResult:
                                                self.identified, self.start_values)),
                 *([HEADER_HELD + ", ".join(f"{n} = {h['value']:.6g} {h['unit']}"
                                            for n, h in held.items())] if held else []),
+                *([HEADER_OFF + ", ".join(off)] if off else []),
                 *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
                 *([] if self.converged else [HEADER_NOT_CONVERGED + self.not_converged()]),

@@ -213,6 +213,7 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         HEADER_MISFIT,
         HEADER_NOT_BOUNDED,
         HEADER_NOT_CONVERGED,
+        HEADER_OFF,
         HEADER_VALUES,
         NOT_IDENTIFIED,
     )
@@ -250,9 +251,11 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         f"{'NOT IDENTIFIED' if NOT_IDENTIFIED in p['note'] else 'AT A BOUND'}: {n}"
         for n, p in params.items() if p["note"] and (NOT_IDENTIFIED in p["note"]
                                                       or AT_BOUND in p["note"])]
+    off = [n.strip() for n in (after(HEADER_OFF) or "").split(",") if n.strip()]
     edited = [] if vehicle is None else (
         edited_since_fit(params, vehicle)
-        + [dict(e, held=True) for e in edited_since_fit(held, vehicle)])
+        + [dict(e, held=True) for e in edited_since_fit(held, vehicle)]
+        + switched_on_since_fit(off, vehicle))
     flags += [f"{EDITED}: {e['name']}" for e in edited]
     return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
                 misfit=misfit, not_converged=capped, interval_not_bounded=unbounded,
@@ -263,6 +266,30 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
 
 
 EDITED = "EDITED SINCE THE FIT"
+
+
+def switched_on_since_fit(off, vehicle: jl.Vehicle) -> list[dict]:
+    """The law's extensions the fit held off (``off``: the header's names) that ``vehicle``
+    has on: one ``{name, key, file, fitted: None, unit, held: True, off_in_fit: True}`` each,
+    ``file`` in the key's units."""
+    from ._parameters import PARAMS
+
+    owner = {"L_peak1": "peak1", "L_rise1": "peak1", "L_peak2": "peak2"}
+    out = []
+    for name in off:
+        if name not in PARAMS or PARAMS[owner.get(name, name)][0](vehicle) is None:
+            continue
+        if owner.get(name, name) != name and owner[name] in off:
+            continue  # its peak is switched on, and named
+        getter, unit, key, *_ = PARAMS[name]
+        held = getter(vehicle)
+        if held is None or np.ndim(held) != 0:
+            continue
+        scale = 1e3 if key.endswith("_mm") else 1.0
+        out.append(dict(name=name, key=key, file=float(f"{float(held) * scale:.6g}"),
+                        fitted=None, unit=key.rpartition("_")[2] if scale != 1.0 else unit,
+                        held=True, off_in_fit=True))
+    return out
 
 
 def edited_since_fit(params: dict, vehicle: jl.Vehicle) -> list[dict]:

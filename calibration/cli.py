@@ -504,8 +504,9 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
     others = [f for f in status["flags"] if not f.startswith(EDITED)]
     if edited:
         head = (f"{config}: fitted vehicle edited since the fit: " + "; ".join(
-            f"{e['key']} = {e['file']:.6g} in the file, {e['fitted']:.6g} "
-            + ("held by the fit" if e.get("held") else "fitted")
+            f"{e['key']} = {e['file']:.6g} in the file, "
+            + ("off in the fit" if e.get("off_in_fit") else f"{e['fitted']:.6g} "
+               + ("held by the fit" if e.get("held") else "fitted"))
             for e in edited) + ": these predictions are for the file's values, not the "
             "fitted ones" + (f"; the fit is also flagged {', '.join(others)}" if others
                              else ""))

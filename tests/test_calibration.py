@@ -760,6 +760,16 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: chi"]
     assert status["edited"] == [dict(name="chi", key="ground.chi_s_per_m", file=0.002,
                                      fitted=0.0002, unit="s/m", held=True)]
+    # an extension the fit held off is the fit's too: a crush peak switched on in a fitted
+    # file moved a prediction's peak buffer force by 11 % and the fit was called sound
+    assert "# off in the fit (its values hold without them): " in sound.read_text()
+    on = tmp_path / "on.toml"
+    on.write_text(sound.read_text().replace("peak_ratio2 = 1.0 ", "peak_ratio2 = 1.3 "))
+    assert on.read_text() != sound.read_text()
+    status = read_fit_status(on, jl.load_vehicle(on))
+    assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: peak2"]
+    assert status["edited"] == [dict(name="peak2", key="honeycomb.peak_ratio2", file=1.3,
+                                     fitted=None, unit="1", held=True, off_in_fit=True)]
 
 
 def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tmp_path,
