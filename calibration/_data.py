@@ -929,6 +929,21 @@ def _flat_vehicle(vehicle: jl.Vehicle) -> dict:
     return out
 
 
+def article_fingerprint(vehicle: jl.Vehicle) -> str:
+    """SHA-256 (16 hex digits) of every key of the vehicle's TOML outside the parameters
+    jaxland fit calibrates (``PARAMS``: fitted, held or off, each compared by name): the test
+    article, and a crush peak's table, as written. A fitted file records it, so that predict
+    sees an edit of a mass or a length too."""
+    import hashlib
+    import json
+
+    from ._parameters import PARAMS
+
+    skip = {p[2] for p in PARAMS.values()}
+    rest = {k: v for k, v in sorted(_flat_vehicle(vehicle).items()) if k not in skip}
+    return hashlib.sha256(json.dumps(rest, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def article_differences(declared: jl.Vehicle, given: jl.Vehicle) -> list[tuple]:
     """The keys outside the calibrated parameters (the test article: masses, inertias, gravity,
     legs and their geometry, the honeycomb's lengths and stops) in which ``given`` differs from

@@ -106,7 +106,7 @@ import jaxland as jl
 from jaxland._files import json_text, run_environment
 from jaxland._solvers._base import _whole_steps
 
-from ._data import CHANNELS, DropTest, _highpass_noise, base_channel
+from ._data import CHANNELS, DropTest, _highpass_noise, article_fingerprint, base_channel
 from ._optim import lbfgs, levenberg_marquardt
 from ._parameters import (
     DEFAULT_PARAMS,
@@ -214,6 +214,8 @@ HEADER_HELD = "# held at the vehicle's values (every interval is conditional on 
 # the law's extensions the fit held off (its values hold without them): predict names a file
 # that switches one on as edited
 HEADER_OFF = "# off in the fit (its values hold without them): "
+# every other key (``_data.article_fingerprint``): predict names a file that changes one
+HEADER_ARTICLE = "# the rest of the vehicle as fitted (test article, peak table), SHA-256: "
 # a fit's warnings that its values are biased beyond the misfit (``FitResult.cautions``):
 # "# CAUTION (FLAG): text", each FLAG a flag of predict's
 HEADER_CAUTION = "# CAUTION ({flag}): "
@@ -461,6 +463,7 @@ class FitResult:
                 *([HEADER_HELD + ", ".join(f"{n} = {h['value']:.6g} {h['unit']}"
                                            for n, h in held.items())] if held else []),
                 *([HEADER_OFF + ", ".join(off)] if off else []),
+                HEADER_ARTICLE + article_fingerprint(self.vehicle),
                 *([f"{HEADER_MISFIT}{'; '.join(misfit)} (fit_report.json, misfit)"] if misfit
                   else []),
                 *([] if self.converged else [HEADER_NOT_CONVERGED + self.not_converged()]),

@@ -207,6 +207,7 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     THE FIT: <name>``: its predictions are not the fit's."""
     from ._fit import (
         AT_BOUND,
+        HEADER_ARTICLE,
         HEADER_CAUTION,
         HEADER_FIT,
         HEADER_HELD,
@@ -256,6 +257,13 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         edited_since_fit(params, vehicle)
         + [dict(e, held=True) for e in edited_since_fit(held, vehicle)]
         + switched_on_since_fit(off, vehicle))
+    article = (after(HEADER_ARTICLE) or "").strip()
+    if vehicle is not None and article:
+        from ._data import article_fingerprint
+
+        if article_fingerprint(vehicle) != article:  # a mass, a length, a peak's table
+            edited.append(dict(name="article", key=None, file=None, fitted=None, unit=None,
+                               article=True))
     flags += [f"{EDITED}: {e['name']}" for e in edited]
     return dict(from_fit=True, fitted_against=against, sound=not flags, flags=flags,
                 misfit=misfit, not_converged=capped, interval_not_bounded=unbounded,

@@ -504,6 +504,8 @@ def fit_status_lines(config: str, status: dict) -> list[str]:
     others = [f for f in status["flags"] if not f.startswith(EDITED)]
     if edited:
         head = (f"{config}: fitted vehicle edited since the fit: " + "; ".join(
+            "a key the fit does not calibrate (a mass, a length, a peak's table; the header's "
+            "SHA-256 of them differs)" if e.get("article") else
             f"{e['key']} = {e['file']:.6g} in the file, "
             + ("off in the fit" if e.get("off_in_fit") else f"{e['fitted']:.6g} "
                + ("held by the fit" if e.get("held") else "fitted"))

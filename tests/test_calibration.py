@@ -770,6 +770,14 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: peak2"]
     assert status["edited"] == [dict(name="peak2", key="honeycomb.peak_ratio2", file=1.3,
                                      fitted=None, unit="1", held=True, off_in_fit=True)]
+    # so is every other key: a mass edited in a file whose drop names no vehicle_config (none
+    # to compare it with) moved a max stroke by 16 % and was "fit sound"
+    mass = tmp_path / "mass.toml"
+    mass.write_text(sound.read_text().replace("m_body_kg = 1120.0 ", "m_body_kg = 1300.0 "))
+    assert mass.read_text() != sound.read_text()
+    status = read_fit_status(mass, jl.load_vehicle(mass))
+    assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: article"]
+    assert status["edited"][0]["article"] is True
 
 
 def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tmp_path,
