@@ -846,8 +846,12 @@ def _touchdown_speed(h, v0, v_td, g):
 def _read_csv(path: Path):
     text = jl.read_text(path, "data_file")  # refuses missing, folder and non-UTF-8 files
     text = text.removeprefix("\ufeff")  # the byte-order mark some spreadsheets save first
-    rows = [r for r in csv.reader(io.StringIO(text, newline=""))
-            if r and not r[0].lstrip().startswith("#")]
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows, lines = [], []  # the rows, and each one's line in the file (comments skipped)
+    for r in reader:
+        if r and not r[0].lstrip().startswith("#"):
+            rows.append(r)
+            lines.append(reader.line_num)
     if not rows:
         raise _err(str(path), "<empty>", "needs a header row and data")
     header = [h.strip() for h in rows[0]]
@@ -864,7 +868,7 @@ def _read_csv(path: Path):
         seen.add(h)
         _check_column_name(h, path.name)
     data = []
-    for i, row in enumerate(rows[1:], start=2):
+    for i, row in zip(lines[1:], rows[1:]):
         if len(row) != len(header):
             raise _err(f"{path.name}: row {i}", len(row), f"must have {len(header)} values "
                        f"(one per column: {','.join(header)}); a value is missing or extra")
@@ -875,6 +879,11 @@ def _read_csv(path: Path):
             col = header[row.index(bad)]
             raise _err(f"{path.name}: row {i}, {col}", bad, "must be a number") from None
     arr = np.array(data, dtype=np.float64).reshape(-1, len(header))
+    bad = ~np.isfinite(arr)
+    if np.any(bad):  # named here, by the file's line and the column as written
+        i, j = (int(x) for x in np.argwhere(bad)[0])
+        raise _err(f"{path.name}: row {lines[i + 1]}, {header[j]}", float(arr[i, j]),
+                   "must be finite: remove or repair NaN/inf samples")
     return {h: arr[:, j] for j, h in enumerate(header)}
 
 

@@ -93,6 +93,25 @@ def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_t
         cal.load_drop_test(path)
 
 
+def test_a_bad_sample_is_named_by_its_line_in_the_file_and_its_column_as_written(tmp_path):
+    """With comment lines above the header a NaN's 'data row' was off by their count, and one
+    in a time_ms column was named time_s: the refusal names the file's line and the column."""
+    t, f, x = _trace()
+    for col, header in ((1, ["time_s", "normal_force_N", "stroke_m"]),
+                        (0, ["time_ms", "normal_force_N", "stroke_m"])):
+        rows = np.stack([t * (1e3 if col == 0 else 1.0), f, x], axis=1)
+        rows[300, col] = np.nan
+        path = _write(tmp_path, header, rows.tolist())
+        csv_path = path.with_suffix(".csv")
+        csv_path.write_text("# rig 3\n# operator: ...\n# units as in the header\n"
+                            + csv_path.read_text())
+        with pytest.raises(jl.ConfigError) as err:
+            cal.load_drop_test(path)
+        # the header on line 4, sample 0 on line 5: sample 300 on line 305
+        assert str(err.value).startswith(f"drop.csv: row 305, {header[col]} = nan: must be "
+                                         "finite"), str(err.value)
+
+
 @pytest.mark.parametrize("case,needle", [
     ("no_time", "missing column time_s"),
     ("no_channel", "need at least one data channel"),
