@@ -4,8 +4,11 @@ that read back exactly."""
 from __future__ import annotations
 
 import json
+import numbers
 import tomllib
 from pathlib import Path
+
+import numpy as np
 
 from ._errors import ConfigError
 
@@ -41,10 +44,14 @@ def read_toml(path, what: str) -> dict:
 def toml_value(v) -> str:
     """``v`` (a flag, text, number, or a list of them) as TOML that reads back to the same
     value: floats by ``repr``, the shortest text that round-trips."""
-    if isinstance(v, bool):
+    if isinstance(v, (bool, np.bool_)):
         return "true" if v else "false"
     if isinstance(v, str):
         return json.dumps(v)
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    return repr(float(v)) if isinstance(v, float) else repr(int(v))
+    if isinstance(v, numbers.Integral) or (isinstance(v, np.ndarray) and v.ndim == 0
+                                           and np.issubdtype(v.dtype, np.integer)):
+        return repr(int(v))
+    # any other real (a numpy float32, a 0-d array): its value as a float64, never truncated
+    return repr(float(v))

@@ -680,3 +680,24 @@ def test_the_sensitivity_ranks_no_rounding_noise():
     assert s["ranking"][0]["r2_of_fit"] > 0.99
     s = sensitivity(inputs, moved, np.arange(64) < 5)  # 5 landings, 5 inputs
     assert s["ranking"] == [] and s["not_estimated"].startswith("5 successful landings")
+
+
+def test_spec_toml_writes_numpy_numbers_as_their_values():
+    """A spec built in Python with numpy numbers ran with them, but spec.toml truncated each to
+    an integer (high = 2.5 as float32 read back 2, dt 1e-4 as 0): the folder's rerun drew other
+    landings. Written as float64 values, they read back equal."""
+    from jaxland._montecarlo._spec import montecarlo_spec_from_dict, montecarlo_spec_to_toml
+
+    D = jl.Distribution
+    spec = jl.MonteCarloSpec(
+        dispersion={"sink_speed_mps": D("uniform", low=1.5, high=np.float32(2.5)),
+                    "mass_scale": D("normal", mean=1.0, std=np.float16(0.03))},
+        fixed={"drop_height_m": np.float64(0.0)}, n=np.int64(4), dt=np.float32(1e-4),
+        t_end=np.float32(0.2), t_end_check=0)
+    import tomllib
+
+    back = montecarlo_spec_from_dict(tomllib.loads(montecarlo_spec_to_toml(spec)))
+    assert back.dispersion["sink_speed_mps"].high == 2.5
+    assert back.dispersion["mass_scale"].std == float(np.float16(0.03)) > 0.0
+    assert back.dt == float(np.float32(1e-4)) and back.t_end == float(np.float32(0.2))
+    assert back.n == 4
