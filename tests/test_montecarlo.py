@@ -701,3 +701,32 @@ def test_spec_toml_writes_numpy_numbers_as_their_values():
     assert back.dispersion["mass_scale"].std == float(np.float16(0.03)) > 0.0
     assert back.dt == float(np.float32(1e-4)) and back.t_end == float(np.float32(0.2))
     assert back.n == 4
+
+
+@pytest.mark.parametrize("fixed,dispersion,model", [
+    # symmetric by the scenes' own rule: a plateau scale equal on every leg, a heading or a
+    # slope direction without a speed or a slope, a roll held at 0
+    (dict(plateau_scale=0.9), {}, "quarter"),
+    (dict(plateau_scale=[0.9, 0.9, 0.9, 0.9]), {}, "quarter"),
+    (dict(slope_direction_deg=90.0, heading_deg=45.0), {}, "quarter"),
+    ({}, dict(roll_deg=jl.Distribution("constant", mean=0.0)), "quarter"),
+    # not: a roll, a plateau scale drawn leg by leg, unequal scales, an offset mass
+    ({}, dict(roll_deg=jl.Distribution("constant", mean=1.0)), "full"),
+    ({}, dict(plateau_scale=jl.Distribution("normal", mean=1.0, std=0.05)), "full"),
+    (dict(plateau_scale=[0.9, 1.0, 0.9, 0.9]), {}, "full"),
+    (dict(com_offset_x_m=0.01), {}, "full"),
+])
+def test_auto_picks_the_quarter_model_exactly_where_the_scenes_are_symmetric(fixed, dispersion,
+                                                                           model):
+    """model = "auto" and the quarter model's refusal follow the scenes' own symmetry rule
+    (is_symmetric on the drawn scenes): a fixed plateau scale of 0.9 or a heading of 45 deg
+    ran the full 3-D model, and model = "quarter" was refused for them."""
+    from jaxland._montecarlo._sample import sample_scenes
+    from jaxland._scene import is_symmetric
+
+    spec = jl.MonteCarloSpec(
+        dispersion={"sink_speed_mps": jl.Distribution("uniform", low=1.0, high=2.0),
+                    **dispersion}, fixed=dict(drop_height_m=0.0, **fixed), n=16, t_end=0.2)
+    assert spec.resolved_model() == model
+    scenes, _ = sample_scenes(spec, 0, 16)
+    assert is_symmetric(scenes) == (model == "quarter")

@@ -9,6 +9,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._checks import (
     FLAG,
@@ -59,8 +60,26 @@ def envelope(key: str) -> tuple[float, float]:
     return f.lo / to_si, f.hi / to_si
 
 
-# Dispersions that keep a symmetric vertical drop symmetric (the quarter model suffices).
-_SYMMETRIC_KEYS = {"drop_height_m", "sink_speed_mps", "yaw_deg", "friction", "mass_scale"}
+# The scene fields a symmetric vertical drop holds at 0 (``_scene._symmetric``, the one rule):
+# an input that sets one to anything else needs the full model; a plateau scale must be the
+# same on every leg; every other input (height, sink speed, yaw, heading and slope direction
+# without a speed or slope, friction, mass) keeps the drop symmetric.
+_ZERO_IN_A_SYMMETRIC_DROP = {"horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate",
+                             "yaw_rate", "slope", "com_offset"}
+
+
+def _keeps_symmetry(key: str, value) -> bool:
+    """Whether a dispersed (a ``Distribution``) or fixed input keeps a vertical drop
+    symmetric (``_ZERO_IN_A_SYMMETRIC_DROP``)."""
+    field = DISPERSIBLE[key].field
+    if isinstance(value, Distribution):
+        if value.kind != "constant":  # a per-leg input is drawn leg by leg
+            return field not in _ZERO_IN_A_SYMMETRIC_DROP and field != "plateau_scale"
+        value = value.mean
+    vals = np.ravel(np.asarray(value, dtype=float))
+    if field in _ZERO_IN_A_SYMMETRIC_DROP:
+        return bool(np.all(vals == 0.0))
+    return field != "plateau_scale" or bool(np.all(vals == vals[0]))
 
 
 # Least probability of the normal inside a truncnormal's bounds: far in a tail the sampler
@@ -274,10 +293,11 @@ class MonteCarloSpec:
         return max(lo, float(dist.low)), min(hi, float(dist.high))
 
     def smallest_model(self) -> str:
-        """The quarter model if every dispersed or fixed input keeps the drop symmetric."""
-        keys = set(self.dispersion) | {k for k, v in self.fixed.items()
-                                       if not (isinstance(v, (int, float)) and v == 0.0)}
-        return "quarter" if keys <= _SYMMETRIC_KEYS else "full"
+        """The quarter model if every dispersed or fixed input keeps the drop symmetric (the
+        scenes' own rule, ``_keeps_symmetry``)."""
+        inputs = {**self.fixed, **self.dispersion}
+        return ("quarter" if all(_keeps_symmetry(k, v) for k, v in inputs.items())
+                else "full")
 
     def resolved_model(self, where: str = "montecarlo") -> str:
         """The model to run: ``model``, or the smallest adequate one for ``auto``; a quarter
