@@ -366,14 +366,14 @@ def run_montecarlo(spec: MonteCarloSpec, vehicle: Vehicle | None = None, *,
              f"{'s' if n_dev > 1 else ''}{_of_processes(n_proc)}, "
              f"{done / (time.perf_counter() - t0):.3g}/s)")
     line.close()
-    wall = time.perf_counter() - t0
     if n_proc > 1:
         outputs, inputs = _gather(outputs, inputs, spec.n, chunk, n_proc)
 
     outputs["dt_s"] = np.full(spec.n, float(spec.dt))
     outputs["retried"] = np.zeros(spec.n, bool)
     if spec.retry:
-        _retry(spec, vehicle, model, outputs, line)
+        _retry(spec, vehicle, model, outputs, line, chunk=chunk)
+    wall = time.perf_counter() - t0  # the landings', retries included
     bottomed = bottomed_out(outputs, vehicle)
     failure = outputs.pop("result").astype(int)  # a Result code per sample (verdict)
     outputs["bottomed_out"] = bottomed
@@ -492,7 +492,7 @@ def retry_method(method: str) -> str:
 
 
 def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, line,
-           only: np.ndarray | None = None) -> None:
+           only: np.ndarray | None = None, chunk: int | None = None) -> None:
     """Run the samples that failed numerically again (of ``only``, sample indices, if given)
     and keep the new outcomes with the step used (``dt_s``; ``retried``). Explicit Euler's
     failures on hard landings come from its explicit strut damping, which grows with the
@@ -500,7 +500,8 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
     depend on the force); a method that already takes it implicitly is rerun at
     ``retry_step``, the limit at the forces the samples' energy can reach. Samples still
     failing are rerun at a quarter of that step, up to ``RETRY_STEPS`` tries. Every process
-    runs the same retries (same results)."""
+    runs the same retries (same results). At most ``chunk`` samples run at once (memory is
+    bounded as the run's is; None: all at once)."""
     from .._simulate import retry_step
 
     method = retry_method(spec.method)
@@ -527,9 +528,13 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
         line(f"retry {attempt + 1}: {failed.size} failed sample(s) with {method} at "
              f"dt = {dt:.3g} s")
         run = jax.jit(lambda sc, solver=solver: _per_sample(vehicle, solver, model, sc))
-        res = jax.device_get(run(scenes))
-        for k, v in res.items():
-            outputs[k][failed] = np.asarray(v)
+        step = failed.size if chunk is None else int(chunk)
+        for start in range(0, failed.size, step):
+            part = slice(start, start + step)
+            res = jax.device_get(run(jax.tree.map(
+                lambda x, part=part: x[part] if np.ndim(x) >= 1 else x, scenes)))
+            for k, v in res.items():
+                outputs[k][failed[part]] = np.asarray(v)
         outputs["dt_s"][failed] = dt
         outputs["retried"][failed] = True
     line.close()
