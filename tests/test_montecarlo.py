@@ -757,3 +757,19 @@ def test_retries_run_in_chunks_and_count_in_the_wall_time(monkeypatch):
     took = time.perf_counter() - t0
     assert int(res.outputs["retried"].sum()) > 8 and sizes and max(sizes) <= 8
     assert res.summary["wall_s"] >= 0.9 * took
+
+
+def test_a_clean_t_end_check_of_few_landings_bounds_what_it_cannot_see():
+    """0 changed of 1 checked read "outcomes final at t_end_s"; the line now says the checked
+    landings are final and bounds the rest by the 95 % Wilson upper bound of 0 in n."""
+    from jaxland._montecarlo._stats import wilson_interval
+    from jaxland.cli._montecarlo import _t_end_check_text
+
+    for n in (1, 4, 32):
+        check = dict(n_checked=n, n_changed=0, n_rerun_failed=0, of="finished landings",
+                     t_end_s=2.0, tolerance=1e-3,
+                     changed=dict(ci95_wilson=list(wilson_interval(0, n))))
+        text = _t_end_check_text(dict(t_end_s=1.0, t_end_check=check))
+        upper = wilson_interval(0, n)[1]
+        assert text.endswith(f"the checked landings are final at t_end_s; up to {upper:.0%} "
+                             "of the finished landings may not be (95 % upper bound)"), text

@@ -171,10 +171,12 @@ def _t_end_check_text(s: dict) -> str:
         return f"no landing could be checked{failed}"
     head = (f"{c['n_changed']} of {c['n_checked']} {c['of']} at t_end_s = {s['t_end_s']:g} s "
             f"still changed before {c['t_end_s']:g} s")
-    if not c["n_changed"]:
-        return (head + f" (each max stroke within {c['tolerance']:.1%} of itself){failed}: "
-                "outcomes final at t_end_s")
     lo, hi = c["changed"]["ci95_wilson"]
+    if not c["n_changed"]:  # final on the landings checked; how many more may not be, their
+        # count bounds
+        return (head + f" (each max stroke within {c['tolerance']:.1%} of itself){failed}: "
+                f"the checked landings are final at t_end_s; up to {hi:.0%} of the "
+                f"{c['of']} may not be (95 % upper bound)")
     what = ([f"max stroke grew on {c['n_max_stroke_grew']} (up to "
              f"{c['max_stroke_growth_m'] * 1e3:.3g} mm)"] if c["n_max_stroke_grew"] else [])
     what += [f"{c[k]} {name}" for k, name in (("n_tipped_later", "tipped over later"),
