@@ -74,10 +74,19 @@ class Number:
             raise ConfigError(name, val, "must be an integer")
         lo, hi = self.lo, self.hi
         if lo is not None and (val < lo or (self.lo_open and val == lo)):
-            raise ConfigError(name, val, f"must be {'>' if self.lo_open else '>='} {lo:g}")
+            raise ConfigError(name, val, f"must be {'>' if self.lo_open else '>='} "
+                                         f"{_bound_text(lo)}")
         if hi is not None and (val > hi or (self.hi_open and val == hi)):
-            raise ConfigError(name, val, f"must be {'<' if self.hi_open else '<='} {hi:g}")
+            raise ConfigError(name, val, f"must be {'<' if self.hi_open else '<='} "
+                                         f"{_bound_text(hi)}")
         return val
+
+
+def _bound_text(x) -> str:
+    """A rule's bound as text: short (``:g``) where that is exact, else in full (2147483647,
+    not 2.14748e+09, which the value could exceed and still pass)."""
+    short = f"{x:g}"
+    return short if float(short) == x else (str(int(x)) if float(x).is_integer() else repr(x))
 
 
 POSITIVE = Number(lo=0.0, lo_open=True)

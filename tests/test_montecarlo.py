@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -773,3 +774,15 @@ def test_a_clean_t_end_check_of_few_landings_bounds_what_it_cannot_see():
         upper = wilson_interval(0, n)[1]
         assert text.endswith(f"the checked landings are final at t_end_s; up to {upper:.0%} "
                              "of the finished landings may not be (95 % upper bound)"), text
+
+
+def test_a_seed_past_its_bound_is_told_the_bound_in_full(tmp_path, capsys):
+    """--seed 99999999999 read "must be <= 2.14748e+09", a rounded bound that 2147484000
+    would seem to meet: the bound is shown in full where its short form is not exact."""
+    from jaxland.cli import main
+
+    spec = Path(__file__).parents[1] / "examples" / "montecarlo_dispersed.toml"
+    assert main(["montecarlo", str(spec), "--seed", "99999999999", "--out",
+                 str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith("--seed = 99999999999: must be <= 2147483647"), err
