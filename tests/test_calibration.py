@@ -771,30 +771,27 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
         "the crush peak shows in the force channels only")
     # a value the fit held (every interval is conditional on it) is the fit's too: an edit of
     # one was not seen (chi x 10 and mu 0.1 moved a prediction's max stroke by 23 %)
+    def status_of_edit(name, was, now):
+        path = tmp_path / f"{name}.toml"
+        path.write_text(sound.read_text().replace(was, now))
+        assert path.read_text() != sound.read_text()
+        return read_fit_status(path, jl.load_vehicle(path))
+
     assert "# held at the vehicle's values" in sound.read_text()
-    held = tmp_path / "held.toml"
-    held.write_text(sound.read_text().replace("chi_s_per_m = 0.0002", "chi_s_per_m = 0.002"))
-    assert held.read_text() != sound.read_text()
-    status = read_fit_status(held, jl.load_vehicle(held))
+    status = status_of_edit("held", "chi_s_per_m = 0.0002", "chi_s_per_m = 0.002")
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: chi"]
     assert status["edited"] == [dict(name="chi", key="ground.chi_s_per_m", file=0.002,
                                      fitted=0.0002, unit="s/m", held=True)]
     # an extension the fit held off is the fit's too: a crush peak switched on in a fitted
     # file moved a prediction's peak buffer force by 11 % and the fit was called sound
     assert "# off in the fit (its values hold without them): " in sound.read_text()
-    on = tmp_path / "on.toml"
-    on.write_text(sound.read_text().replace("peak_ratio2 = 1.0 ", "peak_ratio2 = 1.3 "))
-    assert on.read_text() != sound.read_text()
-    status = read_fit_status(on, jl.load_vehicle(on))
+    status = status_of_edit("on", "peak_ratio2 = 1.0 ", "peak_ratio2 = 1.3 ")
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: peak2"]
     assert status["edited"] == [dict(name="peak2", key="honeycomb.peak_ratio2", file=1.3,
                                      fitted=None, unit="1", held=True, off_in_fit=True)]
     # so is every other key: a mass edited in a file whose drop names no vehicle_config (none
     # to compare it with) moved a max stroke by 16 % and was "fit sound"
-    mass = tmp_path / "mass.toml"
-    mass.write_text(sound.read_text().replace("m_body_kg = 1120.0 ", "m_body_kg = 1300.0 "))
-    assert mass.read_text() != sound.read_text()
-    status = read_fit_status(mass, jl.load_vehicle(mass))
+    status = status_of_edit("mass", "m_body_kg = 1120.0 ", "m_body_kg = 1300.0 ")
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: article"]
     assert status["edited"][0]["article"] is True
 
