@@ -159,6 +159,11 @@ class Scene(eqx.Module):
         b = v0 * nz - a
         return (jnp.sqrt(b * b + 2.0 * g * nz * h) - b) / (g * nz)
 
+    def turning(self):
+        """True (a jnp bool, per landing) where the body turns at release (a rate given): its
+        attitude then changes in the free fall, which ``fall_time`` holds."""
+        return (self.roll_rate != 0.0) | (self.pitch_rate != 0.0) | (self.yaw_rate != 0.0)
+
     def touchdown_speed(self, g=9.81):
         """Vertical speed at first contact [m/s] of the free fall from the scene's clearance
         (``fall_time``, the attitude held: no body rates): sqrt(v0^2 + 2 g h) on level

@@ -178,9 +178,7 @@ def _touchdown_speed(scene: Scene, g: float, t_contact: float | None) -> float |
     ``Scene.touchdown_speed``. A turning body lowers a foot sooner or later than that, but its
     centre of mass still falls freely, so its speed is v0 + g t at the first contact the run
     logged (None without one)."""
-    turning = any(float(getattr(scene, k)) != 0.0
-                  for k in ("roll_rate", "pitch_rate", "yaw_rate"))
-    if not turning:
+    if not bool(scene.turning()):
         return float(scene.touchdown_speed(g))
     return None if t_contact is None else float(scene.sink_speed) + g * float(t_contact)
 

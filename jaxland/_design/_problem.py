@@ -269,8 +269,7 @@ class DesignProblem:
         design.t_end_s. Exact for a body that does not turn (``Scene.fall_time``); a turning
         one can lower a foot sooner, so its scenes are left to the first evaluation's check."""
         sc = self.scenes
-        still = np.all([np.asarray(getattr(sc, k)) == 0.0
-                        for k in ("roll_rate", "pitch_rate", "yaw_rate")], axis=0)
+        still = ~np.asarray(sc.turning())
         fall = np.asarray(sc.fall_time(float(self.vehicle.g)))
         late = still & (fall > self.spec.t_end)
         if np.any(late):
