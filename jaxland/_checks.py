@@ -14,6 +14,8 @@ import numbers
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+import numpy as np
+
 from ._errors import ConfigError
 
 # An integer beyond this is refused: Python's (and TOML's) integers are unbounded, and one
@@ -68,6 +70,9 @@ class Number:
 
     def __call__(self, name: str, val):
         check_int_size(name, val)
+        if isinstance(val, (bool, np.bool_)):  # shown as the TOML wrote it
+            raise ConfigError(name, "true" if val else "false", "must be an integer"
+                              if self.integer else "must be a finite number")
         if not _is_number(val):
             raise ConfigError(name, val, "must be a finite number")
         if self.integer and not isinstance(val, numbers.Integral):

@@ -786,3 +786,16 @@ def test_a_seed_past_its_bound_is_told_the_bound_in_full(tmp_path, capsys):
                  str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.strip().endswith("--seed = 99999999999: must be <= 2147483647"), err
+
+
+def test_a_flag_given_for_a_count_is_named_as_written(tmp_path, capsys):
+    """n = true read "montecarlo.n = True: must be a finite number": the value as TOML wrote it,
+    and the rule the count has."""
+    from jaxland.cli import main
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[montecarlo]\nn = true\n[dispersion.sink_speed_mps]\ndist = "uniform"\n'
+                    "low = 1.0\nhigh = 2.0\n")
+    assert main(["montecarlo", str(spec), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith("montecarlo.n = 'true': must be an integer"), err
