@@ -485,6 +485,9 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         ("[dispersion.rol_deg]\ndist = 'normal'\nmean = 0.0\nstd = 1.0\n", "dispersion.rol_deg"),
         ("[dispersion.roll_deg]\ndist = 'uniform'\nlow = 2.0\nhigh = 1.0\n",
          "dispersion.roll_deg.high"),
+        # a parameter left out is named as missing (it read "std = None: must be a number")
+        ("[dispersion.roll_deg]\ndist = 'normal'\nmean = 0.0\n",
+         "dispersion.roll_deg.std = None: is required: a normal distribution takes mean, std"),
         ("[montecarlo]\nn = 0\n", "montecarlo.n"),
         ("[montecarlo]\nsamples = 5\n", "montecarlo.samples"),
         ("[montecarlo]\nmethod = 'tsit5'\n", "montecarlo.method"),

@@ -145,7 +145,10 @@ class Distribution:
                               f"not a parameter of a {kind} distribution ({', '.join(need[kind])})")
         vals = {}
         for key in need[kind]:
-            vals[key] = float(Number()(f"dispersion.{name}.{key}", d.get(key)))
+            if key not in d:
+                raise ConfigError(f"dispersion.{name}.{key}", None, f"is required: a {kind} "
+                                  f"distribution takes {', '.join(need[kind])}")
+            vals[key] = float(Number()(f"dispersion.{name}.{key}", d[key]))
         if kind == "constant":
             return cls("constant", mean=vals["value"])
         if kind in ("normal", "truncnormal") and not vals["std"] > 0:
