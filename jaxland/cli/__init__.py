@@ -146,6 +146,19 @@ def _refuse_empty_paths(args) -> None:
             raise ConfigError(f"--{name}", "", "is empty: give a file, or leave the flag out")
 
 
+def _quiet_closed_stdout() -> None:
+    """Point stdout's descriptor at nothing, so that the interpreter's last flush of what is
+    still buffered does not fail on the closed pipe too (in-process callers whose stdout has
+    no descriptor keep theirs)."""
+    import os
+
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return
+    os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(_join_negative_values(argv))
@@ -165,7 +178,9 @@ def main(argv=None) -> int:
         signal.signal(signal.SIGINT, interrupt_handler)
     try:
         _refuse_empty_paths(args)
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()  # a block-buffered report meets a closed pipe here, not at exit
+        return code
     except ConfigError as err:
         print(f"jaxland: error: {err}", file=sys.stderr)
         return EXIT_INVALID
@@ -176,13 +191,13 @@ def main(argv=None) -> int:
         print("jaxland: interrupted (nothing was written to the output folder)", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader of stdout stopped (| head): the report stops here
-        # (stdout pointed at nothing, so that the interpreter's last flush does not fail too)
-        import os
-
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        print("jaxland: standard output closed by its reader: the printed report stops here "
-              "(an output folder is written whole before its report, or not at all)",
-              file=sys.stderr)
+        _quiet_closed_stdout()
+        try:  # stderr may be the same closed pipe (2>&1 | head)
+            print("jaxland: standard output closed by its reader: the printed report stops "
+                  "here (an output folder is written whole before its report, or not at all)",
+                  file=sys.stderr)
+        except BrokenPipeError:
+            pass
         return EXIT_OS
     except OSError as err:  # a full disk: the output folder is left untouched
         print(f"jaxland: cannot write: {err}", file=sys.stderr)
