@@ -105,9 +105,11 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
     (["--plateau-scale", "1", "1"], "--plateau-scale = [1.0, 1.0]: must have one entry per leg"),
     (["--method", "tsit5", "--max-steps", "1" + "0" * 20],
      "--max-steps = 100000000000000000000: must be <= 5e+08"),
-    # tsit5's dt is its first step: one longer than the run is the dt's mistake
-    (["--method", "tsit5", "--dt", "1"], "--dt = 1.0: must be <= t_end = 0.05 s (the first "
-     "step of tsit5)"),
+    # tsit5's dt is its first step: one longer than the run may be the dt's mistake
+    (["--method", "tsit5", "--dt", "1"], "--t-end = 0.05: must be >= dt = 1.0 s (tsit5's first "
+     "step: or give a smaller dt)"),
+    (["--method", "tsit5", "--t-end", "5e-6"], "--t-end = 5e-06: must be >= dt = 1e-05 s "
+     "(tsit5's first step: or give a smaller dt)"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"

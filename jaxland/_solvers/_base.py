@@ -95,8 +95,8 @@ class AbstractIntegrator(eqx.Module):
 
     name: ClassVar[str]
     stability_reason: ClassVar[str]  # what sets its stability limit, for messages
-    # dt is only the first step's size (an adaptive method): a dt longer than the run is the
-    # dt's mistake, not t_end's
+    # dt is only the first step's size (an adaptive method): a run shorter than it may as well
+    # want a smaller dt, and the refusal says so
     dt_is_first_step: ClassVar[bool] = False
 
     def validate(self) -> AbstractIntegrator:
@@ -227,11 +227,9 @@ class Solver(eqx.Module):
         """All settings, and how they relate."""
         self.validate_values()
         if self.t_end < self.dt:
-            if self.method.dt_is_first_step:
-                raise ConfigError("solver.dt", self.dt, f"must be <= t_end = {self.t_end} s "
-                                  f"(the first step of {self.method.name})")
-            raise ConfigError("solver.t_end", self.t_end, f"must be >= dt = {self.dt} s (one "
-                              "step)")
+            raise ConfigError("solver.t_end", self.t_end, f"must be >= dt = {self.dt} s "
+                              + (f"({self.method.name}'s first step: or give a smaller dt)"
+                                 if self.method.dt_is_first_step else "(one step)"))
         if self.save_dt < self.dt:
             raise ConfigError("solver.save_dt", self.save_dt, f"must be >= dt = {self.dt} s")
         if self.save_dt > self.t_end:
