@@ -409,9 +409,16 @@ def test_cell_variables_refuse_cells_that_do_not_give_the_baseline_gear():
         F2=12000.0, k_b3=6000.0 / ((paper.honeycomb.F2 - paper.honeycomb.F1)
                                    / paper.honeycomb.k_b3)))
     with pytest.raises(jl.ConfigError) as err:
-        DesignProblem(design_spec_from_dict(spec), other)
+        DesignProblem(design_spec_from_dict(copy.deepcopy(spec)), other)
     assert err.value.field == "cells.primary_foil_thickness_mm", str(err.value)
     assert "where the baseline vehicle has F1 = 6000 N" in err.value.rule
+    # a start the spec gives is where its stage starts; the secondary's cells still give F2
+    spec["variables"]["primary_foil_thickness_mm"]["start"] = 0.0778646
+    with pytest.raises(jl.ConfigError) as err:
+        DesignProblem(design_spec_from_dict(copy.deepcopy(spec)), other)
+    assert err.value.field == "cells.secondary_foil_thickness_mm", str(err.value)
+    spec["variables"]["secondary_foil_thickness_mm"] = dict(low=0.065, high=0.08, start=0.0708669)
+    DesignProblem(design_spec_from_dict(spec), other)
 
 
 def test_design_scenes_that_cannot_touch_down_are_refused_before_compiling():

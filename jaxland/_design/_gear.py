@@ -85,14 +85,18 @@ CELLS_RTOL = 1e-3  # the cells' plateau forces against the baseline's: a force g
 # digits (the paper's F1 5024.4 N, its cells' 5024.37 N)
 
 
-def check_cells(vehicle: Vehicle, names, cells: dict) -> None:
+def check_cells(vehicle: Vehicle, variables, cells: dict) -> None:
     """Refuse cell variables whose cells (``cells``: the spec's ``[cells]``, the paper's where
     not given) do not give the baseline vehicle's plateau forces: a cell variable sets both F1
-    and F2 from the cells (``apply_design``), so the start would silently be another gear."""
-    if not any(n in CELL_VARS for n in names):
+    and F2 from the cells (``apply_design``), so the start would silently be another gear. A
+    stage one of whose cell variables has a ``start`` starts where the spec says."""
+    if not any(v.name in CELL_VARS for v in variables):
         return
+    started = {v.name for v in variables if v.start is not None}
     hc = vehicle.honeycomb
     for stage, given in (("primary", hc.F1), ("secondary", hc.F2)):
+        if {f"{stage}_cell_size_mm", f"{stage}_foil_thickness_mm"} & started:
+            continue
         force = float(cells_force(cells[f"{stage}_cell_size_mm"] * 1e-3,
                                   cells[f"{stage}_foil_thickness_mm"] * 1e-3, cells))
         have = np.asarray(given, dtype=float)
@@ -103,7 +107,8 @@ def check_cells(vehicle: Vehicle, names, cells: dict) -> None:
                 f"the [cells] (the paper's where not given) give the {stage} plateau force "
                 f"{force:.6g} N where the baseline vehicle has {name} = "
                 f"{float(np.max(have)):.6g} N: a cell variable starts from these cells, so "
-                "give the baseline's cells in [cells] (or design F1_N and F2_N instead)")
+                "give the baseline's cells in [cells] (or the variable a start, or design "
+                "F1_N and F2_N instead)")
 
 
 def baseline_value(vehicle: Vehicle, name: str, cells: dict) -> float:

@@ -224,7 +224,7 @@ class DesignProblem:
                               "keep the dispersion inside the envelope (truncnormal, uniform)"
                               ) from None
         check_bounds(spec, self.vehicle)
-        check_cells(self.vehicle, spec.names, self.cells)
+        check_cells(self.vehicle, spec.variables, self.cells)
         self._check_touchdown()
         self._stiffest: dict = {}  # per method: stiffest_step's answer
         self.z0 = self.to_z({v.name: (v.start * v.to_si if v.start is not None else
