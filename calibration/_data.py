@@ -464,9 +464,11 @@ class DropTest:
                 raise _err(f"{self.source}: {name}", f"{top / factor:.4g} {unit}",
                            f"exceeds {STROKE_PAST_CRUSH:g} x the honeycomb's crush length "
                            f"({crush * 1e3:.4g} mm, honeycomb.x_L4_mm), where the bottoming "
-                           "stop ends the stroke: a stroke in inches or cm under a "
-                           f"{'stroke_mm' if unit == 'mm' else 'stroke_m'} header, or the "
-                           "vehicle's x_L4 not the gear's?")
+                           "stop ends the stroke: "
+                           + ("a stroke in tenths of a mm or in um under a stroke_mm header"
+                              if unit == "mm" else
+                              "a stroke in inches or cm under a stroke_m header")
+                           + ", or the vehicle's x_L4 not the gear's?")
             lo, hi = float(np.min(vals[after])), float(np.max(vals[after]))
             if -lo > 4.0 * max(hi, 0.0) and -lo > 20.0 * noise:
                 raise _err(f"{self.source}: {col}", f"{lo:.4g} m", "runs negative after "

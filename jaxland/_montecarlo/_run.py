@@ -500,8 +500,9 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
     depend on the force); a method that already takes it implicitly is rerun at
     ``retry_step``, the limit at the forces the samples' energy can reach. Samples still
     failing are rerun at a quarter of that step, up to ``RETRY_STEPS`` tries. Every process
-    runs the same retries (same results). At most ``chunk`` samples run at once (memory is
-    bounded as the run's is; None: all at once)."""
+    runs the same retries (same results). At most ``chunk`` samples run at once, on one
+    device (None: all at once): a chunk's memory, where the run spreads one over the devices;
+    the retries are few where the step suits the spec."""
     from .._simulate import retry_step
 
     method = retry_method(spec.method)
