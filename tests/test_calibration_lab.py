@@ -305,6 +305,11 @@ def _wrong(ch, col, how):
     # inches under an _m header: under the strut's length, but far past the crush length
     (lambda ch: _wrong(ch, "stroke_m", lambda x: x / 0.0254),
      r"stroke_m = '\d\.\d+ m': exceeds 2 x the honeycomb's crush length .* in inches"),
+    # tenths of a mm under a stroke_mm header: converted, ten times too long
+    (lambda ch: {**{k: v for k, v in ch.items() if k != "stroke_m"},
+                 "stroke_mm": ch["stroke_m"] * 1e4},
+     r"stroke_mm = '\d+\.?\d* mm': exceeds 2 x .* in tenths of a mm or in um under a "
+     r"stroke_mm header"),
     (lambda ch: _wrong(ch, "normal_force_N", lambda x: x * 1e-3),
      "normal_force_N = 'peak .*under a tenth of the .* N the leg carries at rest.*kN"),
     (lambda ch: _wrong(ch, "buffer_force_N", lambda x: -x), "buffer_force_N.*sign flipped"),
