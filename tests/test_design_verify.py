@@ -94,7 +94,12 @@ def test_a_reoptimisation_that_ends_infeasible_returns_the_last_verified_design(
     assert res.status == "feasible" and v is not None and not v["verified"]
     assert v["reason"].startswith("the re-optimisation of round 1 with 2 violating landing(s) "
                                   "added found no feasible design")
-    assert v["rounds"][0]["unmet"] == ["stroke"] and len(v["added_landings"]) == 1
+    # the landings that round added are its own: the returned design never saw them
+    assert v["rounds"][0]["unmet"] == ["stroke"] and v["added_landings"] == []
+    failed = v["failed_reoptimisation"]
+    assert failed["round"] == 1 and len(failed["added_landings"]) == 1
+    assert failed["added_landings"][0]["seed"] == v["rounds"][0]["seed"]
+    assert len(failed["added_landings"][0]["samples"]) == spec["design"]["verify_add"]
     assert v["after"]["seed"] == v["rounds"][0]["seed"] and v["before"] is not None
     # round 0's design, on round 0's scenes; the failed round stays in the history
     assert res.problem.count == 4 and res.history[res.best_iteration]["round"] == 0

@@ -363,7 +363,7 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
     seed = _fresh_seed(spec, 0)
     verify_design(result, n=n, seed=seed, progress=mc_progress, say=say)
     added: tuple = ()
-    reason = None
+    reason, failed_round = None, None
     for r in range(1, rounds + 2):
         after = result.verification["after"]
         unmet = [name for name, ch in after["constraints"].items() if not ch["met"]]
@@ -424,9 +424,8 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
                       f"(the verification runs {spec.montecarlo.t_end:g} s): raise "
                       "design.t_end_s")
             break
-        added = trial
         say(f"round {r}: re-optimising with {len(picks)} violating landing(s) added "
-            f"({sum(len(i) for _, i in added)} in all, {problem.scenes.sink_speed.shape[0]} "
+            f"({sum(len(i) for _, i in trial)} in all, {problem.scenes.sink_speed.shape[0]} "
             "scenes)")
         start_values, verified_last = result.start_values, result
         tagged = None if progress is None else (
@@ -446,8 +445,10 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
             reason = (f"the re-optimisation of round {r} with {len(picks)} violating "
                       f"landing(s) added found no feasible design; the design of round {r - 1} "
                       "is returned with its verification")
+            failed_round = dict(round=r, added_landings=[dict(seed=seed, samples=list(picks))])
             result = verified_last
             break
+        added = trial  # the landings the returned design was optimised on
         seed = _fresh_seed(spec, r)
         verify_design(result, n=n, seed=seed, progress=mc_progress, before=False,
                       say=say)
@@ -468,6 +469,9 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
         ver["reason"] = reason
         ver["rounds"] = log
         ver["added_landings"] = [dict(seed=s, samples=list(i)) for s, i in added]
+        # a re-optimisation that found no feasible design: its round and the landings it
+        # added, which the returned design was not optimised on (None: none failed)
+        ver["failed_reoptimisation"] = failed_round
         ver["total_wall_s"] = time.perf_counter() - t0  # every round and verification
     return result
 

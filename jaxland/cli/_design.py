@@ -142,8 +142,11 @@ def _cmd_design(args) -> int:
               "design.t_end_s", file=sys.stderr)
     if result.verification:
         v = result.verification
+        rounds = len({h.get("round", 0) for h in result.history}) - 1
         print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples), "
-              f"{len(v['rounds']) - 1} re-optimisation round(s)")
+              f"{rounds} re-optimisation round(s)"
+              + (" (the last found no feasible design)" if v.get("failed_reoptimisation")
+                 else ""))
         for name, ch in v["after"]["constraints"].items():
             if ch["ci95"][1] is None:
                 print(f"    constraint {name:<10} {ch['measure']} on the verification landings: "
