@@ -572,16 +572,18 @@ def interval95(value: float, std_error: float, lo: float,
     """The 95 % interval of a fitted value whose standard error ``std_error`` the delta method
     gave: value +/- 1.96 standard errors in the fit's own coordinates (log(x - lo), or
     logit((x - lo) / (hi - lo)) on a closed range), where the fit's curvature was taken, mapped
-    back. It lies inside (lo, hi) by construction, where value +/- 1.96 standard errors can
+    back. It lies inside (lo, hi), where value +/- 1.96 standard errors can
     leave the range (gamma 0.994 +/- 0.035); near the middle of a wide range the two agree.
     None without a finite error or for a value outside its open range."""
     if not (math.isfinite(value) and math.isfinite(std_error) and value > lo
             and (hi is None or value < hi)):
         return None
+    # an end that rounds onto the range's own end is kept one float inside it
+    inside_lo = math.nextafter(lo, math.inf)
     if hi is None:
         dz = std_error / (value - lo)  # d log(x - lo) / dx = 1 / (x - lo)
         up = 1.96 * dz
-        return (lo + (value - lo) * math.exp(-up),
+        return (max(lo + (value - lo) * math.exp(-up), inside_lo),
                 lo + (value - lo) * math.exp(up) if up < 700.0 else math.inf)
     w = hi - lo
     u = (value - lo) / w
@@ -589,8 +591,9 @@ def interval95(value: float, std_error: float, lo: float,
     dz = std_error / (w * u * (1.0 - u))  # d logit(u) / dx = 1 / (w u (1 - u))
 
     def back(t):
-        return lo + w * (1.0 / (1.0 + math.exp(-t)) if t >= 0 else
-                         math.exp(t) / (1.0 + math.exp(t)))
+        x = lo + w * (1.0 / (1.0 + math.exp(-t)) if t >= 0 else
+                      math.exp(t) / (1.0 + math.exp(t)))
+        return min(max(x, inside_lo), math.nextafter(hi, -math.inf))
     return back(z - 1.96 * dz), back(z + 1.96 * dz)
 
 

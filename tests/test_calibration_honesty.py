@@ -1105,4 +1105,8 @@ def test_the_95_interval_stays_inside_the_range_the_fit_transforms_onto():
     a, b = interval95(6e3, 1e3, 5e3, None)  # F2 above F1: the gap's log
     assert a > 5e3 and (a - 5e3) * (b - 5e3) == pytest.approx(1e6, rel=1e-12)
     assert interval95(1.0, 1e6, 0.0, None)[1] == math.inf
+    # an error so large that an end rounds onto the range's end stays a float inside it
+    for v, se, lo, hi in ((0.99, 0.2, 0.0, 1.0), (0.01, 0.5, 0.0, 1.0), (1e-3, 10.0, 0.0, None)):
+        a, b = interval95(v, se, lo, hi)
+        assert lo < a < v < b and (hi is None or b < hi)
     assert interval95(0.5, math.nan, 0.0, 1.0) is None and interval95(1.0, 0.1, 0.0, 1.0) is None
