@@ -950,8 +950,11 @@ def article_fingerprint(vehicle: jl.Vehicle) -> str:
 
     from ._parameters import PARAMS
 
+    flat = _flat_vehicle(vehicle)
     skip = {p[2] for p in PARAMS.values()}
-    rest = {k: v for k, v in sorted(_flat_vehicle(vehicle).items()) if k not in skip}
+    if not flat.get("honeycomb.excess1"):  # no table: its length acts on nothing
+        skip.add("honeycomb.excess_length1_mm")
+    rest = {k: v for k, v in sorted(flat.items()) if k not in skip}
     return hashlib.sha256(json.dumps(rest, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -794,6 +794,9 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     status = status_of_edit("mass", "m_body_kg = 1120.0 ", "m_body_kg = 1300.0 ")
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: article"]
     assert status["edited"][0]["article"] is True
+    # a key that acts on nothing (the length of a table the file does not have) is no edit
+    status = status_of_edit("unused", "excess_length1_mm = 10.0 ", "excess_length1_mm = 20.0 ")
+    assert status["sound"] and status["edited"] == []
 
 
 def test_a_config_of_another_article_than_the_drops_vehicle_config_is_refused(tmp_path,
