@@ -163,7 +163,8 @@ def integrators_accuracy() -> str:
     base = res.get("baselines", {})
     for name, entry in res["work_precision"].items():
         ref = entry["reference"]
-        out.append(f"**{name}** (reference: Euler at dt = {ref['dt']:g} s; it moved by "
+        out.append(f"**{name}** (reference: {ref.get('method', 'euler')} at dt = "
+                   f"{ref['dt']:g} s; it moved by "
                    f"{ref['change_from_2dt']['max_stroke_m']:.1e} in max stroke from 2 dt)\n")
         labels = list(dict.fromkeys([r["method"] for r in entry["runs"]]
                                     + [r["method"] for r in base.get(name, [])]))
