@@ -783,7 +783,7 @@ def test_predict_names_a_fitted_vehicle_edited_since_its_fit_and_never_calls_it_
     assert status["edited"] == [dict(name="chi", key="ground.chi_s_per_m", file=0.002,
                                      fitted=0.0002, unit="s/m", held=True)]
     # an extension the fit held off is the fit's too: a crush peak switched on in a fitted
-    # file moved a prediction's peak buffer force by 11 % and the fit was called sound
+    # file (peak_ratio1 1.3 moved a prediction's peak buffer force by 12 %) was called sound
     assert "# off in the fit (its values hold without them): " in sound.read_text()
     status = status_of_edit("on", "peak_ratio2 = 1.0 ", "peak_ratio2 = 1.3 ")
     assert not status["sound"] and status["flags"] == ["EDITED SINCE THE FIT: peak2"]
