@@ -119,6 +119,7 @@ from ._parameters import (
     RISE_FORMS,
     SHAPE_PARAMS,
     START_IF_OFF,
+    acts_in,
     at_bound,
     check_names,
     check_peak_site,
@@ -380,15 +381,13 @@ class FitResult:
         reports is conditional on them: a truth that differs in one biases the fitted
         values, and no term but the fixed-parameter term (the default parameters only,
         under misfit) sees it."""
-        owner = {"L_peak1": "peak1", "L_rise1": "peak1", "L_peak2": "peak2"}
         out = {}
         for n, (get, unit, key, *_) in PARAMS.items():
             if n in self.names:
                 continue
             v = get(self.vehicle)
-            active = v is not None and PARAMS[owner.get(n, n)][0](self.vehicle) is not None
             out[n] = dict(value=None if v is None else float(v), unit=unit, config_key=key,
-                          active=active)
+                          active=acts_in(n, self.vehicle))
         return out
 
     def to_json(self, path) -> Path:

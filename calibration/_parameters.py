@@ -55,7 +55,7 @@ __all__ = ["PARAMS", "DEFAULT_PARAMS", "OPTIONAL_PARAMS", "PEAK_PARAMS", "START_
            "PEAK_FORMS", "RISE_FORMS", "FORM_INDEX", "SHAPE_PARAMS", "peak_form_vehicle",
            "forms_vehicle", "check_names", "get_values", "at_bound", "interval", "BOUND_MARGIN",
            "set_values", "switch_on", "to_unconstrained", "from_unconstrained", "no_peak_names",
-           "value_range", "interval95"]
+           "value_range", "interval95", "EXTENSION_OF", "acts_in", "Z95"]
 
 # name -> (getter, unit, TOML key, transform, description)
 PARAMS = {
@@ -553,6 +553,19 @@ def interval(n, names, values, vehicle, form=None,
     return None
 
 
+# the law extension a length belongs to: it acts on nothing while that extension is off
+EXTENSION_OF = {"L_peak1": "peak1", "L_rise1": "peak1", "L_peak2": "peak2"}
+# the half-width of a 95 % interval in standard errors, as the fit reports it
+Z95 = 1.96
+
+
+def acts_in(n, vehicle: jl.Vehicle) -> bool:
+    """Whether the parameter ``n`` acts in ``vehicle``: it is set, and so is the extension it
+    belongs to (``EXTENSION_OF``)."""
+    return (PARAMS[n][0](vehicle) is not None
+            and PARAMS[EXTENSION_OF.get(n, n)][0](vehicle) is not None)
+
+
 def value_range(n, names, values, vehicle, form=None,
                 site=HONEYCOMB) -> tuple[float, float | None]:
     """(lo, hi) a parameter's transform maps onto (hi None: no upper end): (0, None) for the
@@ -582,7 +595,7 @@ def interval95(value: float, std_error: float, lo: float,
     inside_lo = math.nextafter(lo, math.inf)
     if hi is None:
         dz = std_error / (value - lo)  # d log(x - lo) / dx = 1 / (x - lo)
-        up = 1.96 * dz
+        up = Z95 * dz
         return (max(lo + (value - lo) * math.exp(-up), inside_lo),
                 lo + (value - lo) * math.exp(up) if up < 700.0 else math.inf)
     w = hi - lo
@@ -594,7 +607,7 @@ def interval95(value: float, std_error: float, lo: float,
         x = lo + w * (1.0 / (1.0 + math.exp(-t)) if t >= 0 else
                       math.exp(t) / (1.0 + math.exp(t)))
         return min(max(x, inside_lo), math.nextafter(hi, -math.inf))
-    return back(z - 1.96 * dz), back(z + 1.96 * dz)
+    return back(z - Z95 * dz), back(z + Z95 * dz)
 
 
 def at_bound(names, values, vehicle, rel: float = 1e-6, form=None,

@@ -280,24 +280,30 @@ def switched_on_since_fit(off, vehicle: jl.Vehicle) -> list[dict]:
     """The law's extensions the fit held off (``off``: the header's names) that ``vehicle``
     has on: one ``{name, key, file, fitted: None, unit, held: True, off_in_fit: True}`` each,
     ``file`` in the key's units."""
-    from ._parameters import PARAMS
+    from ._parameters import EXTENSION_OF, PARAMS, acts_in
 
-    owner = {"L_peak1": "peak1", "L_rise1": "peak1", "L_peak2": "peak2"}
     out = []
     for name in off:
-        if name not in PARAMS or PARAMS[owner.get(name, name)][0](vehicle) is None:
+        if name not in PARAMS or not acts_in(name, vehicle):
             continue
-        if owner.get(name, name) != name and owner[name] in off:
+        if EXTENSION_OF.get(name) in off:
             continue  # its peak is switched on, and named
-        getter, unit, key, *_ = PARAMS[name]
-        held = getter(vehicle)
-        if held is None or np.ndim(held) != 0:
+        _, unit, key, *_ = PARAMS[name]
+        held = PARAMS[name][0](vehicle)
+        if np.ndim(held) != 0:
             continue
-        scale = 1e3 if key.endswith("_mm") else 1.0
-        out.append(dict(name=name, key=key, file=float(f"{float(held) * scale:.6g}"),
-                        fitted=None, unit=key.rpartition("_")[2] if scale != 1.0 else unit,
-                        held=True, off_in_fit=True))
+        file, unit = _in_key_units(key, float(held), unit)
+        out.append(dict(name=name, key=key, file=file, fitted=None, unit=unit, held=True,
+                        off_in_fit=True))
     return out
+
+
+def _in_key_units(key: str, value_si: float, unit: str) -> tuple[float, str]:
+    """An SI value in its TOML key's units (mm for a ``_mm`` key, else SI), to the header's
+    6 significant digits, with that unit."""
+    if key.endswith("_mm"):
+        return float(f"{value_si * 1e3:.6g}"), "mm"
+    return float(f"{value_si:.6g}"), unit
 
 
 def edited_since_fit(params: dict, vehicle: jl.Vehicle) -> list[dict]:
@@ -322,8 +328,7 @@ def edited_since_fit(params: dict, vehicle: jl.Vehicle) -> list[dict]:
         half = 0.5 * 10.0 ** (math.floor(math.log10(abs(v))) - 5) if v else 0.0
         if abs(held - v) <= half * (1.0 + 1e-6) + 1e-300:
             continue
-        scale = 1e3 if key.endswith("_mm") else 1.0  # the key's units (SI otherwise)
-        out.append(dict(name=name, key=key, file=float(f"{held * scale:.6g}"),
-                        fitted=float(f"{p['value'] * scale:.6g}"), unit=key.rpartition("_")[2]
-                        if scale != 1.0 else p["unit"]))
+        file, unit = _in_key_units(key, held, p["unit"])
+        out.append(dict(name=name, key=key, file=file,
+                        fitted=_in_key_units(key, p["value"], p["unit"])[0], unit=unit))
     return out

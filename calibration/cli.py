@@ -181,7 +181,7 @@ def held_fixed_line(result) -> str:
 def _cmd_fit(args) -> int:
     from . import _fit
     from ._data import load_drop_tests
-    from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, check_names
+    from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, Z95, check_names
 
     out = _out_dir(args.out, (args.config, *args.data))
     # the fit's arguments refused under the flags that set them
@@ -411,11 +411,11 @@ def _cmd_fit(args) -> int:
         others = {"std_error": f"classical +/- {result.std_errors[i]:.2g}",
                   "std_error_hac": f"HAC +/- {result.std_errors_hac[i]:.2g}"}
         others.pop(interval, None)
-        # where the value +/- 1.96 errors leaves the range its law allows, the 95 % interval
+        # where the value +/- Z95 errors leaves the range its law allows, the 95 % interval
         # taken in the fit's own coordinates stays inside it
         ci, (lo, hi) = result.interval95(n, errors[i]), result.ranges.get(n, (-math.inf, None))
-        outside = ci is not None and (result.values[i] - 1.96 * errors[i] <= lo or (
-            hi is not None and result.values[i] + 1.96 * errors[i] >= hi))
+        outside = ci is not None and (result.values[i] - Z95 * errors[i] <= lo or (
+            hi is not None and result.values[i] + Z95 * errors[i] >= hi))
         inside = (f"; 95 % {_end(ci[0], lo, hi)} to {_end(ci[1], lo, hi)}, inside its range"
                   if outside else "")
         print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {errors[i]:.2g} {PARAMS[n][1]} "
@@ -543,6 +543,7 @@ def add_subcommands(subparsers) -> None:
     """Register ``fit`` and ``predict`` on an argparse subparsers object."""
     from ._fit import INTEGRATOR, INTEGRATORS, REFINE_WINDOW_S, ROBUST_K, SMOOTHING, WINDOWS_S
     from ._parameters import DEFAULT_PARAMS, EXP_TABLE_SPAN, HONEYCOMB, PARAMS, PEAK_SITES
+    from ._problem import SAVE_DT
 
     f = subparsers.add_parser(
         "fit", help="calibrate the quarter model to drop-test traces; write the fitted "
@@ -571,7 +572,8 @@ def add_subcommands(subparsers) -> None:
                         "optax.lbfgs")
     f.add_argument("--max-iter", type=int, default=60, help="iterations per stage (default 60)")
     f.add_argument("--dt", type=float, default=1e-5, help="integration step [s] (default 1e-5; "
-                   "it must divide the model's 2e-5 s sampling: 2e-5, 1e-5, 5e-6 ...)")
+                   f"it must divide the model's {SAVE_DT:g} s sampling: {SAVE_DT:g}, "
+                   f"{SAVE_DT / 2:g}, {SAVE_DT / 4:g} ...)")
     f.add_argument("--integrator", default=INTEGRATOR,
                    help=f"the model's integrator, one of {', '.join(INTEGRATORS)} (default "
                         f"{INTEGRATOR})")
