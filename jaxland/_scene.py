@@ -265,15 +265,18 @@ def _axes_scene(axes: dict) -> Scene:
     return obj
 
 
+# the fields a symmetric vertical drop holds at 0 (com_offset: where given); its plateau
+# scale must also be the same on every leg
+ZERO_IN_A_SYMMETRIC_DROP = ("horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate",
+                            "yaw_rate", "slope", "com_offset")
+
+
 def _symmetric(scene: Scene, xp):
     """Whether every landing in ``scene`` is a symmetric vertical drop, with the array module
     ``xp`` (numpy on concrete values, jax.numpy under jit): the one rule ``is_symmetric`` and
     ``Scene.symmetric`` share."""
     ok = xp.all(xp.stack([xp.all(xp.asarray(getattr(scene, name)) == 0.0) for name in
-                          ("horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate",
-                           "yaw_rate", "slope")]))
-    if scene.com_offset is not None:
-        ok = ok & xp.all(xp.asarray(scene.com_offset) == 0.0)
+                          ZERO_IN_A_SYMMETRIC_DROP if getattr(scene, name) is not None]))
     if scene.plateau_scale is not None:
         ps = xp.asarray(scene.plateau_scale)
         ok = ok & xp.all(ps == ps[..., :1])

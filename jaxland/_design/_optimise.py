@@ -60,10 +60,15 @@ class DesignResult:
         return self.problem.vehicle
 
     @property
+    def rounds_run(self) -> int:
+        """Optimisations in the history: the first, and each re-optimisation round."""
+        return len({rec.get("round", 0) for rec in self.history})
+
+    @property
     def iterations_run(self) -> int:
         """Optimiser steps over every round: the history less each round's start (its
         iteration 0, the evaluation it steps from)."""
-        return len(self.history) - len({rec.get("round", 0) for rec in self.history})
+        return len(self.history) - self.rounds_run
 
     def to_toml(self) -> str:
         """The designed vehicle as a config TOML (``jaxland simulate --config`` loads it)."""

@@ -22,7 +22,7 @@ from .._checks import (
     spec_field,
 )
 from .._errors import ConfigError
-from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS, Scene
+from .._scene import OPTIONAL_LIMITS, SCENE_FIELDS, ZERO_IN_A_SYMMETRIC_DROP, Scene
 from .._solvers import FIXED_STEP_METHODS, check_spec_steps
 from .._toml import read_toml, toml_value
 
@@ -60,24 +60,18 @@ def envelope(key: str) -> tuple[float, float]:
     return f.lo / to_si, f.hi / to_si
 
 
-# The scene fields a symmetric vertical drop holds at 0 (``_scene._symmetric``, the one rule):
-# an input that sets one to anything else needs the full model; a plateau scale must be the
-# same on every leg; every other input (height, sink speed, yaw, heading and slope direction
-# without a speed or slope, friction, mass) keeps the drop symmetric.
-_ZERO_IN_A_SYMMETRIC_DROP = {"horizontal_speed", "roll", "pitch", "roll_rate", "pitch_rate",
-                             "yaw_rate", "slope", "com_offset"}
-
-
 def _keeps_symmetry(key: str, value) -> bool:
     """Whether a dispersed (a ``Distribution``) or fixed input keeps a vertical drop
-    symmetric (``_ZERO_IN_A_SYMMETRIC_DROP``)."""
+    symmetric, by the scenes' rule (``_scene.ZERO_IN_A_SYMMETRIC_DROP``, and one plateau
+    scale on every leg); every other input (height, sink speed, yaw, heading and slope
+    direction without a speed or slope, friction, mass) keeps it."""
     field = DISPERSIBLE[key].field
     if isinstance(value, Distribution):
         if value.kind != "constant":  # a per-leg input is drawn leg by leg
-            return field not in _ZERO_IN_A_SYMMETRIC_DROP and field != "plateau_scale"
+            return field not in ZERO_IN_A_SYMMETRIC_DROP and field != "plateau_scale"
         value = value.mean
     vals = np.ravel(np.asarray(value, dtype=float))
-    if field in _ZERO_IN_A_SYMMETRIC_DROP:
+    if field in ZERO_IN_A_SYMMETRIC_DROP:
         return bool(np.all(vals == 0.0))
     return field != "plateau_scale" or bool(np.all(vals == vals[0]))
 

@@ -71,7 +71,7 @@ def _history(result, path: Path) -> Path:
     ax3.legend(fontsize=8)
     for ax in (ax1, ax2, ax3):
         ax.axvline(result.best_iteration, color="0.5", ls=":", lw=1)
-    rounds = len({r.get("round", 0) for r in h})
+    rounds = result.rounds_run
     fig.suptitle(f"design history ({result.status}; {result.iterations_run} iterations"
                  + (f" in {rounds} rounds" if rounds > 1 else "")
                  + f"; dotted: the returned iterate, {result.best_iteration})")

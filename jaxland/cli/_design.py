@@ -142,9 +142,8 @@ def _cmd_design(args) -> int:
               "design.t_end_s", file=sys.stderr)
     if result.verification:
         v = result.verification
-        rounds = len({h.get("round", 0) for h in result.history}) - 1
         print(f"  verification Monte Carlo: n = {v['n']}, seed {v['seed']} (fresh samples), "
-              f"{rounds} re-optimisation round(s)"
+              f"{result.rounds_run - 1} re-optimisation round(s)"
               + (" (the last found no feasible design)" if v.get("failed_reoptimisation")
                  else ""))
         for name, ch in v["after"]["constraints"].items():
