@@ -40,7 +40,9 @@ document it):
 
 1. **Touchdown** is detected from the force onset (normal force, else buffer force, else body
    acceleration, else stroke): the first sample above ``baseline + max(8 sigma_hp, 5 % of the
-   channel's rise)``, then extrapolated back along the rising edge to the baseline. Or it is
+   channel's rise)``, then extrapolated back along the rising edge to the baseline (a stroke,
+   which grows from rest, first back along its samples above ``STROKE_ONSET_SIGMAS``
+   sigma_hp). Or it is
    given: ``touchdown_time_s`` in the metadata (a record that starts at touchdown). The fit
    refines it as a parameter per drop (``t0``). With ``release_time_s`` the free fall from
    release to touchdown is checked against the drop height (``FREE_FALL_REL``).
@@ -128,6 +130,7 @@ META_KEYS = {
 _OPTIONAL_TABLES = ("synthetic_rig",)  # generator settings, informational only
 
 MIN_PRE_SAMPLES = 10  # samples before touchdown (offsets, and a touchdown that is in the record)
+STROKE_ONSET_SIGMAS = 4.0  # a stroke's onset: where it leaves its noise (high-pass sigmas)
 MIN_NOISE_SAMPLES = 50  # pre-touchdown samples for a noise estimate from that segment
 MIN_AFTER_S = 0.05  # s of record after touchdown
 MIN_SAMPLES = 50
@@ -335,6 +338,12 @@ class DropTest:
                        f"start; need >= {MIN_PRE_SAMPLES} samples before touchdown (to set the "
                        "sensor offsets), or give drop_test.touchdown_time_s for a record that "
                        "starts at touchdown")
+        if base_channel(onset) == "stroke_m":
+            # A force or an acceleration jumps at touchdown, but the stroke grows from rest
+            # (the strut compresses only as the foot's force builds), so its crossing of 5 %
+            # of the rise comes milliseconds late: go back along the samples above the noise.
+            while i_c > MIN_PRE_SAMPLES and abs(y[i_c - 1] - base) > STROKE_ONSET_SIGMAS * sig:
+                i_c -= 1
         # back along the rising edge (two samples above the threshold) to the baseline
         y1, y2 = abs(y[i_c] - base), abs(y[min(i_c + 1, len(y) - 1)] - base)
         slope = (y2 - y1) / (t[i_c + 1] - t[i_c]) if i_c + 1 < len(t) else 0.0

@@ -79,6 +79,27 @@ def test_a_valid_record_loads_and_touchdown_offsets_and_noise_are_found(tmp_path
     assert cal.load_drop_test(tmp_path / "drop.csv").name == "drop"  # the CSV finds its TOML
 
 
+def test_a_stroke_only_record_finds_touchdown_where_the_stroke_leaves_its_noise(tmp_path):
+    """The stroke grows from rest after touchdown, so its first crossing of 5 % of its rise
+    is milliseconds late (5.6 ms on the bundled drop), and the late touchdown put compressed
+    samples into the offset's segment (0.12 mm too much). Independent reference: the rig's
+    own touchdown (0.05 s, its metadata) and its stroke offset (1.5 mm) as the full record
+    finds it from the force onset."""
+    src = DATA / "drop_h0.20m.csv"
+    lines = [ln for ln in src.read_text().splitlines() if not ln.startswith("#")]
+    header = lines[0].split(",")
+    cols = [header.index("time_s"), header.index("stroke_m")]
+    rows = [[r.split(",")[i] for i in cols] for r in lines[1:]]
+    meta = tomllib.loads((DATA / "drop_h0.20m.toml").read_text())["drop_test"]
+    meta = {k: meta[k] for k in ("drop_height_m", "sample_rate_Hz")}
+    meta["vehicle_config"] = str(DATA / "nominal_vehicle.toml")
+    d = cal.load_drop_test(_write(tmp_path, ["time_s", "stroke_m"], rows, meta))
+    full = cal.load_drop_test(DATA / "drop_h0.20m.toml")
+    assert d.onset_channel == "stroke_m"
+    assert abs(d.touchdown_time_s - 0.05) < 1e-3
+    assert d.offsets["stroke_m"] == pytest.approx(full.offsets["stroke_m"], abs=5e-6)
+
+
 def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_the_file(
         tmp_path):
     t, f, x = _trace()
