@@ -212,6 +212,28 @@ def test_impulse_forward_adjoint_refuses_grad_by_name_and_keeps_forward_mode():
     np.testing.assert_allclose(batch, alone, rtol=1e-12)
 
 
+def test_impulse_reverse_adjoint_refuses_jacfwd_by_name_and_keeps_grad():
+    """The mirror: the reverse adjoint's checkpointed while loop has no forward-mode
+    derivative, and jax.jacfwd (also under jit) is refused naming solver.adjoint and the
+    option that has one, not with JAX's message about custom_vjp functions; jax.grad runs
+    and agrees with a central difference."""
+    solver = jl.Solver(dt=1e-5, t_end=0.3, save_dt=1e-3,
+                       method=jl.integrator("impulse", adjoint="reverse"))
+
+    def stroke(d_b):
+        veh = eqx.tree_at(lambda v: v.leg.D_b, VEH, VEH.leg.D_b * d_b)
+        return jl.landing(veh, SCENE, solver, "quarter")[1]["max_stroke_m"]
+
+    for diff in (jax.jacfwd, lambda f: jax.jit(jax.jacfwd(f))):
+        with pytest.raises(jl.ConfigError, match=r"solver\.adjoint = 'reverse'.*jax\.jacfwd.*"
+                                                 r"Impulse\(adjoint='forward'\)"):
+            diff(stroke)(1.0)
+    grad = float(jax.jit(jax.grad(stroke))(1.0))
+    f = jax.jit(stroke)
+    fd = (float(f(1.0 + 1e-4)) - float(f(1.0 - 1e-4))) / 2e-4
+    assert grad < 0.0 and grad == pytest.approx(fd, rel=1e-3)
+
+
 def test_default_step_is_chosen_from_the_physics():
     """Without dt, simulate takes 1e-5 s, or half the method's stability limit for a stiffer
     vehicle, on a whole fraction of 1e-4 s; that step runs and is inside the limit."""

@@ -155,7 +155,16 @@ class Impulse(AbstractIntegrator):
             return carry, out
 
         carry0 = (st.state0, Track.start(st.peaks0, solver.event_log))
-        (s_end, track), traj = jax.lax.scan(save_block, carry0,
-                                            jnp.arange(solver.n_saves, dtype=jnp.float64))
+        try:
+            (s_end, track), traj = jax.lax.scan(save_block, carry0,
+                                                jnp.arange(solver.n_saves, dtype=jnp.float64))
+        except TypeError as err:  # JAX's own refusal says nothing of the adjoint option
+            if kind != "checkpointed" or "forward-mode" not in str(err):
+                raise
+            raise ConfigError(
+                "solver.adjoint", "reverse", "has no forward-mode derivative (jax.jacfwd, "
+                "jax.jvp): its checkpointed while loop differentiates in reverse only "
+                "(jax.grad, jax.vjp); for jax.jacfwd use jaxland.Impulse(adjoint='forward')"
+            ) from None
         out = traj, summary(model, s_end, track, st, scene)
         return jax.tree.map(_forward_only, out) if kind == "lax" else out
