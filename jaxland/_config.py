@@ -9,8 +9,10 @@ from honeycomb cell data with Wierzbicki's crush formula (``[honeycomb.cells]``)
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -188,6 +190,20 @@ def load_vehicle(path, what: str | None = None) -> Vehicle:
         return vehicle_from_dict(data)
     except ConfigError as err:
         if what is None:
+            raise
+        raise ConfigError(f"{what} {path}: {err.field}", err.value, err.rule) from None
+
+
+@contextlib.contextmanager
+def named_by_file(what: str | None, path) -> Iterator[None]:
+    """A refusal of one of the vehicle's own keys raised after the file loaded (a stable step
+    no run can take: ``refuse_unsteppable``) names the file as ``load_vehicle(path, what)``
+    names it; ``what`` None (the paper vehicle) leaves refusals as they are."""
+    try:
+        yield
+    except ConfigError as err:
+        keys = {f"{s}.{f.metadata['toml']}" for s, _, f in vehicle_fields(paper_vehicle())}
+        if what is None or err.field not in keys:
             raise
         raise ConfigError(f"{what} {path}: {err.field}", err.value, err.rule) from None
 

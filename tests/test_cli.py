@@ -203,12 +203,14 @@ def test_a_stiffness_no_gear_has_is_named_not_blamed_on_the_step(tmp_path, capsy
                                                                 line):
     """Without --dt the step follows the vehicle's stability limit; a spring of 1e30 N/m
     passes the config's rules (> 0) but makes that step absurd: the refusal names the
-    spring, not the solver.dt the user never gave."""
+    spring, not the solver.dt the user never gave, by the file that set it, as a refusal
+    of its value by the value's own rule is named."""
     cfg = tmp_path / "stiff.toml"
     cfg.write_text(text)
     assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--no-plots",
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
+    line = f"--config {cfg}: {line}"
     assert err.startswith(f"jaxland: error: {line}") and err.count("\n") == 1, err
     # a step given by hand is too large for such a vehicle too, but the vehicle is the error
     assert main(["simulate", "--config", str(cfg), "--t-end", "0.01", "--dt", "1e-5",
@@ -228,16 +230,24 @@ def test_a_vehicle_no_step_can_run_is_named_by_montecarlo_and_design(tmp_path, c
                                                                     spec):
     """A Monte Carlo's or a design's step is checked against the vehicle's stability limit;
     where the vehicle itself leaves no step (a foot of 1e-300 kg: limit 0 s), the refusal names
-    the vehicle's field, not the spec's dt_s."""
+    the vehicle's field, not the spec's dt_s, and the file that set it."""
     cfg = tmp_path / "feather.toml"
     cfg.write_text("[body]\nm_foot_kg = 1e-300\n")
     examples = Path(__file__).parents[1] / "examples"
     assert main([command, str(examples / spec), "--config", str(cfg),
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("jaxland: error: body.m_foot_kg = 1e-300: makes the vehicle's "
-                          "stable step below the smallest number") and err.count("\n") == 1, err
+    assert err.startswith(f"jaxland: error: --config {cfg}: body.m_foot_kg = 1e-300: makes "
+                          "the vehicle's stable step below the smallest number")
+    assert err.count("\n") == 1, err
     assert not (tmp_path / "o").exists()
+    if command == "design":  # the spec's own vehicle key names it as that key
+        text = (examples / spec).read_text().replace(
+            "[design]\n", f"[design]\nvehicle = {json.dumps(str(cfg))}\n", 1)
+        (tmp_path / spec).write_text(text)
+        assert main([command, str(tmp_path / spec), "--out", str(tmp_path / "o")]) == 2
+        assert capsys.readouterr().err.startswith(
+            f"jaxland: error: design.vehicle {cfg}: body.m_foot_kg = 1e-300: makes")
 
 
 def test_simulate_refuses_bad_config_file(tmp_path, capsys):

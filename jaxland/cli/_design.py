@@ -17,6 +17,7 @@ from pathlib import Path
 
 from .. import use_batch_fusion
 from .._checks import named_as
+from .._config import named_by_file
 from .._files import staged
 from .._montecarlo._stats import probability_text
 from .._progress import ProgressLine
@@ -77,10 +78,14 @@ def _cmd_design(args) -> int:
                jl.load_vehicle(spec.vehicle, "design.vehicle") if spec.vehicle
                else jl.paper_vehicle())
     # every input check (bounds, scenes, steps) before the banner: one line if bad
-    problem = DesignProblem(spec, jl.validate_vehicle(vehicle))
+    vehicle_by = ("--config", args.config) if args.config else (
+        ("design.vehicle", spec.vehicle) if spec.vehicle else (None, None))
+    with named_by_file(*vehicle_by):
+        problem = DesignProblem(spec, jl.validate_vehicle(vehicle))
     if args.verify_n != 0:
         with named_as({} if args.verify_n is None else
-                            {"montecarlo.n": ("--verify-n", args.verify_n)}):
+                            {"montecarlo.n": ("--verify-n", args.verify_n)}), \
+                named_by_file(*vehicle_by):
             check_verification(problem)
             # a verification too small for any verdict could only end "not verified" (exit
             # 5) after the whole design; a Python caller may still run one, to look at it

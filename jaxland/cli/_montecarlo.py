@@ -62,7 +62,7 @@ def _retried_text(result) -> str:
 
 
 def cmd_montecarlo(args) -> int:
-    from .._config import load_vehicle, paper_vehicle
+    from .._config import load_vehicle, named_by_file, paper_vehicle
     from .._errors import ConfigError
     from .._montecarlo import init_distributed, load_montecarlo_spec, run_montecarlo
     from .._montecarlo._run import check_touchdown_possible
@@ -100,8 +100,9 @@ def cmd_montecarlo(args) -> int:
             spec.seed = args.seed
         spec.__post_init__()  # re-check n and seed after the overrides
         vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
-        check_touchdown_possible(spec, vehicle)
-        result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
+        with named_by_file(args.config and "--config", args.config):
+            check_touchdown_possible(spec, vehicle)
+            result = run_montecarlo(spec, vehicle, chunk=args.chunk, progress=not args.quiet)
     import jax
 
     if jax.process_index() != 0:

@@ -126,7 +126,7 @@ def _given_flags(args) -> dict:
 
 
 def cmd_simulate(args) -> int:
-    from .._config import load_vehicle, paper_vehicle, vehicle_to_toml
+    from .._config import load_vehicle, named_by_file, paper_vehicle, vehicle_to_toml
     from .._scene import scene_to_toml
     from .._simulate import effective_vehicle, simulate
 
@@ -134,7 +134,7 @@ def cmd_simulate(args) -> int:
     vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
     options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
                if getattr(args, k) is not None}
-    with named_as(_given_flags(args)):
+    with named_as(_given_flags(args)), named_by_file(args.config and "--config", args.config):
         scene = _scene_from_args(args, vehicle.n_legs)
         result = simulate(scene, vehicle, dt=args.dt, t_end=args.t_end, save_dt=args.save_dt,
                           model=args.model, method=args.method, **options)
