@@ -9,6 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -22,6 +23,7 @@ from jaxland import (
     wilson_interval,
 )
 from jaxland._files import flat_columns
+from jaxland._scene import batch_axes
 
 QUARTER_SPEC = dict(
     dispersion={"sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
@@ -602,6 +604,20 @@ def test_samples_outside_the_envelope_are_recorded_not_fatal():
     assert outside.any() and not outside.all()
     np.testing.assert_array_equal(res.failure == 4, outside)
     assert res.summary["n_failed"] == int(outside.sum())
+
+
+def test_the_envelope_limits_themselves_are_accepted_and_stay_inside():
+    """30 deg of slope or roll is the documented limit, which simulate accepts; the spec
+    converted the radian limit back to 29.999999999999996 deg and refused 30 as outside
+    [0, 30]. The limits are accepted, and every draw up to them stays inside the scene's
+    own (radian) envelope: no sample becomes OUTSIDE_ENVELOPE."""
+    spec = MonteCarloSpec(dispersion={"roll_deg": Distribution("uniform", low=-30.0, high=30.0),
+                                      "pitch_deg": Distribution("constant", mean=30.0)},
+                          fixed={"slope_deg": 30.0, "heading_deg": -720.0}, n=64, seed=3)
+    scenes, _ = sample_scenes(spec, 0, 64)
+    inside = jax.vmap(lambda s: s.inside_envelope(), in_axes=(batch_axes(scenes),))(scenes)
+    assert inside.shape == (64,) and bool(np.all(inside))
+    np.testing.assert_array_equal(scenes.slope, 30.0 * math.pi / 180.0)
 
 
 def test_results_are_saved_with_inputs(quarter_run, tmp_path):

@@ -57,7 +57,14 @@ def envelope(key: str) -> tuple[float, float]:
         return _EXTRA_LIMITS[key]
     field_name, to_si, _ = DISPERSIBLE[key]
     f = SCENE_FIELDS[field_name]
-    return f.lo / to_si, f.hi / to_si
+    return _as_written(f.lo / to_si), _as_written(f.hi / to_si)
+
+
+def _as_written(x: float) -> float:
+    """A limit converted back from SI as the docs write it: 30 deg, not the
+    29.999999999999996 that 30 deg in radians gives back, which refused 30 itself."""
+    short = float(f"{x:.12g}")
+    return short if abs(short - x) <= 1e-14 * abs(x) else x
 
 
 def _keeps_symmetry(key: str, value) -> bool:
