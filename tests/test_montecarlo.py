@@ -604,6 +604,9 @@ def test_samples_outside_the_envelope_are_recorded_not_fatal():
     assert outside.any() and not outside.all()
     np.testing.assert_array_equal(res.failure == 4, outside)
     assert res.summary["n_failed"] == int(outside.sum())
+    # a draw outside the envelope never ran: no landing in the all-landings range either
+    every = res.summary["bottoming"]["all_landings"]
+    assert every["n_failed"] == 0 and every["n"] == int((~outside).sum())
 
 
 def test_the_envelope_limits_themselves_are_accepted_and_stay_inside():

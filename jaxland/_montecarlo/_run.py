@@ -564,6 +564,8 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
     ok = failure == int(Result.SUCCESSFUL)
     unfinished = failure == int(Result.UNFINISHED)
     failed = np.isin(failure, FAILED_CODES)
+    # a draw outside the envelope was never run: no landing, unlike a numerical failure
+    landed_failed = failed & (failure != int(Result.OUTSIDE_ENVELOPE))
     target = (outputs["min_stability_margin_m"] if "min_stability_margin_m" in outputs
               else outputs["max_stroke_m"].max(axis=1))
     reasons = {r.message: int((failure == r).sum()) for r in Result
@@ -591,9 +593,9 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         # (all_landings: where it lies with the unfinished and the failed landings, which
         # could still tip or bottom out)
         tip_over=over_all_landings(tip_over_of(model, outputs["tipped_over"][ok]),
-                                 outputs["tipped_over"][unfinished], int(failed.sum())),
+                                 outputs["tipped_over"][unfinished], int(landed_failed.sum())),
         bottoming=over_all_landings(proportion(outputs["bottomed_out"][ok]),
-                                  outputs["bottomed_out"][unfinished], int(failed.sum())),
+                                  outputs["bottomed_out"][unfinished], int(landed_failed.sum())),
         envelopes={
             "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
             "peak_body_accel_mps2": percentiles(outputs["peak_body_accel_mps2"][ok]),
