@@ -154,7 +154,8 @@ def test_design_method_is_the_design_landings_integrator_and_refused_by_name():
         jl.design_spec_from_dict(spec)
 
 
-@pytest.mark.parametrize("mc_seed,scene_seed", [(1, 2), (4, 3), (0, 7), (6, 8)])
+@pytest.mark.parametrize("mc_seed,scene_seed", [(1, 2), (4, 3), (0, 7), (6, 8),
+                                                 (2**31 - 3, 1), (2**31 - 2, 2**31 - 1)])
 def test_verification_rounds_draw_distinct_seeds_never_the_scenes(mc_seed, scene_seed):
     """Every round verifies on samples no earlier round saw and that are not the design
     scenes' (a seed that skipped the scenes' once gave rounds 1 and 2 the same samples)."""
@@ -167,6 +168,10 @@ def test_verification_rounds_draw_distinct_seeds_never_the_scenes(mc_seed, scene
     seeds = [_fresh_seed(spec, r) for r in range(6)]
     assert len(set(seeds)) == 6 and scene_seed not in seeds, seeds
     assert seeds[0] == mc_seed
+    # a spec's largest seeds too: past it the rounds go on from 0, each a seed a spec may
+    # give (one past it was refused, naming a seed the file never held, once a round ran)
+    assert all(0 <= s <= 2**31 - 1 for s in seeds), seeds
+    jl.MonteCarloSpec(dispersion=spec.montecarlo.dispersion, n=4, seed=max(seeds))
 
 
 def _cut_short_verification(t_end):

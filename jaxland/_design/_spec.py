@@ -23,6 +23,7 @@ from .._checks import (
 from .._config import PAPER_CELLS
 from .._errors import ConfigError
 from .._montecarlo import MODEL_CHOICE, MonteCarloSpec, montecarlo_spec_from_dict
+from .._montecarlo._spec import SEED_HIGH
 from .._solvers import FIXED_STEP_METHODS, check_spec_steps
 from .._toml import read_toml
 
@@ -162,7 +163,7 @@ class DesignSpec:
     montecarlo: MonteCarloSpec  # the dispersion; its n, seed, dt, t_end drive the verification
     n_scenes: int = spec_field(16, toml="n_scenes", check=_COUNT)
     scene_seed: int = spec_field(0, toml="scene_seed",
-                                 check=Number(integer=True, lo=0, hi=2**31 - 1))
+                                 check=Number(integer=True, lo=0, hi=SEED_HIGH))
     iterations: int = spec_field(60, toml="iterations", check=Number(integer=True, lo=0,
                                                                      hi=100000))
     dt: float = spec_field(1e-5, toml="dt_s", check=POSITIVE)

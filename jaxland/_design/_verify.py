@@ -31,6 +31,7 @@ from .._montecarlo._run import (
     retry_method,
 )
 from .._montecarlo._sample import sample_scenes
+from .._montecarlo._spec import SEED_HIGH
 from .._montecarlo._stats import Z95, tip_over_of
 from .._params import Vehicle
 from .._progress import ProgressLine
@@ -329,9 +330,14 @@ def _unfinished_text(judged: dict, spec: DesignSpec) -> str:
 
 def _fresh_seed(spec: DesignSpec, round_: int) -> int:
     """The verification seed of re-optimisation round ``round_``: fresh samples each round,
-    never the design scenes' seed."""
-    first, seed = spec.montecarlo.seed, spec.montecarlo.seed + round_
-    return seed + 1 if first <= spec.scene_seed <= seed else seed
+    never the design scenes' seed; past the largest seed a spec may give, the count goes on
+    from 0 (a spec's seed near it would otherwise be refused only once a round needed it)."""
+    span = SEED_HIGH + 1
+    used = [(spec.montecarlo.seed + r) % span for r in range(round_ + 1)]
+    seed = used[-1]
+    if spec.scene_seed in used:  # skipped, one seed further on
+        seed = (seed + 1) % span
+    return seed
 
 
 def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int | None = None,

@@ -87,6 +87,8 @@ def _keeps_symmetry(key: str, value) -> bool:
 # returns the bound itself for every sample.
 TRUNCNORMAL_MIN_MASS = 1e-6
 
+SEED_HIGH = 2**31 - 1  # the largest seed a spec may give (a 32-bit signed integer)
+
 
 def _shown(value):
     """A spec entry as an error message shows it: a distribution by its table."""
@@ -221,7 +223,7 @@ class MonteCarloSpec:
     dispersion: dict
     fixed: dict = field(default_factory=dict)
     n: int = spec_field(1000, toml="n", check=Number(integer=True, lo=1))
-    seed: int = spec_field(0, toml="seed", check=Number(integer=True, lo=0, hi=2**31 - 1))
+    seed: int = spec_field(0, toml="seed", check=Number(integer=True, lo=0, hi=SEED_HIGH))
     dt: float = spec_field(1e-5, toml="dt_s", check=POSITIVE)
     t_end: float = spec_field(1.0, toml="t_end_s", check=POSITIVE)
     model: str = spec_field("auto", toml="model", check=MODEL_CHOICE)
