@@ -453,6 +453,34 @@ def test_failed_samples_are_retried_with_implicit_damping():
                                rtol=1e-3)
 
 
+def test_a_retried_sample_takes_its_own_step_not_the_smallest_of_the_failures(monkeypatch):
+    """A retry's step was the smallest any failed sample needed, so a sample's outcome moved
+    with which other samples failed (with n). Each now runs at its own step: a hard landing
+    given a smaller step by ``retry_step`` (stubbed here: 5e-6 s above 15 m/s, else 1e-5 s)
+    leaves the other retried samples at theirs, and their outcomes are those of a run of
+    fewer samples that lacks the hard one (to the rounding between batch shapes, 6e-9)."""
+    import jaxland._simulate as sim
+
+    def step(vehicle, scene, method, model):
+        return 5e-6 if float(scene.sink_speed) > 15.0 else 1e-5
+
+    monkeypatch.setattr(sim, "retry_step", step)
+    spec = dict(dispersion={"sink_speed_mps": Distribution("uniform", low=2.0, high=18.0)},
+                fixed={"drop_height_m": 0.0}, seed=1, t_end=0.1, dt=1e-4, method="verlet")
+    every = run_montecarlo(MonteCarloSpec(n=8, **spec), progress=False)
+    v, dt, retried = (every.inputs["sink_speed_mps"], every.outputs["dt_s"],
+                      every.outputs["retried"])
+    assert every.summary["n_failed"] == 0 and retried[v > 15.0].any()
+    np.testing.assert_array_equal(dt[retried], np.where(v[retried] > 15.0, 5e-6, 1e-5))
+    first = int(np.flatnonzero(v > 15.0)[0])  # the samples before the hard one, alone
+    fewer = run_montecarlo(MonteCarloSpec(n=first, **spec), progress=False)
+    assert fewer.outputs["retried"].any()
+    np.testing.assert_array_equal(fewer.outputs["dt_s"], dt[:first])
+    for k in ("max_stroke_m", "peak_body_accel_mps2"):
+        np.testing.assert_allclose(fewer.outputs[k], every.outputs[k][:first], rtol=1e-8,
+                                   err_msg=k)
+
+
 def test_the_cli_names_the_retried_samples_and_what_a_retry_is(tmp_path, capsys):
     """The touchdowns above as a spec file: the command prints how many samples failed
     numerically and ran again, how (implicit strut damping, at the step their forces allow,

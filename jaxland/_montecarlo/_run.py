@@ -498,46 +498,52 @@ def _retry(spec: MonteCarloSpec, vehicle: Vehicle, model: str, outputs: dict, li
     failures on hard landings come from its explicit strut damping, which grows with the
     force: they are rerun with the damping implicit (``euler_implicit``, whose limit does not
     depend on the force); a method that already takes it implicitly is rerun at
-    ``retry_step``, the limit at the forces the samples' energy can reach. Samples still
-    failing are rerun at a quarter of that step, up to ``RETRY_STEPS`` tries. Every process
-    runs the same retries (same results). At most ``chunk`` samples run at once, on one
-    device (None: all at once): a chunk's memory, where the run spreads one over the devices;
-    the retries are few where the step suits the spec."""
+    ``retry_step``, the limit at the forces the sample's energy can reach, or at a quarter of
+    its step where that limit is no smaller (the same method at the same step would fail the
+    same way). Samples still failing are rerun at a quarter of their last step, up to
+    ``RETRY_STEPS`` tries. Each sample's step is its own (samples that share one run
+    together), so its outcome depends on its inputs alone, not on which other samples
+    failed. Every process runs the same retries (same results). At most ``chunk`` samples
+    run at once, on one device (None: all at once): a chunk's memory, where the run spreads
+    one over the devices; the retries are few where the step suits the spec."""
     from .._simulate import retry_step
 
     method = retry_method(spec.method)
-    dt = None
+    stuck = np.zeros(outputs["result"].shape, bool)  # no step divides t_end: failures stand
     for attempt in range(RETRY_STEPS):
-        failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]))
+        failed = np.flatnonzero(np.isin(outputs["result"], [int(r) for r in RETRIED]) & ~stuck)
         if only is not None:
             failed = np.intersect1d(failed, only)
         if failed.size == 0:
             break
         scenes, _ = sample_scenes(spec, 0, 0, vehicle.n_legs, indices=failed)
-        if dt is None:
-            one = [jax.tree.map(lambda x, i=i: x[i] if np.ndim(x) >= 1 else x, scenes)
-                   for i in range(failed.size)]
-            dt = min([spec.dt] + [retry_step(vehicle, sc, method, MODELS[model]) for sc in one])
-            if method == spec.method and not dt < spec.dt:
-                break
+        if attempt == 0:
+            steps = np.array([min(spec.dt, retry_step(vehicle, jax.tree.map(
+                lambda x, i=i: x[i] if np.ndim(x) >= 1 else x, scenes), method, MODELS[model]))
+                for i in range(failed.size)])
+            if method == spec.method:
+                steps = np.where(steps < spec.dt, steps, spec.dt / 4.0)
         else:
-            dt = dt / 4.0
-        try:
-            solver = mc_solver(spec, model, dt, method)
-        except ConfigError:  # t_end is no whole multiple of that step: the failures stand
-            break
-        line(f"retry {attempt + 1}: {failed.size} failed sample(s) with {method} at "
-             f"dt = {dt:.3g} s")
-        run = jax.jit(lambda sc, solver=solver: _per_sample(vehicle, solver, model, sc))
-        step = failed.size if chunk is None else int(chunk)
-        for start in range(0, failed.size, step):
-            part = slice(start, start + step)
-            res = jax.device_get(run(jax.tree.map(
-                lambda x, part=part: x[part] if np.ndim(x) >= 1 else x, scenes)))
-            for k, v in res.items():
-                outputs[k][failed[part]] = np.asarray(v)
-        outputs["dt_s"][failed] = dt
-        outputs["retried"][failed] = True
+            steps = outputs["dt_s"][failed] / 4.0
+        for dt in sorted(set(steps.tolist()), reverse=True):
+            mine = np.flatnonzero(steps == dt)
+            try:
+                solver = mc_solver(spec, model, dt, method)
+            except ConfigError:  # t_end is no whole multiple of that step: the failures stand
+                stuck[failed[mine]] = True
+                continue
+            line(f"retry {attempt + 1}: {mine.size} failed sample(s) with {method} at "
+                 f"dt = {dt:.3g} s")
+            run = jax.jit(lambda sc, solver=solver: _per_sample(vehicle, solver, model, sc))
+            step = mine.size if chunk is None else int(chunk)
+            for start in range(0, mine.size, step):
+                part = mine[start:start + step]
+                res = jax.device_get(run(jax.tree.map(
+                    lambda x, part=part: x[part] if np.ndim(x) >= 1 else x, scenes)))
+                for k, v in res.items():
+                    outputs[k][failed[part]] = np.asarray(v)
+            outputs["dt_s"][failed[mine]] = dt
+            outputs["retried"][failed[mine]] = True
     line.close()
 
 
