@@ -11,7 +11,8 @@ benchmarks/results/bench_fit.json):
 2. **Multi-start on the short windows**: the 10 and 30 ms stages run from the start and from
    variants of it in k and gamma (``START_VARIANTS``), until two starts agree on the lowest
    loss (every start where that loss misfits the window); the rest continues from the best.
-   Without it, 1-2 of ~15 starts up to 2x off failed; with it 105 of 105 (three drop heights, noisy and noise-free, a joint fit) converged.
+   Without it, 1-2 of ~15 starts up to 2x off failed; with it 105 of 105 (three drop
+   heights, noisy and noise-free, a joint fit) converged.
 3. **Huber loss on the long stages** (``robust``, threshold 1.5 robust standard deviations):
    the model has no honeycomb crush peak, and plain least squares let the peak pull k_b1 up by
    ~45 %; with Huber 4-5 %, the other parameters within 1 %. Not on the short stages: there it
