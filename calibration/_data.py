@@ -40,7 +40,8 @@ document it):
 
 1. **Touchdown** is detected from the force onset (normal force, else buffer force, else body
    acceleration, else stroke): the first sample above ``baseline + max(8 sigma_hp, 5 % of the
-   channel's rise)``, then extrapolated back along the rising edge to the baseline (a stroke,
+   channel's rise)`` that stays above it for ``ONSET_PERSIST_S`` (at least 3 samples; the
+   rise too is the largest level held that long, so a one-sample glitch sets neither), then extrapolated back along the rising edge to the baseline (a stroke,
    which grows from rest, first back along its samples above ``STROKE_ONSET_SIGMAS``
    sigma_hp). Or it is
    given: ``touchdown_time_s`` in the metadata (a record that starts at touchdown). The fit
@@ -130,6 +131,7 @@ META_KEYS = {
 _OPTIONAL_TABLES = ("synthetic_rig",)  # generator settings, informational only
 
 MIN_PRE_SAMPLES = 10  # samples before touchdown (offsets, and a touchdown that is in the record)
+ONSET_PERSIST_S = 1e-3  # s: an onset holds above its threshold this long (>= 3 samples)
 STROKE_ONSET_SIGMAS = 4.0  # a stroke's onset: where it leaves its noise (high-pass sigmas)
 MIN_NOISE_SAMPLES = 50  # pre-touchdown samples for a noise estimate from that segment
 MIN_AFTER_S = 0.05  # s of record after touchdown
@@ -324,9 +326,17 @@ class DropTest:
         y = self.channels[onset]
         base = _start_level(y)
         sig = _highpass_noise(y)
-        rise = float(np.max(np.abs(y - base)))
+        # an impact holds its level; a glitch (a trigger spike, a dropped sample) does not,
+        # and taken as the onset (or as the rise) it put touchdown 20 ms early in one record:
+        # the level each sample holds for the next ONSET_PERSIST_S
+        persist = max(3, math.ceil(ONSET_PERSIST_S * self.sample_rate_Hz))
+        dev = np.abs(y - base)
+        held = dev[:max(len(y) - persist + 1, 0)].copy()
+        for k in range(1, persist):
+            held = np.minimum(held, dev[k:len(y) - persist + 1 + k])
+        rise = float(np.max(held)) if held.size else 0.0
         thresh = max(8.0 * sig, 0.05 * rise)
-        above = np.nonzero(np.abs(y - base) > thresh)[0]
+        above = np.nonzero(held > thresh)[0]
         if rise <= 0.0 or above.size == 0 or rise < 20.0 * sig:
             raise _err(f"{self.source}: {onset}", f"rise {rise:.4g}",
                        f"no touchdown found: the channel never rises clearly above its "

@@ -100,6 +100,23 @@ def test_a_stroke_only_record_finds_touchdown_where_the_stroke_leaves_its_noise(
     assert d.offsets["stroke_m"] == pytest.approx(full.offsets["stroke_m"], abs=5e-6)
 
 
+def test_a_one_sample_glitch_before_impact_is_not_taken_for_touchdown():
+    """A 500 N spike of one sample (8 noise sigmas) 20 ms before the impact was taken as the
+    force onset: touchdown 20 ms early, and the fit printed absurd values with errors of
+    1e-15. An onset holds above its threshold for 1 ms; the glitched record's touchdown is the
+    clean record's, whatever the spike's height."""
+    clean = cal.load_drop_test(DATA / "drop_h0.20m.toml")
+    peak = int(np.argmax(clean.channels["normal_force_N"]))
+    # before the impact; and after its peak at 20 times it, which set the rise (and so the
+    # threshold) and was taken as the onset itself
+    for at, amp in ((150, 500.0), (150, 3000.0), (150, -3000.0), (peak + 40, 2e5)):
+        ch = {k: v.copy() for k, v in clean.channels.items()}
+        ch["normal_force_N"][at] += amp
+        d = cal.DropTest.from_arrays(clean.time_s, ch, sample_rate_Hz=5000.0,
+                                     drop_height_m=0.2, vehicle=clean.vehicle)
+        assert d.touchdown_time_s == clean.touchdown_time_s, amp
+
+
 def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_the_file(
         tmp_path):
     t, f, x = _trace()
