@@ -41,9 +41,9 @@ document it):
 1. **Touchdown** is detected from the force onset (normal force, else buffer force, else body
    acceleration, else stroke): the first sample above ``baseline + max(8 sigma_hp, 5 % of the
    channel's rise)`` that stays above it for ``ONSET_PERSIST_S`` (at least 3 samples; the
-   rise too is the largest level held that long, so a one-sample glitch sets neither), then extrapolated back along the rising edge to the baseline (a stroke,
-   which grows from rest, first back along its samples above ``STROKE_ONSET_SIGMAS``
-   sigma_hp). Or it is
+   rise too is the largest level held that long, so a one-sample glitch sets neither), then
+   extrapolated back along the rising edge to the baseline (a stroke, which grows from
+   rest, first back along its samples above ``STROKE_ONSET_SIGMAS`` sigma_hp). Or it is
    given: ``touchdown_time_s`` in the metadata (a record that starts at touchdown). The fit
    refines it as a parameter per drop (``t0``). With ``release_time_s`` the free fall from
    release to touchdown is checked against the drop height (``FREE_FALL_REL``).
