@@ -651,6 +651,25 @@ def test_the_envelope_limits_themselves_are_accepted_and_stay_inside():
     np.testing.assert_array_equal(scenes.slope, 30.0 * math.pi / 180.0)
 
 
+def test_the_summary_records_each_distribution_by_the_parameters_its_kind_takes():
+    """A uniform's summary entry read mean 0 and std 0 (the unused fields' defaults): a
+    friction of 0.3 to 0.8 recorded with mean 0 and no spread. What a kind does not take is
+    null; what it takes is as given (and the normal's infinite bounds, null, stay strict
+    JSON)."""
+    spec = MonteCarloSpec(dispersion={
+        "friction": Distribution("uniform", low=0.3, high=0.8),
+        "sink_speed_mps": Distribution("truncnormal", 2.0, 0.3, 1.0, 3.0),
+        "mass_scale": Distribution("normal", 1.0, 0.03),
+        "heading_deg": Distribution("constant", mean=1.5)}, fixed={"drop_height_m": 0.0}, n=2)
+    got = run_montecarlo(spec, chunk=2, progress=False).summary["dispersion"]
+    assert got["friction"] == dict(kind="uniform", mean=None, std=None, low=0.3, high=0.8)
+    assert got["sink_speed_mps"] == dict(kind="truncnormal", mean=2.0, std=0.3, low=1.0,
+                                         high=3.0)
+    assert got["mass_scale"] == dict(kind="normal", mean=1.0, std=0.03, low=None, high=None)
+    assert got["heading_deg"] == dict(kind="constant", mean=1.5, std=None, low=None, high=None)
+    json.dumps(got, allow_nan=False)
+
+
 def test_results_are_saved_with_inputs(quarter_run, tmp_path):
     quarter_run.save(tmp_path)
     header = (tmp_path / "samples.csv").read_text().splitlines()[0].split(",")

@@ -128,7 +128,7 @@ class DesignResult:
                          for c in spec.constraints],
             scenes=dict(n=spec.n_scenes, seed=spec.scene_seed, method=spec.method,
                         dt_s=spec.dt, t_end_s=spec.t_end, devices=prob.devices,
-                        dispersion={k: vars(v) for k, v in spec.montecarlo.dispersion.items()},
+                        dispersion={k: v.record() for k, v in spec.montecarlo.dispersion.items()},
                         fixed=spec.montecarlo.fixed),
             iterations=self.iterations_run,
             wall_s=self.wall_s,

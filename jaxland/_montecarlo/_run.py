@@ -616,7 +616,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
             target="min_stability_margin_m" if model == "full" else "max_stroke_m",
             method="least squares on standardised inputs: change per standard deviation",
             **sensitivity(inputs, target, ok)),
-        dispersion={k: vars(v) for k, v in spec.dispersion.items()},
+        dispersion={k: v.record() for k, v in spec.dispersion.items()},
         fixed=spec.fixed,
         environment=run_environment(),
     )

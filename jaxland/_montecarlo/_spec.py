@@ -184,6 +184,15 @@ class Distribution:
             return {"dist": "constant", "value": self.mean}
         return {"dist": self.kind, **{k: getattr(self, k) for k in keys}}
 
+    def record(self) -> dict:
+        """Every parameter by name, as a results file records the distribution: those its
+        kind does not take (a uniform's mean and std, a normal's bounds) are None, not the
+        0 or the infinity they hold here."""
+        takes = {"normal": ("mean", "std"), "uniform": ("low", "high"),
+                 "truncnormal": ("mean", "std", "low", "high"), "constant": ("mean",)}
+        return {"kind": self.kind, **{k: getattr(self, k) if k in takes[self.kind] else None
+                                      for k in ("mean", "std", "low", "high")}}
+
     def sample(self, key, shape=()):
         return sample_kind(self.kind, key, shape, self.mean, self.std, self.low, self.high)
 
