@@ -564,3 +564,21 @@ def test_a_t_end_beyond_its_rule_is_named_before_the_vehicle_is_blamed(tmp_path,
     assert main(["simulate", "--touchdown-speed", "40", "--no-plots",
                  "--out", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.rstrip().endswith("must be finite and in [0, 30] m/s")
+
+
+def test_the_printed_report_says_a_bottoming_the_outcome_names_another_class_for(tmp_path,
+                                                                                 capsys):
+    """A heavy body dropped 0.5 m bottoms out (max stroke 183.8 mm past x_L4 = 183.2 mm) and
+    t_end cuts the landing off: summary.json held bottomed_out true under the outcome
+    'unfinished', and the printed report had no line for it. It now prints the flag, as the
+    file holds it, beside the max stroke it follows from."""
+    cfg = tmp_path / "heavy.toml"
+    cfg.write_text("[body]\nm_body_kg = 4000\n")
+    out = tmp_path / "o"
+    assert main(["simulate", "--config", str(cfg), "--drop-height", "0.5", "--t-end", "0.46",
+                 "--no-plots", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["bottomed_out"] and summary["classification"] == "unfinished"
+    assert summary["max_stroke_m"] > float(jl.paper_vehicle().honeycomb.x_L4)
+    lines = capsys.readouterr().out.splitlines()
+    assert [x.split()[-1] for x in lines if x.strip().startswith("bottomed out")] == ["True"]

@@ -41,6 +41,9 @@ def _print_summary(o: dict) -> None:
         ("max stroke", _fmt(o["max_stroke_m"], 1e3, "mm")),
         ("final stroke", _fmt(o["final_stroke_m"], 1e3, "mm")),
         ("secondary honeycomb engaged", str(o["secondary_honeycomb_engaged"])),
+        # also where the outcome names another class first (tipped, unfinished): a bottoming
+        # stays whatever the landing does after it
+        ("bottomed out (stroke past x_L4)", str(o["bottomed_out"])),
         ("outcome", o["classification"]),
         ("peak ground normal force", _fmt(o["peak_normal_force_N"], 1e-3, "kN")),
         ("peak ground tangential force", _fmt(o["peak_tangential_force_N"], 1e-3, "kN")),
