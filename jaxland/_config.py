@@ -374,8 +374,10 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
 
 
 def follows_rules(veh: Vehicle):
-    """Whether every field of ``veh`` is finite and keeps its own rule, as a jnp bool (also
-    for traced values, inside jit and grad, where ``validate_vehicle`` cannot look). The rules
+    """Whether every field of ``veh`` is finite and keeps its own rule, and the honeycomb's
+    stages come in order (F2 > F1, x_L1 < x_L2, x_L3 < x_L4: out of order the law's clip
+    has a negative width, and an unstroked honeycomb pulls), as a jnp bool (also for traced
+    values, inside jit and grad, where ``validate_vehicle`` cannot look). The other rules
     between fields stay the loaders' and ``simulate``'s: a fit's crush-peak forms may bend
     them on purpose."""
     import jax.numpy as jnp
@@ -385,7 +387,8 @@ def follows_rules(veh: Vehicle):
         val = getattr(mod, f.name)
         if val is not None:
             ok = ok & jnp.all(field_ok(f, jnp.asarray(val), jnp))
-    return ok
+    hc = veh.honeycomb
+    return ok & jnp.all((hc.F2 > hc.F1) & (hc.x_L1 < hc.x_L2) & (hc.x_L3 < hc.x_L4))
 
 
 def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):

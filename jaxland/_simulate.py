@@ -90,8 +90,9 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     a scene outside the documented envelope (``Scene.inside_envelope``). Each concrete value of
     the vehicle is checked first against its own rule (``validate_vehicle(fields_only=True)``:
     a ``ConfigError`` names the one refused); a traced one (inside jit, vmap or grad) outside
-    its rule gives ``INVALID_VEHICLE``, with NaN derivatives. The rules between fields are
-    ``simulate``'s and the loaders': a fit's crush-peak forms may bend them on purpose."""
+    its rule, or a honeycomb whose stages are out of order, gives ``INVALID_VEHICLE``, with
+    NaN derivatives (``follows_rules``). The other rules between fields are ``simulate``'s and
+    the loaders': a fit's crush-peak forms may bend them on purpose."""
     scene.check_shapes(vehicle.n_legs)
     return integrate(get_model(model, scene), validate_vehicle(vehicle, fields_only=True),
                      scene, solver)

@@ -566,6 +566,30 @@ def test_the_pure_landing_checks_the_vehicle_values_it_can_see():
         assert int(result) == int(code) and np.isnan(g) == code.failed, (F1, result, g)
 
 
+def test_a_traced_honeycomb_out_of_order_is_an_invalid_vehicle():
+    """F2 below F1 (or x_L2 below x_L1, x_L4 below x_L3) breaks the law itself: its clip's
+    width goes negative and the unstroked honeycomb pulls (-5 N, -0.004 J stored). Traced,
+    such a vehicle ran to SUCCESSFUL with a gradient of the wrong sign (+2e-4 m/N against
+    -1.1e-5 just in order). It is INVALID_VEHICLE with NaN derivatives; just in order it
+    lands, with finite ones."""
+    solver = jl.Solver(dt=2e-5, t_end=0.05, save_dt=0.05)
+    hc = VEH.honeycomb
+    x1, x3 = float(hc.x_L1), float(hc.x_L3)
+    for get, bad, good in ((lambda v: v.honeycomb.F2, float(hc.F1) - 5.0, float(hc.F1) + 5.0),
+                           (lambda v: v.honeycomb.x_L2, x1 - 1e-5, x1 + 1e-5),
+                           (lambda v: v.honeycomb.x_L4, x3 - 1e-5, x3 + 1e-5)):
+        def stroke(x, get=get):
+            s = jl.landing(eqx.tree_at(get, VEH, x), jl.Scene.from_touchdown_speed(2.0),
+                           solver, "quarter")[1]
+            return s["max_stroke_m"], s["result"]
+
+        grad = jax.jit(jax.grad(stroke, has_aux=True))
+        g, result = grad(jax.numpy.float64(bad))
+        assert int(result) == int(jl.Result.INVALID_VEHICLE) and np.isnan(g), (bad, result)
+        g, result = grad(jax.numpy.float64(good))
+        assert not jl.Result(int(result)).failed and np.isfinite(g), (good, result)
+
+
 def test_concrete_and_traced_vehicles_keep_one_rule_per_field():
     """validate_vehicle (concrete values) and follows_rules (traced ones) judge every value
     alike, an extension's off value included (a rise length of 0 is off in both)."""
