@@ -33,8 +33,10 @@ def read_text(path, what: str) -> str:
 
 
 def read_toml(path, what: str) -> dict:
-    """Parse the TOML file ``path`` (``read_text``'s refusals, and bad TOML), naming ``what``."""
-    text = read_text(path, what)
+    """Parse the TOML file ``path`` (``read_text``'s refusals, and bad TOML), naming ``what``.
+    A byte-order mark (Windows editors write one) is no TOML and is dropped, as the data
+    CSVs' is."""
+    text = read_text(path, what).removeprefix("\ufeff")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:

@@ -77,6 +77,17 @@ def test_a_value_that_is_not_the_papers_does_not_cite_the_papers_source():
             assert said in comments[key] and own not in comments[key], (key, comments[key])
 
 
+def test_a_toml_file_with_a_byte_order_mark_loads(tmp_path):
+    """Windows editors start a UTF-8 file with a byte-order mark, which TOML does not allow:
+    such a vehicle file was refused as 'not valid TOML ... line 1, column 1'. It loads as
+    the same file without the mark (the data CSVs already did)."""
+    plain, marked = tmp_path / "plain.toml", tmp_path / "marked.toml"
+    plain.write_text("[ground]\nmu = 0.3\n")
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    assert jl.load_vehicle(marked) == jl.load_vehicle(plain)
+    assert float(jl.load_vehicle(marked).ground.mu) == 0.3
+
+
 def test_partial_config_and_cells_derivation(tmp_path):
     path = tmp_path / "v.toml"
     path.write_text("[ground]\nmu = 0.3\n\n[honeycomb.cells]\nflow_stress_Pa = 250e6\n")
