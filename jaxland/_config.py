@@ -302,7 +302,10 @@ def _fail(section, f, val, rule):
     off = md.get("off")  # an extension's "not used" value, allowed beside the rule
     ok = None if off is None else _rule_ok(rule, np.asarray(off))
     either = "" if ok is None or np.all(ok) else f" or {off / md['to_si']:g} (off)"
-    raise ConfigError(f"{section}.{md['toml']}", shown, f"must be {rule}{either} ({md['doc']})")
+    # inf keeps a rule such as ">= 0" by its letter: the rule says finite too
+    finite = "" if math.isfinite(float(val)) else "finite and "
+    raise ConfigError(f"{section}.{md['toml']}", shown,
+                      f"must be {finite}{rule}{either} ({md['doc']})")
 
 
 def check_n_legs(n_legs) -> None:

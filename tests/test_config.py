@@ -88,6 +88,18 @@ def test_a_toml_file_with_a_byte_order_mark_loads(tmp_path):
     assert float(jl.load_vehicle(marked).ground.mu) == 0.3
 
 
+@pytest.mark.parametrize("text,value", [("inf", "inf"), ("nan", "nan"), ("1e400", "inf")])
+def test_a_value_that_is_not_finite_is_refused_by_its_finiteness(tmp_path, text, value):
+    """mu = inf was refused as 'must be >= 0', which inf is: the refusal says finite."""
+    path = tmp_path / "v.toml"
+    path.write_text(f"[ground]\nmu = {text}\n")
+    with pytest.raises(jl.ConfigError, match=f"^ground.mu = {value}: must be finite and >= 0 "):
+        jl.load_vehicle(path)
+    path.write_text("[ground]\nmu = -1\n")  # a finite value outside the rule: the rule alone
+    with pytest.raises(jl.ConfigError, match="^ground.mu = -1.0: must be >= 0 "):
+        jl.load_vehicle(path)
+
+
 def test_partial_config_and_cells_derivation(tmp_path):
     path = tmp_path / "v.toml"
     path.write_text("[ground]\nmu = 0.3\n\n[honeycomb.cells]\nflow_stress_Pa = 250e6\n")
