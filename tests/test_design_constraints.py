@@ -200,4 +200,9 @@ def test_infeasible_design_exits_4_with_a_report_and_no_vehicle(tmp_path, capsys
     assert g > (0.0576 - 0.008) / SCALE["stroke"]  # the primary stage alone overshoots
     assert report["violated"]["stroke"]["rule"].startswith("max stroke")
     assert not (out / "design_vehicle.toml").exists()
-    assert "INFEASIBLE: constraint stroke" in capsys.readouterr().err
+    printed = capsys.readouterr()
+    # g counts the constraint's scale, and says so: a bare -9.98 read as 9.98 mm, not 99.8
+    assert (f"INFEASIBLE: constraint stroke violated, g = {g:+.4g} (in units of 10 mm, "
+            "negative: met; max stroke") in printed.err
+    (line,) = [x for x in printed.out.splitlines() if x.strip().startswith("constraint stroke")]
+    assert line.endswith(f"-> {g:+.4f} (in units of 10 mm, negative: met)"), line

@@ -45,6 +45,16 @@ def _progress(quiet: bool, total: int):
     return show
 
 
+def _g_units(c) -> str:
+    """What a constraint's g counts: its violation (positive: violated) over its scale,
+    in the threshold key's units (g = -9.98 of a 10 mm scale is 99.8 mm to spare)."""
+    from .._design._spec import CONSTRAINTS
+
+    info = CONSTRAINTS[c.name]
+    unit = info.key.rsplit("_", 1)[-1]
+    return f"in units of {c.scale / info.to_si:g} {unit}, negative: met"
+
+
 def _cmd_design(args) -> int:
     import jaxland as jl
 
@@ -139,8 +149,10 @@ def _cmd_design(args) -> int:
     s0, s1 = result.at_start, result.at_design
     print(f"  objective on the design scenes: {s0['objective_measure_mps2']:.4g} -> "
           f"{s1['objective_measure_mps2']:.4g} m/s^2")
+    units = {c.name: _g_units(c) for c in spec.constraints}
     for name, c in s1["constraints"].items():
-        print(f"  constraint {name:<10} g {s0['constraints'][name]['g']:+.4f} -> {c['g']:+.4f}")
+        print(f"  constraint {name:<10} g {s0['constraints'][name]['g']:+.4f} -> {c['g']:+.4f}"
+              f" ({units[name]})")
     if s1["n_unfinished"]:
         print(f"  note: {s1['n_unfinished']} design scene(s) still in their impact at "
               f"t_end_s = {spec.t_end:g} s: their strokes and peaks are not final; raise "
@@ -162,8 +174,8 @@ def _cmd_design(args) -> int:
                       f"{ch['verdict']}")
                 continue
             print(f"    constraint {name:<10} {ch['measure']} on the verification landings: g "
-                  f"{ch['g']:+.4f}, 95 % [{ch['ci95'][0]:+.4f}, {ch['ci95'][1]:+.4f}]: "
-                  f"{'met' if ch['met'] else 'NOT MET'}")
+                  f"{ch['g']:+.4f}, 95 % [{ch['ci95'][0]:+.4f}, {ch['ci95'][1]:+.4f}] "
+                  f"({units[name]}): {'met' if ch['met'] else 'NOT MET'}")
         for tag in ("before", "after"):  # the baseline gear, then the design
             r = v[tag]
             label = f"{tag} ({'baseline' if tag == 'before' else 'design'})"
@@ -196,7 +208,7 @@ def _cmd_design(args) -> int:
     if result.status != "feasible":
         for name, c in result.violated.items():
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
-                  f"({c['rule']})", file=sys.stderr)
+                  f"({units[name]}; {c['rule']})", file=sys.stderr)
         print(f"wrote {out}/design_report.json" + ("" if args.no_plots else ", figures/*.png")
               + " (no design_vehicle.toml: no feasible design)")
         return EXIT_INFEASIBLE
