@@ -561,12 +561,12 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
     def line(section, md, val):
         key = f"{section}.{md['toml']}"
         text = _value_text(md, val)
-        if key in given:
-            source = f"SET BY {given_by}"
-        elif key in ("honeycomb.F1_N", "honeycomb.F2_N") and "honeycomb.cells" in given:
+        if key in ("honeycomb.F1_N", "honeycomb.F2_N") and "honeycomb.cells" in given:
             source = f"DERIVED from the [honeycomb.cells] of {given_by} (Wierzbicki 1983)"
-        elif text == paper[key]:
+        elif text == paper[key]:  # set by the file or not, the paper's value has its source
             source = md["source"]
+        elif key in given:
+            source = f"SET BY {given_by}"
         else:  # not the paper's value: its source is not the paper vehicle's
             was = f"the paper vehicle's value {paper[key]}, whose source is {md['source']}"
             source = (f"{changed_by}: not {was}" if changed_by is not None

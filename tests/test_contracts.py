@@ -305,6 +305,13 @@ def test_config_marks_the_values_a_file_set(tmp_path, capsys):
     assert "[-]" in mu  # dimensionless, not "1" after the number
     k = next(line for line in lines if line.startswith("k_N_per_m ="))
     assert "SET BY" not in k and "paper Table 2" in k
+    # a key the file sets to the paper's own value keeps the paper's source (as formats.md
+    # says, and as simulate's vehicle.toml wrote it), where config credited the file
+    cfg.write_text("[ground]\nmu = 0.3\n[body]\nm_body_kg = 1120.0\n")
+    assert main(["config", "--config", str(cfg)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    m = next(line for line in lines if line.startswith("m_body_kg ="))
+    assert "SET BY" not in m and "paper section 3.1" in m, m
 
 
 def test_config_marks_plateau_forces_derived_from_the_files_cells(tmp_path, capsys):
