@@ -582,3 +582,22 @@ def test_the_printed_report_says_a_bottoming_the_outcome_names_another_class_for
     assert summary["max_stroke_m"] > float(jl.paper_vehicle().honeycomb.x_L4)
     lines = capsys.readouterr().out.splitlines()
     assert [x.split()[-1] for x in lines if x.strip().startswith("bottomed out")] == ["True"]
+
+
+def test_simulate_help_gives_each_value_option_its_default():
+    """The README says `--help` lists every option with its unit and default; the scene's
+    attitude, slope and speed flags and the tsit5 and impulse settings gave none (tsit5's
+    tolerances appeared only in a failure message)."""
+    import argparse
+
+    from jaxland.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    simulate = sub.choices["simulate"]
+    # --scene and --touchdown-speed have no default: each replaces other values when given
+    none = {"--scene", "--touchdown-speed"}
+    for action in simulate._actions:
+        flag = action.option_strings[-1] if action.option_strings else None
+        if flag is None or action.nargs == 0 or flag in none or flag == "--help":
+            continue
+        assert "default" in (action.help or ""), flag

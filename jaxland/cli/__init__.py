@@ -14,7 +14,7 @@ import re
 import sys
 
 from .._errors import ConfigError, SimulationError
-from .._solvers import METHODS
+from .._solvers import METHODS, Impulse, Tsit5
 from ._montecarlo import cmd_montecarlo
 from ._simulate import cmd_config, cmd_simulate
 
@@ -58,26 +58,36 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sink-speed", type=float, help="downward speed at release [m/s] (default 0)")
     s.add_argument("--touchdown-speed", type=float,
                    help="start at touchdown with this downward speed [m/s]")
-    s.add_argument("--horizontal-speed", type=float, help="horizontal speed [m/s]")
-    s.add_argument("--heading-deg", type=float, help="direction of the horizontal speed [deg]")
+    s.add_argument("--horizontal-speed", type=float,
+                   help="horizontal speed [m/s] (default 0)")
+    s.add_argument("--heading-deg", type=float,
+                   help="direction of the horizontal speed [deg] (default 0)")
     for ax in ("roll", "pitch", "yaw"):
-        s.add_argument(f"--{ax}-deg", type=float, help=f"body {ax} at release [deg]")
-        s.add_argument(f"--{ax}-rate-degps", type=float, help=f"body {ax} rate [deg/s]")
-    s.add_argument("--slope-deg", type=float, help="ground slope [deg]")
-    s.add_argument("--slope-direction-deg", type=float, help="downhill direction [deg]")
-    s.add_argument("--friction", type=float, help="foot-ground friction mu (overrides config)")
+        s.add_argument(f"--{ax}-deg", type=float, help=f"body {ax} at release [deg] (default 0)")
+        s.add_argument(f"--{ax}-rate-degps", type=float,
+                       help=f"body {ax} rate [deg/s] (default 0)")
+    s.add_argument("--slope-deg", type=float, help="ground slope [deg] (default 0)")
+    s.add_argument("--slope-direction-deg", type=float,
+                   help="downhill direction [deg] (default 0)")
+    s.add_argument("--friction", type=float,
+                   help="foot-ground friction mu [-] (default: the vehicle's ground.mu)")
     s.add_argument("--plateau-scale", type=float, nargs="+",
-                   help="honeycomb plateau-force scale per leg (scatter), one value per leg")
+                   help="honeycomb plateau-force scale per leg (scatter), one value per leg "
+                        "[-] (default 1 on every leg)")
     s.add_argument("--method", default="euler", choices=METHODS,
                    help="integrator (default euler; see docs/integrators.md)")
     s.add_argument("--dt", type=float, default=None,
                    help="integration step [s] (default 1e-5, or half the method's stability "
                         "limit for this vehicle if smaller; impulse: the step cap; tsit5: the "
                         "first step)")
-    s.add_argument("--impulse", type=float, help="impulse step dI of --method impulse [N s]")
-    s.add_argument("--rtol", type=float, help="relative tolerance of --method tsit5")
-    s.add_argument("--atol", type=float, help="absolute tolerance of --method tsit5")
-    s.add_argument("--max-steps", type=int, help="step budget of --method tsit5")
+    s.add_argument("--impulse", type=float, help="impulse step dI of --method impulse [N s] "
+                   f"(default {Impulse().dI:g})")
+    s.add_argument("--rtol", type=float, help="relative tolerance of --method tsit5 [-] "
+                   f"(default {Tsit5().rtol:g})")
+    s.add_argument("--atol", type=float, help="absolute tolerance of --method tsit5 [state "
+                   f"units: m, m/s] (default {Tsit5().atol:g})")
+    s.add_argument("--max-steps", type=int, help="step budget of --method tsit5 "
+                   f"(default {Tsit5().max_steps})")
     s.add_argument("--t-end", type=float, default=1.2, help="simulated time [s] (default 1.2)")
     s.add_argument("--save-dt", type=float, default=None,
                    help="output sample interval [s] (default: the smallest whole multiple "
