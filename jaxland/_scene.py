@@ -38,7 +38,8 @@ class SceneField(NamedTuple):
 # Limits are our documented envelope: attitude within 30 deg (a steeper vehicle is not
 # "landing"), rates within 5 rad/s, slopes within 30 deg.
 SCENE_FIELDS = {
-    "drop_height": SceneField("m", "clearance of the lowest foot above the ground at t = 0",
+    "drop_height": SceneField("m", "clearance of the lowest foot above the ground at t = 0 "
+                              "(on a slope: along the ground's normal)",
                               0.0, 50.0, "drop_height_m", 1.0),
     "sink_speed": SceneField("m/s", "downward speed at t = 0", 0.0, 30.0, "sink_speed_mps", 1.0),
     "horizontal_speed": SceneField("m/s", "horizontal speed at t = 0", 0.0, 30.0,

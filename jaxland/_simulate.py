@@ -499,9 +499,10 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
     elif outcomes["classification"] == "no_touchdown":
         h, v = float(scene.drop_height), float(scene.sink_speed)
         fall = float(scene.fall_time(float(vehicle.g)))
+        along = " (along the slope's normal)" if float(scene.slope) != 0.0 else ""
         outcomes["note"] = (f"{Result.NO_TOUCHDOWN.message} = {solver.t_end:g} s: the outcomes "
-                            f"are the free fall's; a vertical fall of {h:g} m at {v:g} m/s "
-                            f"takes {fall:.3g} s, so raise t_end")
+                            f"are the free fall's; the fall from a clearance of {h:g} m"
+                            f"{along} at {v:g} m/s takes {fall:.3g} s, so raise t_end")
     elif outcomes["classification"] == "unfinished":
         outcomes["note"] = f"{Result.UNFINISHED.message}; rerun with a longer t_end"
     elif outcomes["legs_off_ground_at_end"]:

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
@@ -601,3 +602,16 @@ def test_simulate_help_gives_each_value_option_its_default():
         if flag is None or action.nargs == 0 or flag in none or flag == "--help":
             continue
         assert "default" in (action.help or ""), flag
+
+
+def test_the_no_touchdown_note_on_a_slope_says_how_the_clearance_is_measured(tmp_path, capsys):
+    """On a 30 deg slope the 0.2 m clearance lies along the ground's normal, a vertical gap of
+    0.2 / cos 30 deg = 0.231 m: the note read 'a vertical fall of 0.2 m takes 0.217 s', where
+    0.2 m falls in 0.202 s. It names the clearance and its measure, and its time is the fall
+    through the vertical gap (computed here from the free-fall law)."""
+    assert main(["simulate", "--slope-deg", "30", "--t-end", "0.1", "--no-plots",
+                 "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    fall = math.sqrt(2.0 * 0.2 / math.cos(math.radians(30.0)) / float(jl.paper_vehicle().g))
+    assert (f"the fall from a clearance of 0.2 m (along the slope's normal) at 0 m/s takes "
+            f"{fall:.3g} s") in err, err

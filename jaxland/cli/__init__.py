@@ -54,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", default="auto", choices=("auto", "quarter", "full"),
                    help="auto (default): the smallest model that represents the scene exactly")
     s.add_argument("--drop-height", type=float,
-                   help="clearance of the lowest foot at release [m] (default 0.2)")
+                   help="clearance of the lowest foot at release [m] (default 0.2; on a "
+                        "slope along the ground's normal)")
     s.add_argument("--sink-speed", type=float, help="downward speed at release [m/s] (default 0)")
     s.add_argument("--touchdown-speed", type=float,
                    help="start at touchdown with this downward speed [m/s]")
