@@ -1131,3 +1131,14 @@ def test_the_95_interval_stays_inside_the_range_the_fit_transforms_onto():
         a, b = interval95(v, se, lo, hi)
         assert lo < a < v < b and (hi is None or b < hi)
     assert interval95(0.5, math.nan, 0.0, 1.0) is None and interval95(1.0, 0.1, 0.0, 1.0) is None
+
+
+def test_the_smooth_residuals_warning_names_the_drops_metadata_as_a_suspect():
+    """A drop height 5 % off leaves smooth residuals as missing physics does, and the warning
+    named only physics or filtering: an engineer looked for a missing law where a metadata
+    typo was. It names drop_height_m and the sink speed too; white residuals warn nothing."""
+    from calibration._uncertainty import misfit
+
+    (text,) = misfit(1.0, 0.5)
+    assert "missing physics" in text and "drop_height_m" in text and "sink speed" in text
+    assert misfit(1.0, 0.0) == []
