@@ -43,7 +43,8 @@ document it):
    channel's rise)`` that stays above it for ``ONSET_PERSIST_S`` (at least 3 samples; the
    rise too is the largest level held that long, so a one-sample glitch sets neither), then
    extrapolated back along the rising edge to the baseline (a stroke, which grows from
-   rest, first back along its samples above ``STROKE_ONSET_SIGMAS`` sigma_hp). Or it is
+   rest, first back along its samples ``STROKE_ONSET_SIGMAS`` sigma_hp from its level just
+   before the rise: ``_stroke_onset``). Or it is
    given: ``touchdown_time_s`` in the metadata (a record that starts at touchdown). The fit
    refines it as a parameter per drop (``t0``). With ``release_time_s`` the free fall from
    release to touchdown is checked against the drop height (``FREE_FALL_REL``).
@@ -133,6 +134,7 @@ _OPTIONAL_TABLES = ("synthetic_rig",)  # generator settings, informational only
 MIN_PRE_SAMPLES = 10  # samples before touchdown (offsets, and a touchdown that is in the record)
 ONSET_PERSIST_S = 1e-3  # s: an onset holds above its threshold this long (>= 3 samples)
 STROKE_ONSET_SIGMAS = 4.0  # a stroke's onset: where it leaves its noise (high-pass sigmas)
+STROKE_ONSET_REACH = 3.0  # how far back a stroke's rise may begin, in straight-line times
 MIN_NOISE_SAMPLES = 50  # pre-touchdown samples for a noise estimate from that segment
 MIN_AFTER_S = 0.05  # s of record after touchdown
 MIN_SAMPLES = 50
@@ -331,9 +333,8 @@ class DropTest:
         # the level each sample holds for the next ONSET_PERSIST_S
         persist = max(3, math.ceil(ONSET_PERSIST_S * self.sample_rate_Hz))
         dev = np.abs(y - base)
-        held = dev[:max(len(y) - persist + 1, 0)].copy()
-        for k in range(1, persist):
-            held = np.minimum(held, dev[k:len(y) - persist + 1 + k])
+        held = (np.lib.stride_tricks.sliding_window_view(dev, persist).min(axis=1)
+                if len(y) >= persist else np.zeros(0))
         rise = float(np.max(held)) if held.size else 0.0
         thresh = max(8.0 * sig, 0.05 * rise)
         above = np.nonzero(held > thresh)[0]
@@ -349,12 +350,8 @@ class DropTest:
                        "sensor offsets), or give drop_test.touchdown_time_s for a record that "
                        "starts at touchdown")
         if base_channel(onset) == "stroke_m":
-            # A force or an acceleration jumps at touchdown, but the stroke grows from rest
-            # (the strut compresses only as the foot's force builds), so its crossing of 5 %
-            # of the rise comes milliseconds late: go back along the samples above the noise.
-            while i_c > MIN_PRE_SAMPLES and abs(y[i_c - 1] - base) > STROKE_ONSET_SIGMAS * sig:
-                i_c -= 1
-        # back along the rising edge (two samples above the threshold) to the baseline
+            i_c, base = _stroke_onset(y, i_c, base, sig)
+        # back along the rising edge (the first two samples past it) to the level before it
         y1, y2 = abs(y[i_c] - base), abs(y[min(i_c + 1, len(y) - 1)] - base)
         slope = (y2 - y1) / (t[i_c + 1] - t[i_c]) if i_c + 1 < len(t) else 0.0
         t0 = t[i_c] - y1 / slope if slope > 0 else t[i_c - 1]
@@ -715,6 +712,27 @@ def _filters(spec, chans: dict, rate: float) -> dict:
     return {c: int(v) for c, v in out.items()}
 
 
+def _stroke_onset(y: np.ndarray, i_c: int, base: float, sig: float) -> tuple[int, float]:
+    """Where a stroke leaves its level before the impact: ``(index, level)``, from ``i_c``,
+    its first sample past the onset threshold. A force or an acceleration jumps at
+    touchdown, but the stroke grows from rest (the strut compresses only as the foot's force
+    builds), so its crossing of 5 % of the rise comes milliseconds late (5.6 ms on the
+    bundled 0.2 m drop). The level is the median just before the rise could have begun
+    (STROKE_ONSET_REACH times the straight-line time back from the crossing: the rise is
+    convex), not the record's start, and the walk back along the samples more than
+    STROKE_ONSET_SIGMAS noise sigmas from it stops there: a sensor's drift before the impact
+    is no onset."""
+    k = min(i_c + 2, len(y) - 1)
+    rate = abs(y[k] - y[i_c - 2]) / (k - i_c + 2)  # per sample, at the crossing
+    reach = int(min(i_c - MIN_PRE_SAMPLES, max(
+        2, math.ceil(STROKE_ONSET_REACH * abs(y[i_c] - base) / rate) if rate > 0 else 2)))
+    start = i_c - reach
+    level = float(np.median(y[max(start - MIN_PRE_SAMPLES, 0):start + 1]))
+    while i_c > start and abs(y[i_c - 1] - level) > STROKE_ONSET_SIGMAS * sig:
+        i_c -= 1
+    return i_c, level
+
+
 def _highpass_noise(y: np.ndarray) -> float:
     """Robust white-noise std from second differences: MAD / 0.6745 / sqrt(6)."""
     d2 = np.diff(y, 2)
@@ -926,8 +944,10 @@ def _meta_paths(path: Path) -> tuple[Path, dict]:
     else:
         meta_path = path
     try:
-        with meta_path.open("rb") as fh:
-            meta = tomllib.load(fh)
+        with meta_path.open("rb") as fh:  # a byte-order mark (Windows editors) is no TOML
+            meta = tomllib.loads(fh.read().decode("utf-8").removeprefix("\ufeff"))
+    except UnicodeDecodeError as err:
+        raise _err("metadata", str(meta_path), f"is not UTF-8 text: {err.reason}") from None
     except FileNotFoundError:
         raise _err("metadata", str(meta_path), "file does not exist") from None
     except IsADirectoryError:

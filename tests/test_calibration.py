@@ -98,6 +98,14 @@ def test_a_stroke_only_record_finds_touchdown_where_the_stroke_leaves_its_noise(
     assert d.onset_channel == "stroke_m"
     assert abs(d.touchdown_time_s - 0.05) < 1e-3
     assert d.offsets["stroke_m"] == pytest.approx(full.offsets["stroke_m"], abs=5e-6)
+    # a sensor drifting before the impact (10 noise sigmas over 50 ms) is no onset: the walk
+    # back measures from the level just before the rise, not from the record's start, where
+    # it went back through the drift to 15 ms early
+    t, x = d.time_s, d.channels["stroke_m"]
+    drift = 10.0 * d.noise_std["stroke_m"] * np.minimum(t / 0.05, 1.0)
+    drifted = cal.DropTest.from_arrays(t, {"stroke_m": x + drift}, sample_rate_Hz=5000.0,
+                                       drop_height_m=0.2, vehicle=d.vehicle)
+    assert abs(drifted.touchdown_time_s - 0.05) < 1e-3
 
 
 def test_a_one_sample_glitch_before_impact_is_not_taken_for_touchdown():
@@ -115,6 +123,25 @@ def test_a_one_sample_glitch_before_impact_is_not_taken_for_touchdown():
         d = cal.DropTest.from_arrays(clean.time_s, ch, sample_rate_Hz=5000.0,
                                      drop_height_m=0.2, vehicle=clean.vehicle)
         assert d.touchdown_time_s == clean.touchdown_time_s, amp
+
+
+def test_a_drop_tests_metadata_with_a_byte_order_mark_loads(tmp_path):
+    """The metadata TOML beside a drop's CSV, saved by a Windows editor with a byte-order
+    mark, was refused as invalid TOML at line 1, column 1, while the CSV with one loaded."""
+    t, f, x = _trace()
+    path = _write(tmp_path, ["time_s", "normal_force_N", "stroke_m"], _rows(t, f, x))
+    plain = cal.load_drop_test(path)
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert cal.load_drop_test(path).touchdown_time_s == plain.touchdown_time_s
+
+
+def test_a_record_shorter_than_the_onsets_hold_is_refused_by_name():
+    """60 samples at 100 kHz hold less than the 1 ms an onset must last: a numpy broadcast
+    error escaped; the record is refused by name."""
+    t, f, x = _trace(n=60, onset=20, rate=1e5)
+    with pytest.raises(jl.ConfigError, match="no touchdown found"):
+        cal.DropTest.from_arrays(t, {"normal_force_N": f, "stroke_m": x}, sample_rate_Hz=1e5,
+                                 drop_height_m=0.2)
 
 
 def test_a_spreadsheet_csv_with_a_byte_order_mark_loads_and_column_errors_name_the_file(
