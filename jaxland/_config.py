@@ -318,7 +318,8 @@ def check_n_legs(n_legs) -> None:
 
 def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     """Check every field against its rule and the cross-field rules (``fields_only``: each
-    field against its own rule only); return ``veh`` if valid.
+    field against its own rule, and the honeycomb's stages in order, ``stages_in_order``,
+    without which the law itself breaks); return ``veh`` if valid.
 
     Raises ``ConfigError`` naming the TOML key, the value (in TOML units) and the rule. Leaves
     that are tracers (inside jit/grad) are skipped; batched leaves are checked element-wise.
@@ -331,28 +332,31 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
         bad = ~field_ok(f, val)
         if np.any(bad):
             _fail(section, f, val[bad].flat[0], f.metadata["rule"])
-    if fields_only:
-        return veh
     hc = veh.honeycomb
     F1, F2, k1, k3 = (concrete(x) for x in (hc.F1, hc.F2, hc.k_b1, hc.k_b3))
     x2, x4 = concrete(hc.x_L2), concrete(hc.x_L4)
-    if all(x is not None for x in (F1, F2, k1, k3, x2, x4)):
+    known = all(x is not None for x in (F1, F2, k1, k3, x2, x4))
+    if known:  # the law's own structure: checked with the fields (follows_rules too)
         x1 = F1 / k1
         x3 = x2 + (F2 - F1) / k3
-        if np.any(~(F2 > F1)):
+        f2_ok, x2_ok, x4_ok = stages_in_order(F1, F2, k1, k3, x2, x4)
+        if np.any(~f2_ok):
             raise ConfigError("honeycomb.F2_N", float(np.max(F2)),
                               f"must exceed F1_N = {float(np.min(F1))} (the secondary stage "
                               "crushes after the primary)")
-        if np.any(~(x1 < x2)):
+        if np.any(~x2_ok):
             _breakpoint_error(hc, ("x_L2", "F1", "k_b1"),
                               f"breakpoints must increase: x_L1 = F1/k_b1 = "
                               f"{float(np.max(x1)) * 1e3:.4g} mm must be < x_L2 = "
                               f"{float(np.min(x2)) * 1e3:.4g} mm")
-        if np.any(~(x3 < x4)):
+        if np.any(~x4_ok):
             _breakpoint_error(hc, ("x_L4", "x_L2", "F1", "F2", "k_b3"),
                               f"breakpoints must increase: x_L3 = x_L2 + (F2-F1)/k_b3 = "
                               f"{float(np.max(x3)) * 1e3:.4g} mm must be < x_L4 = "
                               f"{float(np.min(x4)) * 1e3:.4g} mm")
+    if fields_only:
+        return veh
+    if known:
         _check_peaks_and_unloading(hc, veh.ground, F1, F2, k1, k3, x2, x4)
     inertia = [concrete(x) for x in (veh.I_xx, veh.I_yy, veh.I_zz)]
     if all(x is not None for x in inertia):
@@ -378,11 +382,10 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
 
 def follows_rules(veh: Vehicle):
     """Whether every field of ``veh`` is finite and keeps its own rule, and the honeycomb's
-    stages come in order (F2 > F1, x_L1 < x_L2, x_L3 < x_L4: out of order the law's clip
-    has a negative width, and an unstroked honeycomb pulls), as a jnp bool (also for traced
-    values, inside jit and grad, where ``validate_vehicle`` cannot look). The other rules
-    between fields stay the loaders' and ``simulate``'s: a fit's crush-peak forms may bend
-    them on purpose."""
+    stages come in order (``stages_in_order``), as a jnp bool (also for traced values,
+    inside jit and grad, where ``validate_vehicle`` cannot look). The other rules between
+    fields stay the loaders' and ``simulate``'s: a fit's crush-peak forms may bend them on
+    purpose."""
     import jax.numpy as jnp
 
     ok = jnp.ones((), bool)
@@ -391,7 +394,18 @@ def follows_rules(veh: Vehicle):
         if val is not None:
             ok = ok & jnp.all(field_ok(f, jnp.asarray(val), jnp))
     hc = veh.honeycomb
-    return ok & jnp.all((hc.F2 > hc.F1) & (hc.x_L1 < hc.x_L2) & (hc.x_L3 < hc.x_L4))
+    for in_order in stages_in_order(hc.F1, hc.F2, hc.k_b1, hc.k_b3, hc.x_L2, hc.x_L4):
+        ok = ok & jnp.all(in_order)
+    return ok
+
+
+def stages_in_order(F1, F2, k_b1, k_b3, x_L2, x_L4):
+    """Per element (numpy or jax values alike): F2 > F1, x_L1 < x_L2 and x_L3 < x_L4, the
+    honeycomb's stages in order. Out of order the law's clip has a negative width and an
+    unstroked honeycomb pulls, so these hold wherever the law runs: ``validate_vehicle``
+    checks them with each field's own rule (also with ``fields_only``), ``follows_rules``
+    on traced values."""
+    return F2 > F1, F1 / k_b1 < x_L2, x_L2 + (F2 - F1) / k_b3 < x_L4
 
 
 def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):

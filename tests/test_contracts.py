@@ -577,8 +577,8 @@ def test_a_traced_honeycomb_out_of_order_is_an_invalid_vehicle():
     """F2 below F1 (or x_L2 below x_L1, x_L4 below x_L3) breaks the law itself: its clip's
     width goes negative and the unstroked honeycomb pulls (-5 N, -0.004 J stored). Traced,
     such a vehicle ran to SUCCESSFUL with a gradient of the wrong sign (+2e-4 m/N against
-    -1.1e-5 just in order). It is INVALID_VEHICLE with NaN derivatives; just in order it
-    lands, with finite ones."""
+    -1.1e-5 just in order). It is INVALID_VEHICLE with NaN derivatives, and refused by name
+    where its values are concrete; just in order it lands, with finite derivatives."""
     solver = jl.Solver(dt=2e-5, t_end=0.05, save_dt=0.05)
     hc = VEH.honeycomb
     x1, x3 = float(hc.x_L1), float(hc.x_L3)
@@ -595,6 +595,10 @@ def test_a_traced_honeycomb_out_of_order_is_an_invalid_vehicle():
         assert int(result) == int(jl.Result.INVALID_VEHICLE) and np.isnan(g), (bad, result)
         g, result = grad(jax.numpy.float64(good))
         assert not jl.Result(int(result)).failed and np.isfinite(g), (good, result)
+        # concrete, the same vehicle is refused by name before it runs
+        with pytest.raises(jl.ConfigError, match=r"^honeycomb\.(F2_N|x_L2_mm|x_L4_mm) = "):
+            jl.landing(eqx.tree_at(get, VEH, jax.numpy.float64(bad)),
+                       jl.Scene.from_touchdown_speed(2.0), solver, "quarter")
 
 
 def test_concrete_and_traced_vehicles_keep_one_rule_per_field():
