@@ -547,18 +547,21 @@ def starts_disagree(info: dict | None) -> str | None:
             "nearer the truth (--start) and see whether two agree")
 
 
-def _until_two_agree(from_start, n: int, threads: int) -> list:
+def _until_two_agree(from_start, n: int, threads: int, pending: list | None = None) -> list:
     """``from_start(j)`` for the starts j = 0, 1, ... in order until two agree
     (``_starts_agree``): the candidates, those of the starts taken. The starts run ``threads``
     at a time (XLA frees the interpreter lock: one per core), so the candidates are those of
     one start after the other: a batch's later starts are discarded where an earlier one
-    settles it."""
+    settles it, and their futures, still running, go to ``pending`` (where given), in
+    order, for a caller that wants them after all."""
     candidates = []
     for b in range(0, n, threads):
         futures = [_in_thread(from_start, j) for j in range(b, min(b + threads, n))]
-        for f in futures:
+        for i, f in enumerate(futures):
             candidates.append(f.result())
             if _starts_agree(candidates):
+                if pending is not None:
+                    pending += futures[i + 1:]
                 return candidates
     return candidates
 
@@ -1997,22 +2000,25 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         loss_j = recs_j[-1]["final_loss"] if recs_j else 0.0
         return dict(theta=th, loss=loss_j, history=hist_j, stages=recs_j)
 
-    candidates = _until_two_agree(from_start, len(starts), MULTISTART_THREADS)
+    running = []  # starts of the last batch still running where an earlier one agreed
+    candidates = _until_two_agree(from_start, len(starts), MULTISTART_THREADS, running)
     agreed = len(candidates)
     chosen = min(range(agreed), key=lambda i: candidates[i]["loss"])
-    window_s2 = (2.0 * candidates[chosen]["loss"] / problem.windowed(stages_w[n_ms - 1]).n_obs
-                 if n_ms else None)
+    window = problem.windowed(stages_w[n_ms - 1]) if n_ms else None
+    window_s2 = 2.0 * candidates[chosen]["loss"] / window.n_obs if n_ms else None
     every_start = None
-    if agreed < len(starts) and window_s2 is not None and window_s2 > MISFIT_SIGMA2:
-        # two starts agreeing is no proof of the best basin where that basin misfits: a wrong
-        # basin of the contact oscillation misfits too, and two starts can share it (gamma
-        # 0.35 and k 36 % low on a record of gamma 0.97, where the start at gamma 0.8 finds
-        # the truth with 1/22 of the loss). The other starts run as well; one of them is
-        # taken only where it ends lower beyond the agreement tolerance.
+    if (agreed < len(starts) and not _inner and window_s2 is not None
+            and window_s2 > MISFIT_SIGMA2):
+        # two starts agreeing is no proof of the best basin where that basin misfits the
+        # window: a wrong basin of the contact oscillation misfits too, and two starts can
+        # share it. So the other starts run as well, and one of them is taken only where it
+        # ends lower beyond the agreement tolerance. (A fit inside another, on a record it
+        # misfits by construction, keeps its first agreeing pair.)
         every_start = (f"the agreeing starts misfit the {stages_w[n_ms - 1] * 1e3:g} ms "
                        f"window (variance factor {window_s2:.3g} > {MISFIT_SIGMA2:g}): every "
                        "start was run")
-        for b in range(agreed, len(starts), MULTISTART_THREADS):
+        candidates += [f.result() for f in running]
+        for b in range(len(candidates), len(starts), MULTISTART_THREADS):
             futures = [_in_thread(from_start, j)
                        for j in range(b, min(b + MULTISTART_THREADS, len(starts)))]
             candidates += [f.result() for f in futures]
@@ -2020,6 +2026,7 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
         if (candidates[lowest]["loss"] < candidates[chosen]["loss"]
                 - AGREE_REL * abs(candidates[chosen]["loss"])):
             chosen = lowest
+            window_s2 = 2.0 * candidates[chosen]["loss"] / window.n_obs
     theta = candidates[chosen]["theta"]
     history += candidates[chosen]["history"]
     stages += candidates[chosen]["stages"]
