@@ -149,6 +149,7 @@ def misfit(sigma2: float, rho1: float, rho1_noise: float = 0.0) -> list[str]:
     if rho1 > limit:
         out.append(f"lag-1 residual autocorrelation {rho1:.2f} > {limit:.3g}: the residuals "
                    "are smooth, not noise (missing physics, filtered data, or metadata that do not "
-                   "fit the record: drop_height_m or the sink speed set the touchdown speed)"
+                   "fit the record: drop_height_m and sink_speed_mps, or touchdown_speed_mps, "
+                   "set the touchdown speed)"
                    + (f"; filtered noise alone has {rho1_noise:.2f}" if rho1_noise else ""))
     return out

@@ -1136,9 +1136,11 @@ def test_the_95_interval_stays_inside_the_range_the_fit_transforms_onto():
 def test_the_smooth_residuals_warning_names_the_drops_metadata_as_a_suspect():
     """A drop height 5 % off leaves smooth residuals as missing physics does, and the warning
     named only physics or filtering: an engineer looked for a missing law where a metadata
-    typo was. It names drop_height_m and the sink speed too; white residuals warn nothing."""
+    typo was. It names the metadata keys that set the touchdown speed too; white residuals
+    warn nothing."""
     from calibration._uncertainty import misfit
 
     (text,) = misfit(1.0, 0.5)
-    assert "missing physics" in text and "drop_height_m" in text and "sink speed" in text
+    assert "missing physics" in text and all(
+        key in text for key in ("drop_height_m", "sink_speed_mps", "touchdown_speed_mps"))
     assert misfit(1.0, 0.0) == []

@@ -53,7 +53,8 @@ def _retried_text(result) -> str:
     retried = o["retried"]
     how = ("with the strut damping implicit (euler_implicit) at the step their forces allow "
            "(at most dt_s)" if s["method"] == "euler" else
-           f"with {s['retry_method']} at the smaller step their forces allow")
+           f"with {s['retry_method']} at the smaller step their forces allow, or a quarter "
+           "of dt_s where that is no smaller")
     still = int(np.isin(result.failure[retried], FAILED_CODES).sum())
     return (f"{s['n_retried']} (failed numerically at dt_s = {s['dt_s']:g} s; rerun {how}, "
             f"then at a quarter of that step while failing, up to {RETRY_STEPS} tries; "
