@@ -10,7 +10,7 @@ benchmarks/results/bench_fit.json):
    100 ms window directly from 2x off ended in wrong basins (gamma -> 0 or 1, k_b1 x 4000).
 2. **Multi-start on the short windows**: the 10 and 30 ms stages run from the start and from
    variants of it in k and gamma (``START_VARIANTS``), until two starts agree on the lowest
-   loss (every start where that loss misfits the window); the rest continues from the best.
+   loss (every start where the fit from them misfits); the rest continues from the best.
    Without it, 1-2 of ~15 starts up to 2x off failed; with it 105 of 105 (three drop
    heights, noisy and noise-free, a joint fit) converged.
 3. **Huber loss on the long stages** (``robust``, threshold 1.5 robust standard deviations):
@@ -616,6 +616,17 @@ def _normal_inverse(jac):
     return np.linalg.pinv(js.T @ js, rcond=1e-13, hermitian=True), js, col, keep
 
 
+def _variance_factor(r: np.ndarray, dof: int, huber_c=None) -> float:
+    """s^2 of the active residuals ``r`` (``_uncertainty``'s, and the report's residual
+    variance factor): |r|^2 / dof; with a Huber threshold c, [sum psi(r)^2 / dof] /
+    mean(psi'(r))^2."""
+    if huber_c is None:
+        return float(r @ r) / dof
+    psi = np.clip(r, -huber_c, huber_c)
+    inlier = float(np.mean(np.abs(r) <= huber_c))
+    return float(psi @ psi) / dof / max(inlier, 1e-3) ** 2
+
+
 def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     """Gauss-Newton covariance at ``theta``: cov = s^2 (J^T J)^-1 in the unconstrained
     coordinates, J the Jacobian of the noise-weighted residuals, plus the offsets' error:
@@ -632,12 +643,7 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     active = problem.mask.ravel() > 0
     r = r_all[active]
     jac = jac_all[active]
-    if huber_c is None:
-        sigma2 = float(r @ r) / dof
-    else:
-        psi = np.clip(r, -huber_c, huber_c)
-        inlier = float(np.mean(np.abs(r) <= huber_c))
-        sigma2 = float(psi @ psi) / dof / max(inlier, 1e-3) ** 2
+    sigma2 = _variance_factor(r, dof, huber_c)
     n_z = problem.n_z
     cov_s, js, col, keep = _normal_inverse(jac)
     zero = ~keep
@@ -2002,51 +2008,59 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
 
     running = []  # starts of the last batch still running where an earlier one agreed
     candidates = _until_two_agree(from_start, len(starts), MULTISTART_THREADS, running)
-    agreed = len(candidates)
-    chosen = min(range(agreed), key=lambda i: candidates[i]["loss"])
-    window = problem.windowed(stages_w[n_ms - 1]) if n_ms else None
-    window_s2 = 2.0 * candidates[chosen]["loss"] / window.n_obs if n_ms else None
+    chosen = min(range(len(candidates)), key=lambda i: candidates[i]["loss"])
+
+    def long_stages(theta):
+        huber_c, hist_all, recs = None, [], []
+        for k in range(n_ms, len(stages_w)):
+            prob = problem.windowed(stages_w[k])
+            if robust is not None:
+                huber_c = robust_threshold(prob, theta, robust)
+                prob = prob.robust(huber_c)
+            theta, hist, rec = run(prob, theta, labels[k])
+            hist_all += hist
+            recs.append(rec)
+        return theta, hist_all, recs, huber_c
+
+    theta, hist_long, recs_long, huber_c = long_stages(candidates[chosen]["theta"])
+    final = problem.windowed(stages_w[-1])
+
+    def variance_factor(theta, huber_c):  # the report's residual variance factor
+        r = final.robust(None).residuals(theta)[0][final.mask.ravel() > 0]
+        return _variance_factor(r, max(final.n_obs - final.n_theta, 1), huber_c)
+
+    ended_s2 = variance_factor(theta, huber_c)
     every_start = None
-    if (agreed < len(starts) and not _inner and window_s2 is not None
-            and window_s2 > MISFIT_SIGMA2):
-        # two starts agreeing is no proof of the best basin where that basin misfits the
-        # window: a wrong basin of the contact oscillation misfits too, and two starts can
-        # share it. So the other starts run as well, and one of them is taken only where it
-        # ends lower beyond the agreement tolerance. (A fit inside another, on a record it
-        # misfits by construction, keeps its first agreeing pair.)
-        every_start = (f"the agreeing starts misfit the {stages_w[n_ms - 1] * 1e3:g} ms "
-                       f"window (variance factor {window_s2:.3g} > {MISFIT_SIGMA2:g}): every "
-                       "start was run")
+    if n_ms and not _inner and len(candidates) < len(starts) and ended_s2 > MISFIT_SIGMA2:
+        # two starts agreeing is no proof of the best basin where the fit from it misfits: a
+        # wrong basin of the contact oscillation misfits too, and two starts can share it.
+        # So the other starts run as well; the long stages run again from one that ends the
+        # short windows lower beyond the agreement tolerance, and the lower fit is kept. (A
+        # fit inside another, on a record it misfits by construction, does not.)
         candidates += [f.result() for f in running]
         for b in range(len(candidates), len(starts), MULTISTART_THREADS):
             futures = [_in_thread(from_start, j)
                        for j in range(b, min(b + MULTISTART_THREADS, len(starts)))]
             candidates += [f.result() for f in futures]
         lowest = min(range(len(candidates)), key=lambda i: candidates[i]["loss"])
+        every_start = (f"the fit from the agreeing starts misfits (variance factor "
+                       f"{ended_s2:.3g} > {MISFIT_SIGMA2:g}): every start was run")
         if (candidates[lowest]["loss"] < candidates[chosen]["loss"]
                 - AGREE_REL * abs(candidates[chosen]["loss"])):
-            chosen = lowest
-            window_s2 = 2.0 * candidates[chosen]["loss"] / window.n_obs
-    theta = candidates[chosen]["theta"]
-    history += candidates[chosen]["history"]
-    stages += candidates[chosen]["stages"]
+            other = long_stages(candidates[lowest]["theta"])
+            if _chi2(final, other[0]) < _chi2(final, theta):
+                chosen = lowest
+                theta, hist_long, recs_long, huber_c = other
+                every_start += f", and start {lowest + 1}'s fit, lower, was kept"
+    history += candidates[chosen]["history"] + hist_long
+    stages += candidates[chosen]["stages"] + recs_long
     multistart_info = dict(
         n_starts_tried=len(candidates), chosen_start=chosen + 1,
         starts_agree=len(candidates) < 2 or _starts_agree(candidates),
         start_losses=[c["loss"] for c in candidates],
         starts=[dict(zip(names, problem.values(st).tolist())) for st in starts[:len(candidates)]],
         selected_by=f"loss on the {stages_w[n_ms - 1] * 1e3:g} ms window" if n_ms else None,
-        window_variance_factor=window_s2, every_start=every_start)
-    huber_c = None
-    for k in range(n_ms, len(stages_w)):
-        prob = problem.windowed(stages_w[k])
-        if robust is not None:
-            huber_c = robust_threshold(prob, theta, robust)
-            prob = prob.robust(huber_c)
-        theta, hist, rec = run(prob, theta, labels[k])
-        history += hist
-        stages.append(rec)
-    final = problem.windowed(stages_w[-1])
+        every_start=every_start)
     no_peak_check = None
     if no_peak_future is not None or _no_peak is not None:
         no_peak = _refit_outcome(no_peak_future) if _no_peak is None else _no_peak

@@ -1086,9 +1086,9 @@ def test_two_starts_agreeing_in_a_misfitting_basin_do_not_end_the_search():
     """A record of gamma 0.97 (the rig's truth otherwise, no crush peak: the model
     represents it): the default start and the start at gamma 0.2 agreed in a wrong basin
     (gamma 0.35, k 36 % low, residual variance factor 19.8), the search stopped there, and the
-    fit was reported converged, its misfit blamed on the model. Agreement in a basin that
-    misfits its window now runs the other starts; two of them find the truth's basin, which
-    the fit keeps (independent reference: the rig's own truth)."""
+    fit was reported converged, its misfit blamed on the model. Agreement on a fit that
+    misfits now runs the other starts; two of them find the truth's basin, which the fit
+    keeps (independent reference: the rig's own truth)."""
     truth = jl.validate_vehicle(set_values(vr.truth_vehicle(), ("gamma",), np.array([0.97])))
     drop = vr.drop_test(0.2, vehicle=truth, crush_peak=0.0, seed=5)
     with warnings.catch_warnings():
