@@ -60,9 +60,10 @@ def _start_typed(text: str | None) -> dict:
     return out
 
 
-def _out_dir(path: str, inputs=()) -> Path:
-    # before any work: a file, someone else's folder, or a folder holding an input
-    return jl.check_output_folder(path, inputs)
+def _out_dir(path: str, inputs=(), command: str | None = None) -> Path:
+    # before any work: a file, someone else's folder, another command's, or a folder holding
+    # an input
+    return jl.check_output_folder(path, inputs, command)
 
 
 def _file_record(path) -> dict:
@@ -183,7 +184,7 @@ def _cmd_fit(args) -> int:
     from ._data import load_drop_tests
     from ._parameters import FORCES, HONEYCOMB, PARAMS, SHAPE_PARAMS, Z95, check_names
 
-    out = _out_dir(args.out, (args.config, *args.data))
+    out = _out_dir(args.out, (args.config, *args.data), "fit")
     # the fit's arguments refused under the flags that set them
     flags = {field: (flag, getattr(args, dest)) for field, flag, dest in (
         ("params", "--params", "params"), ("start", "--start", "start"),
@@ -443,7 +444,7 @@ def _cmd_predict(args) -> int:
     from ._data import load_drop_tests
     from ._predict import check_model_step, predict, read_fit_status
 
-    out = _out_dir(args.out, (args.config, *args.data))
+    out = _out_dir(args.out, (args.config, *args.data), "predict")
     vehicle = jl.load_vehicle(args.config, "--config")
     check_model_step(vehicle, f"--config {args.config}")  # the key in the user's file
     # what the fit said of the vehicle, if it is one, and whether the file still holds it

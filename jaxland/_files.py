@@ -139,12 +139,13 @@ def clear_interrupt() -> None:
     _INTERRUPTED.clear()
 
 
-def check_out(out, inputs=()) -> Path:
+def check_out(out, inputs=(), command: str | None = None) -> Path:
     """Refuse an output folder that jaxland may not replace: a file, a symbolic link, a path
     below a file, the current folder or one holding it, a folder holding one of the run's
-    ``inputs`` (paths; None skipped), or a non-empty folder without jaxland's marker (someone
-    else's files, hidden ones included; a desktop's ``DESKTOP_FILES`` aside). Call it before
-    any long computation."""
+    ``inputs`` (paths; None skipped), a non-empty folder without jaxland's marker (someone
+    else's files, hidden ones included; a desktop's ``DESKTOP_FILES`` aside), or the folder of
+    another command than ``command`` (a prediction replacing a fit would delete its report and
+    its fitted vehicle). Call it before any long computation."""
     from ._errors import ConfigError
 
     out = Path(out)
@@ -174,6 +175,15 @@ def check_out(out, inputs=()) -> Path:
             p.name not in DESKTOP_FILES for p in out.iterdir()):
         raise ConfigError("--out", str(out), "is a folder jaxland did not write (no "
                           f"{MARKER}): give a new or empty folder, its files would be replaced")
+    if out.is_dir() and command is not None and (out / MARKER).is_file():
+        try:
+            other = json.loads((out / MARKER).read_text()).get("command")
+        except (OSError, ValueError, AttributeError):
+            other = None
+        if other is not None and other != command:
+            raise ConfigError("--out", str(out), f"holds the output of `jaxland {other}`, which "
+                              f"this `jaxland {command}` run would replace as a whole: give "
+                              "another folder (or remove that one first)")
     if out.is_dir():
         foreign = _not_written_by_jaxland(out)
         if foreign:
@@ -252,7 +262,7 @@ def staged(out, command: str | None = None) -> Iterator[Path]:
     killed runs are removed on the next run."""
     from . import __version__
 
-    out = check_out(out)
+    out = check_out(out, command=command)
     out.parent.mkdir(parents=True, exist_ok=True)
     _clean_debris(out)
     tag = f"{os.getpid()}-{secrets.token_hex(3)}"

@@ -615,3 +615,21 @@ def test_the_no_touchdown_note_on_a_slope_says_how_the_clearance_is_measured(tmp
     fall = math.sqrt(2.0 * 0.2 / math.cos(math.radians(30.0)) / float(jl.paper_vehicle().g))
     assert (f"the fall from a clearance of 0.2 m (along the slope's normal) at 0 m/s takes "
             f"{fall:.3g} s") in err, err
+
+
+def test_one_commands_output_folder_is_not_replaced_by_another_command(tmp_path, capsys):
+    """`predict --out` pointed at a fit's folder replaced it as a whole: the fit's report and
+    fitted vehicle were gone, exit 0. Another command's folder is refused before any work,
+    and keeps its files; the same command replaces its own folder as before."""
+    out = tmp_path / "run"
+    assert main(["simulate", "--t-end", "0.01", "--no-plots", "--out", str(out)]) == 0
+    before = sorted(p.name for p in out.iterdir())
+    spec = Path(__file__).parents[1] / "examples" / "montecarlo_dispersed.toml"
+    capsys.readouterr()
+    assert main(["montecarlo", str(spec), "--n", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"jaxland: error: --out = '{out}': holds the output of `jaxland simulate`, "
+                   "which this `jaxland montecarlo` run would replace as a whole: give another "
+                   "folder (or remove that one first)\n")
+    assert sorted(p.name for p in out.iterdir()) == before
+    assert main(["simulate", "--t-end", "0.01", "--no-plots", "--out", str(out)]) == 0

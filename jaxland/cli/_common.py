@@ -75,10 +75,10 @@ def use_compilation_cache() -> str | None:
     return folder
 
 
-def out_dir(path, inputs=()) -> Path:
+def out_dir(path, inputs=(), command: str | None = None) -> Path:
     """The output folder ``--out``, checked before any work against the run's ``inputs``
-    (``jaxland._files.check_out``)."""
-    return check_out(path, inputs)
+    and ``command`` (``jaxland._files.check_out``)."""
+    return check_out(path, inputs, command)
 
 
 def fmt(v, scale=1.0, unit="", nd=4):

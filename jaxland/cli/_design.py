@@ -70,7 +70,7 @@ def _cmd_design(args) -> int:
     from .._design._verify import MIN_JUDGED, clean_landings_needed
     from .._montecarlo import MonteCarloSpec
 
-    out = out_dir(args.out, (args.spec, args.config))
+    out = out_dir(args.out, (args.spec, args.config), "design")
     use_cpu_cores(args.devices)  # before any JAX work: the design scenes and the
     # verification Monte Carlo are split over them
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)

@@ -81,7 +81,7 @@ def cmd_montecarlo(args) -> int:
                 raise ConfigError("--coordinator", args.coordinator,
                                   f"needs {flag} too (each process of the run gives the count "
                                   "and its own rank)")
-    out = out_dir(args.out, (args.spec, args.config))
+    out = out_dir(args.out, (args.spec, args.config), "montecarlo")
     use_cpu_cores(args.devices)  # before any JAX work
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     flags = {field: (flag, v) for field, flag, v in (

@@ -133,7 +133,7 @@ def cmd_simulate(args) -> int:
     from .._scene import scene_to_toml
     from .._simulate import effective_vehicle, simulate
 
-    out = out_dir(args.out, (args.config, args.scene))
+    out = out_dir(args.out, (args.config, args.scene), "simulate")
     vehicle = load_vehicle(args.config, "--config") if args.config else paper_vehicle()
     options = {k: getattr(args, k) for k in ("impulse", "rtol", "atol", "max_steps")
                if getattr(args, k) is not None}
