@@ -153,6 +153,15 @@ def comparison_json(cmp: dict) -> dict:
     return {k: v for k, v in cmp.items() if not k.startswith("_")}
 
 
+def write_comparison_json(cmp: dict, path: Path) -> Path:
+    """``model_comparison.json``: strict JSON, as ``fit_report.json`` (a missing error is
+    null, not NaN)."""
+    from jaxland._files import json_text
+
+    Path(path).write_text(json_text(comparison_json(cmp)))
+    return Path(path)
+
+
 def plot_comparison(cmp: dict, path: Path, width_s: float = 0.01) -> Path:
     """Residual RMS (noise-std units) per channel in ``width_s`` windows after touchdown, both
     models: where the misfit sits."""

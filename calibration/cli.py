@@ -275,12 +275,9 @@ def _cmd_fit(args) -> int:
         (staging / "fitted_vehicle.toml").write_text(result.to_toml())
         result.to_json(staging / "fit_report.json")
         if cmp is not None:
-            import json
+            from ._compare import plot_comparison, write_comparison_json
 
-            from ._compare import comparison_json, plot_comparison
-
-            (staging / "model_comparison.json").write_text(
-                json.dumps(comparison_json(cmp), indent=2) + "\n")
+            write_comparison_json(cmp, staging / "model_comparison.json")
             if not args.no_plots:
                 plot_comparison(cmp, staging / "figures" / "model_comparison.png")
         if not args.no_plots:

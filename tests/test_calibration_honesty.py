@@ -855,6 +855,21 @@ def test_model_selection_finds_the_peak_where_there_is_one(comparisons):
         assert res.theta[j] != pytest.approx(short[0], rel=1e-6)
 
 
+def test_the_comparison_file_is_strict_json(comparisons, tmp_path):
+    """model_comparison.json held NaN for the errors a fit at a bound has none of, where
+    fit_report.json in the same folder holds null: strict readers refused the file."""
+    import json
+
+    from calibration._compare import write_comparison_json
+
+    def refuse(name):
+        raise ValueError(f"not JSON: {name}")
+
+    for label, c in comparisons.items():
+        path = write_comparison_json(c, tmp_path / f"{label}.json")
+        assert json.loads(path.read_text(), parse_constant=refuse)["comparison"]
+
+
 def test_model_selection_refuses_the_peak_where_there_is_none(comparisons):
     c = comparisons["none"]
     assert not c["comparison"]["peak_supported"]
