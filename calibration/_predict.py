@@ -189,6 +189,17 @@ def _number(text: str | None) -> float | None:
     return x if np.isfinite(x) else None
 
 
+def config_header(path) -> list[str]:
+    """The comment block of a vehicle file before its first TOML line (where ``jaxland fit``
+    writes what it says of the fit)."""
+    head = []
+    for line in jl.read_text(path, "config").splitlines():
+        if line.strip() and not line.startswith("#"):
+            break
+        head.append(line.rstrip())
+    return head
+
+
 def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
     """What the header of a vehicle file written by ``jaxland fit`` (``fitted_vehicle.toml``,
     ``FitResult.to_toml``) says of its fit: ``{"from_fit": False}`` for a file without that
@@ -219,11 +230,8 @@ def read_fit_status(path, vehicle: jl.Vehicle | None = None) -> dict:
         NOT_IDENTIFIED,
     )
 
-    head = []
-    for line in jl.read_text(path, "config").splitlines():
-        if line.strip() and not line.startswith("#"):
-            break  # the header is the comment block before the first TOML line
-        head.append(line.rstrip())
+    head = config_header(path)
+
     def after(prefix: str) -> str | None:  # the text of the header line with this prefix
         return next((x[len(prefix):] for x in head if x.startswith(prefix)), None)
 

@@ -439,7 +439,7 @@ def _end(x, lo, hi) -> str:
 
 def _cmd_predict(args) -> int:
     from ._data import load_drop_tests
-    from ._predict import check_model_step, predict, read_fit_status
+    from ._predict import check_model_step, config_header, predict, read_fit_status
 
     out = _out_dir(args.out, (args.config, *args.data), "predict")
     vehicle = jl.load_vehicle(args.config, "--config")
@@ -468,9 +468,12 @@ def _cmd_predict(args) -> int:
                                    drop_vehicle_config=_file_record(cfg[0]) if cfg else None),
                         environment=environment)
         p.fit_status = status
+    # a fitted vehicle keeps what the fit said of it: predict reads its flags from there
+    head = "".join(f"{x}\n" for x in config_header(args.config)) if status["from_fit"] else ""
     with staged(out, "predict") as staging:  # replaces out as a whole, only if all succeed
-        (staging / "vehicle.toml").write_text(f"# the vehicle predicted with (--config "
-                                              f"{args.config})\n" + jl.vehicle_to_toml(vehicle))
+        (staging / "vehicle.toml").write_text(
+            head + f"# the vehicle predicted with (--config {args.config})\n"
+            + jl.vehicle_to_toml(vehicle))
         for p in preds:
             p.to_json(staging / f"prediction_{p.drop.name}.json")
             if not args.no_plots:

@@ -26,6 +26,7 @@ import calibration as cal
 import jaxland as jl
 from calibration import virtual_rig as vr
 from calibration._parameters import get_values, set_values
+from calibration._predict import read_fit_status
 from calibration.cli import add_subcommands
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
@@ -675,9 +676,14 @@ def test_cli_predict_of_another_drop_height_meets_the_targets(cli_fit, tmp_path,
     assert abs(m["peak_buffer_force_N"]["rel_error"]) <= 0.05
     assert abs(m["peak_body_accel_mps2"]["rel_error"]) <= 0.05
     assert (out / "figures" / "prediction_drop_h0.30m.png").exists()
-    # the folder records the vehicle it predicted with
+    # the folder records the vehicle it predicted with, and what the fit said of it: a
+    # prediction rerun from it carries the fit's flags (they were dropped, and the rerun
+    # read as an ordinary vehicle, from_fit false)
     assert jl.vehicle_to_toml(jl.load_vehicle(out / "vehicle.toml")) == \
         jl.vehicle_to_toml(jl.load_vehicle(cli_fit / "fitted_vehicle.toml"))
+    again, fitted = (read_fit_status(p, jl.load_vehicle(p)) for p in (
+        out / "vehicle.toml", cli_fit / "fitted_vehicle.toml"))
+    assert again["from_fit"] and again == fitted
     # and each prediction names the files it came from
     assert rep["inputs"]["vehicle_config"] == str((cli_fit / "fitted_vehicle.toml").resolve())
     assert rep["inputs"]["data"] == str((DATA / "drop_h0.30m.toml").resolve())
