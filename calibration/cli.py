@@ -406,8 +406,8 @@ def _cmd_fit(args) -> int:
     for i, n in enumerate(result.names):
         flag = ("   AT A BOUND OF THE VEHICLE'S RULES" if n in diag.get("at_bound", ())
                 else "" if result.identified[i] else "   NOT IDENTIFIED")
-        others = {"std_error": f"classical +/- {result.std_errors[i]:.2g}",
-                  "std_error_hac": f"HAC +/- {result.std_errors_hac[i]:.2g}"}
+        others = {"std_error": f"classical {_pm(result.std_errors[i])}",
+                  "std_error_hac": f"HAC {_pm(result.std_errors_hac[i])}"}
         others.pop(interval, None)
         # where the value +/- Z95 errors leaves the range its law allows, the 95 % interval
         # taken in the fit's own coordinates stays inside it
@@ -416,13 +416,19 @@ def _cmd_fit(args) -> int:
             hi is not None and result.values[i] + Z95 * errors[i] >= hi))
         inside = (f"; 95 % {_end(ci[0], lo, hi)} to {_end(ci[1], lo, hi)}, inside its range"
                   if outside else "")
-        print(f"  {n:<{width}} = {result.values[i]:.6g} +/- {errors[i]:.2g} {PARAMS[n][1]} "
+        print(f"  {n:<{width}} = {result.values[i]:.6g} {_pm(errors[i])} {PARAMS[n][1]} "
               f"({interval}; {', '.join(others.values())}; "
               f"start {result.start_values[i]:.6g}{inside}){flag}")
     print(f"wrote {out}/fitted_vehicle.toml, fit_report.json"
           + (", model_comparison.json" if cmp is not None else "")
           + ("" if args.no_plots else ", figures/*.png"))
     return 0
+
+
+def _pm(error: float) -> str:
+    """A standard error as printed: "+/- 0.012", or "no standard error" where the fit gives
+    none (a value at a bound of its rule: NaN, as fit_report.json's null)."""
+    return f"+/- {error:.2g}" if math.isfinite(error) else "no standard error"
 
 
 def _end(x, lo, hi) -> str:

@@ -1201,3 +1201,12 @@ def test_the_prediction_figure_gives_its_metrics_a_panel_of_their_own(tmp_path, 
     (text,) = panel.texts
     assert len(pred.metrics) >= 16 and all(k in text.get_text() for k in pred.metrics)
     assert all(not ax.texts for ax in traces)
+
+
+def test_a_value_without_a_standard_error_prints_none_not_nan():
+    """A value at a bound of its rule has no standard error (null in fit_report.json, none in
+    the fitted file's header); the printed line read '+/- nan' for it, like a failure."""
+    from calibration.cli import _pm
+
+    assert _pm(float("nan")) == "no standard error"
+    assert _pm(0.01234) == "+/- 0.012"
