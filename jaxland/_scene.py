@@ -210,6 +210,24 @@ class Scene(eqx.Module):
             raise ConfigError(field, shape if arr is None else arr.tolist(), rule)
         return self
 
+    def check_one(self) -> Scene:
+        """Refuse, for one landing, a field holding several values: each of ``SCENE_FIELDS``,
+        the friction and the mass scale one number, the plateau scale one per leg at most,
+        the centre-of-mass offset one vector. A batch given to ``landing`` failed deep inside
+        it, and four frictions ran, silently, as one per leg. Shapes are known under jit."""
+        one = {name: (f"scene.{f.toml}", 0) for name, f in SCENE_FIELDS.items()}
+        one.update(friction=("scene.friction", 0), mass_scale=("scene.mass_scale", 0),
+                   plateau_scale=("scene.plateau_scale", 1),
+                   com_offset=("scene.com_offset_m", 1))
+        for name, (field, ndim) in one.items():
+            val = getattr(self, name)
+            if val is not None and np.ndim(val) > ndim:
+                what = ("one number" if ndim == 0 else "one value per leg"
+                        if name == "plateau_scale" else "one vector")
+                raise ConfigError(field, f"shape {np.shape(val)}", f"must be {what} for one "
+                                  "landing (a Scene.batch runs with jaxland.landings)")
+        return self
+
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
         for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():

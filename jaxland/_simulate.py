@@ -93,7 +93,7 @@ def landing(vehicle: Vehicle, scene: Scene, solver: Solver = Solver(),
     its rule, or a honeycomb whose stages are out of order, gives ``INVALID_VEHICLE``, with
     NaN derivatives (``follows_rules``). The other rules between fields are ``simulate``'s and
     the loaders': a fit's crush-peak forms may bend them on purpose."""
-    scene.check_shapes(vehicle.n_legs)
+    scene.check_one().check_shapes(vehicle.n_legs)
     return integrate(get_model(model, scene), validate_vehicle(vehicle, fields_only=True),
                      scene, solver)
 

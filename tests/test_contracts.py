@@ -704,3 +704,22 @@ def test_an_interrupt_python_swallowed_still_publishes_nothing(tmp_path, capsys,
     assert (out / "summary.json").read_text() == before
     monkeypatch.undo()
     assert _simulate(out, "--no-plots", "--drop-height", "0.03") == 0  # the next run is free
+
+
+def test_one_landing_refuses_a_scene_field_holding_several_values():
+    """jl.landing given a Scene.batch, or a friction or mass scale as an array, failed deep
+    inside the landing with a bare shape error, and four frictions ran, silently, as one per
+    leg (leg 0's max stroke 0.0581 m where a friction of 0.3 gives 0.0621). Each is refused
+    by its field; jl.landings still runs the batch."""
+    solver = jl.Solver(dt=1e-5, t_end=0.02, save_dt=0.02)
+    for scene, field in ((jl.Scene.batch(drop_height=[0.1, 0.2]), "scene.drop_height_m"),
+                         (jl.Scene(friction=jax.numpy.array([0.3, 0.4, 0.5, 0.6]), roll=0.01),
+                          "scene.friction"),
+                         (jl.Scene(mass_scale=jax.numpy.array([1.0, 1.1])), "scene.mass_scale"),
+                         (jl.Scene(plateau_scale=jax.numpy.ones((2, 4))),
+                          "scene.plateau_scale")):
+        with pytest.raises(jl.ConfigError, match=rf"^{field} = 'shape \(.*must be one .* for "
+                                                 "one landing"):
+            jl.landing(VEH, scene, solver, "full")
+    out = jl.landings(VEH, jl.Scene.batch(drop_height=[0.1, 0.2]), solver, "quarter")[1]
+    assert out["result"].shape == (2,)
