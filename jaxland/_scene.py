@@ -124,6 +124,10 @@ class Scene(eqx.Module):
         vector = ("plateau_scale", "com_offset")
         for name, val in fields.items():
             most = 2 if name in vector else 1
+            if val is not None and name in vector and np.ndim(val) == 0:
+                raise ConfigError(f"scene.{name}", float(np.asarray(val)), "a batch gives "
+                                  "one row per scene (shape (batch, n)), or one row for all "
+                                  "(shape (n,)): one number has no components")
             if val is not None and np.ndim(val) > most:
                 raise ConfigError(f"scene.{name}", np.asarray(val).tolist(), "a batch gives "
                                   + ("one row per scene (shape (batch, n))" if most == 2 else
@@ -133,7 +137,8 @@ class Scene(eqx.Module):
                  if v is not None and np.ndim(v) > (1 if k in vector else 0)}
         if len(sizes) != 1:
             raise ConfigError("Scene.batch", sorted(sizes),
-                              "give at least one batched field, all of the same length")
+                              "give at least one batched field, all of the same length "
+                              "(plateau_scale and com_offset batch as (batch, n) arrays)")
         (n,) = sizes
         out = {}
         for name, val in fields.items():

@@ -723,3 +723,14 @@ def test_one_landing_refuses_a_scene_field_holding_several_values():
             jl.landing(VEH, scene, solver, "full")
     out = jl.landings(VEH, jl.Scene.batch(drop_height=[0.1, 0.2]), solver, "quarter")[1]
     assert out["result"].shape == (2,)
+
+
+def test_a_batch_refuses_one_number_for_a_vector_field():
+    """Scene.batch with plateau_scale = 1.1 or com_offset = 0 raised a bare IndexError: a
+    vector field takes a row per scene or one row for all, and one number is refused by
+    its field; one row for all broadcasts."""
+    for name, val in (("plateau_scale", 1.1), ("com_offset", 0.0)):
+        with pytest.raises(jl.ConfigError, match=rf"^scene\.{name} = .*one row per scene"):
+            jl.Scene.batch(drop_height=[0.1, 0.2], **{name: val})
+    batch = jl.Scene.batch(drop_height=[0.1, 0.2], plateau_scale=[1.1, 0.9, 1.0, 1.0])
+    assert batch.plateau_scale.shape == (2, 4)
