@@ -868,3 +868,15 @@ def test_a_flag_given_for_a_count_is_named_as_written(tmp_path, capsys):
     assert main(["montecarlo", str(spec), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.strip().endswith("montecarlo.n = 'true': must be an integer"), err
+
+
+def test_a_distribution_built_in_python_refuses_a_parameter_its_kind_ignores():
+    """A uniform given a mean, or a constant a spread, was accepted and the extra value
+    silently ignored (the TOML route refuses it): refused by name, as there."""
+    for dist, field in ((Distribution("uniform", mean=5.0, low=1.0, high=3.0), "mean"),
+                        (Distribution("constant", mean=2.0, std=1.0), "std"),
+                        (Distribution("normal", 2.0, 0.3, high=4.0), "high")):
+        with pytest.raises(jl.ConfigError, match=rf"^dispersion\.sink_speed_mps\.{field} = .*"
+                                                 "not a parameter of a"):
+            MonteCarloSpec(dispersion={"sink_speed_mps": dist})
+    MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("uniform", low=1.0, high=3.0)})

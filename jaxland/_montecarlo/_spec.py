@@ -120,6 +120,9 @@ def _normal_mass(a: float, b: float) -> float:
     return 1.0 - 0.5 * (math.erfc(-a / math.sqrt(2.0)) + math.erfc(b / math.sqrt(2.0)))
 
 
+_UNSET = {"mean": 0.0, "std": 0.0, "low": -math.inf, "high": math.inf}  # Distribution's defaults
+
+
 @dataclass(frozen=True)
 class Distribution:
     """One input's distribution, in the TOML key's units.
@@ -264,6 +267,13 @@ class MonteCarloSpec:
                 raise ConfigError(f"dispersion.{key}", type(dist).__name__,
                                   "must be a jaxland.Distribution")
             Distribution.from_dict(key, dist.table())
+            unused = {k: v for k, v in dist.record().items()
+                      if k != "kind" and v is None and getattr(dist, k) != _UNSET[k]}
+            if unused:  # table() leaves them out: given, they would be ignored
+                k = sorted(unused)[0]
+                raise ConfigError(f"dispersion.{key}.{k}", getattr(dist, k), "not a parameter "
+                                  f"of a {dist.kind} distribution "
+                                  f"({', '.join(k for k in dist.table() if k != 'dist')})")
         for key, val in self.fixed.items():
             per_leg = DISPERSIBLE[key].component == "legs"
             vals = val if isinstance(val, list) and per_leg else [val]
