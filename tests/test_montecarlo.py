@@ -880,3 +880,14 @@ def test_a_distribution_built_in_python_refuses_a_parameter_its_kind_ignores():
                                                  "not a parameter of a"):
             MonteCarloSpec(dispersion={"sink_speed_mps": dist})
     MonteCarloSpec(dispersion={"sink_speed_mps": Distribution("uniform", low=1.0, high=3.0)})
+
+
+def test_sample_scenes_refuses_what_is_no_sample():
+    """Sample i is drawn from (seed, i): start -3 drew 'samples' no run has, start 0.5 drew
+    samples 0 and 1, and a count of -2 an empty batch, all silently. Each is refused by name."""
+    spec = MonteCarloSpec(**QUARTER_SPEC)
+    for start, count, name in ((-3, 2, "start"), (0.5, 2, "start"), (0, -2, "count"),
+                               (0, 0, "count"), (True, 2, "start")):
+        with pytest.raises(jl.ConfigError, match=f"^{name} = "):
+            sample_scenes(spec, start, count)
+    assert sample_scenes(spec, np.int64(3), 2)[1]["sink_speed_mps"].shape == (2,)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import numbers
 import zlib
 
 import jax
@@ -19,6 +20,10 @@ def sample_scenes(spec: MonteCarloSpec, start: int, count: int, n_legs: int = 4,
     """Scenes ``start .. start + count - 1`` of the spec (or the samples ``indices``), as a
     ``Scene.batch``, with the sampled inputs (TOML units; per-leg inputs as (count, n_legs))."""
     check_fixed(spec, n_legs)
+    if indices is None:  # sample i is (seed, i): a negative or fractional i is no sample
+        for name, v, least in (("start", start, 0), ("count", count, 1)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < least:
+                raise ConfigError(name, v, f"must be an integer >= {least}")
     idx = jnp.arange(start, start + count) if indices is None else jnp.asarray(indices)
     count = int(idx.shape[0])
     inputs = {k: np.asarray(v) for k, v in draw(spec, idx, n_legs).items()}
