@@ -112,6 +112,11 @@ class Scene(eqx.Module):
     @classmethod
     def from_touchdown_speed(cls, speed_mps: float, **kwargs) -> Scene:
         """A scene that starts at touchdown with downward speed ``speed_mps`` [m/s]."""
+        for name in ("drop_height", "sink_speed"):
+            if name in kwargs:  # a bare TypeError of repeated keywords escaped
+                raise ConfigError(name, kwargs[name], "is set by from_touchdown_speed (a "
+                                  "touchdown: drop_height 0, sink_speed the speed given); "
+                                  "for a release above the ground use jaxland.Scene")
         return cls(drop_height=0.0, sink_speed=speed_mps, **kwargs)
 
     @classmethod

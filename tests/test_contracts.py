@@ -734,3 +734,13 @@ def test_a_batch_refuses_one_number_for_a_vector_field():
             jl.Scene.batch(drop_height=[0.1, 0.2], **{name: val})
     batch = jl.Scene.batch(drop_height=[0.1, 0.2], plateau_scale=[1.1, 0.9, 1.0, 1.0])
     assert batch.plateau_scale.shape == (2, 4)
+
+
+def test_from_touchdown_speed_names_the_field_it_sets_when_given_again():
+    """A drop height or sink speed given to from_touchdown_speed raised Python's TypeError
+    of a repeated keyword: refused by name, saying what the constructor sets."""
+    for name in ("drop_height", "sink_speed"):
+        with pytest.raises(jl.ConfigError, match=f"^{name} = 0.1: is set by "
+                                                 "from_touchdown_speed"):
+            jl.Scene.from_touchdown_speed(2.0, **{name: 0.1})
+    assert float(jl.Scene.from_touchdown_speed(2.0, roll=0.01).sink_speed) == 2.0
