@@ -418,6 +418,9 @@ def test_fit_and_predict_refuse_an_output_folder_holding_a_file_the_metadata_nam
         meta = meta.replace(f'{k} = "{name}"', f"{k} = {json.dumps(str(where))}")
     (tmp_path / "drop.toml").write_text(meta)
     for cmd in (["fit"], ["predict", "--config", str(src / "nominal_vehicle.toml")]):
+        # the folder as that command's own (another command's folder is refused as such)
+        marker.write_text(json.dumps(dict(record, command=cmd[0],
+                                          files=[*record["files"], inside])))
         assert main([*cmd, str(tmp_path / "drop.toml"), "--out", str(out)]) == 2
         assert "an input of this run" in capsys.readouterr().err
         assert (out / inside).exists()
