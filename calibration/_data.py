@@ -883,8 +883,8 @@ def _touchdown_speed(h, v0, v_td, g):
 # ---------------------------------------------------------------------------------- files
 
 def _read_csv(path: Path):
-    text = jl.read_text(path, "data_file")  # refuses missing, folder and non-UTF-8 files
-    text = text.removeprefix("\ufeff")  # the byte-order mark some spreadsheets save first
+    # refuses missing, folder and non-UTF-8 files; drops a spreadsheet's byte-order mark
+    text = jl.read_text(path, "data_file")
     reader = csv.reader(io.StringIO(text, newline=""))
     rows, lines = [], []  # the rows, and each one's line in the file (comments skipped)
     for r in reader:
@@ -943,21 +943,13 @@ def _meta_paths(path: Path) -> tuple[Path, dict]:
                        f"TOML beside {path.name} ([drop_test] table)")
     else:
         meta_path = path
-    try:
-        with meta_path.open("rb") as fh:  # a byte-order mark (Windows editors) is no TOML
-            meta = tomllib.loads(fh.read().decode("utf-8").removeprefix("\ufeff"))
-    except UnicodeDecodeError as err:
-        raise _err("metadata", str(meta_path), f"is not UTF-8 text: {err.reason}") from None
-    except FileNotFoundError:
-        raise _err("metadata", str(meta_path), "file does not exist") from None
-    except IsADirectoryError:
+    if meta_path.is_dir():
         raise _err("DATA", str(meta_path), "is a folder: give a drop test's metadata TOML (or "
-                   "its CSV)") from None
-    except OSError as err:
-        raise _err("metadata", str(meta_path), f"cannot be read: {err.strerror}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise _err("metadata", str(meta_path), f"is not valid TOML: {err}") from None
-    return meta_path, meta
+                   "its CSV)")
+    # jaxland's TOML reader: its refusals (missing, unreadable, not UTF-8, not TOML)
+    from jaxland._toml import read_toml
+
+    return meta_path, read_toml(meta_path, "metadata")
 
 
 # keys a vehicle given in place of a drop's vehicle_config may change: the model's parameters

@@ -2024,12 +2024,8 @@ def fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None, star
 
     theta, hist_long, recs_long, huber_c = long_stages(candidates[chosen]["theta"])
     final = problem.windowed(stages_w[-1])
-
-    def variance_factor(theta, huber_c):  # the report's residual variance factor
-        r = final.robust(None).residuals(theta)[0][final.mask.ravel() > 0]
-        return _variance_factor(r, max(final.n_obs - final.n_theta, 1), huber_c)
-
-    ended_s2 = variance_factor(theta, huber_c)
+    r = final.robust(None).residuals(theta)[0][final.mask.ravel() > 0]
+    ended_s2 = _variance_factor(r, max(final.n_obs - final.n_theta, 1), huber_c)  # the report's
     every_start = None
     if n_ms and not _inner and len(candidates) < len(starts) and ended_s2 > MISFIT_SIGMA2:
         # two starts agreeing is no proof of the best basin where the fit from it misfits: a

@@ -14,11 +14,12 @@ from ._errors import ConfigError
 
 
 def read_text(path, what: str) -> str:
-    """The UTF-8 text of the file ``path``; refuse a missing file, a folder, a path below a
-    file, an unreadable file or one that is not UTF-8 text, naming ``what``."""
+    """The UTF-8 text of the file ``path``, without the byte-order mark Windows editors and
+    spreadsheets save first (no TOML or CSV reader wants it); refuse a missing file, a folder,
+    a path below a file, an unreadable file or one that is not UTF-8 text, naming ``what``."""
     path = Path(path)
     try:
-        return path.read_bytes().decode("utf-8")
+        return path.read_bytes().decode("utf-8").removeprefix("\ufeff")
     except FileNotFoundError:
         raise ConfigError(what, str(path), "file does not exist") from None
     except IsADirectoryError:
@@ -33,10 +34,8 @@ def read_text(path, what: str) -> str:
 
 
 def read_toml(path, what: str) -> dict:
-    """Parse the TOML file ``path`` (``read_text``'s refusals, and bad TOML), naming ``what``.
-    A byte-order mark (Windows editors write one) is no TOML and is dropped, as the data
-    CSVs' is."""
-    text = read_text(path, what).removeprefix("\ufeff")
+    """Parse the TOML file ``path`` (``read_text``'s refusals, and bad TOML), naming ``what``."""
+    text = read_text(path, what)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
