@@ -121,6 +121,13 @@ def _normal_mass(a: float, b: float) -> float:
 
 
 _UNSET = {"mean": 0.0, "std": 0.0, "low": -math.inf, "high": math.inf}  # Distribution's defaults
+# the fields each kind of Distribution takes (a constant's mean is its TOML table's "value")
+TAKES = {"normal": ("mean", "std"), "uniform": ("low", "high"),
+         "truncnormal": ("mean", "std", "low", "high"), "constant": ("mean",)}
+
+
+def _toml_key(kind: str, field: str) -> str:
+    return "value" if kind == "constant" else field
 
 
 @dataclass(frozen=True)
@@ -139,8 +146,7 @@ class Distribution:
     @classmethod
     def from_dict(cls, name: str, d: dict) -> Distribution:
         kind = d.get("dist")
-        need = {"normal": ("mean", "std"), "uniform": ("low", "high"),
-                "truncnormal": ("mean", "std", "low", "high"), "constant": ("value",)}
+        need = {k: tuple(_toml_key(k, f) for f in fs) for k, fs in TAKES.items()}
         if kind not in need:
             raise ConfigError(f"dispersion.{name}.dist", kind,
                               f"must be one of {', '.join(need)}")
@@ -181,20 +187,15 @@ class Distribution:
     def table(self) -> dict:
         """The TOML table of this distribution (``from_dict``'s input): what a directly built
         one is checked through."""
-        keys = {"normal": ("mean", "std"), "uniform": ("low", "high"),
-                "truncnormal": ("mean", "std", "low", "high")}.get(self.kind, ())
-        if self.kind == "constant":
-            return {"dist": "constant", "value": self.mean}
-        return {"dist": self.kind, **{k: getattr(self, k) for k in keys}}
+        return {"dist": self.kind, **{_toml_key(self.kind, f): getattr(self, f)
+                                      for f in TAKES.get(self.kind, ())}}
 
     def record(self) -> dict:
         """Every parameter by name, as a results file records the distribution: those its
         kind does not take (a uniform's mean and std, a normal's bounds) are None, not the
         0 or the infinity they hold here."""
-        takes = {"normal": ("mean", "std"), "uniform": ("low", "high"),
-                 "truncnormal": ("mean", "std", "low", "high"), "constant": ("mean",)}
-        return {"kind": self.kind, **{k: getattr(self, k) if k in takes[self.kind] else None
-                                      for k in ("mean", "std", "low", "high")}}
+        return {"kind": self.kind, **{k: getattr(self, k) if k in TAKES[self.kind] else None
+                                      for k in _UNSET}}
 
     def sample(self, key, shape=()):
         return sample_kind(self.kind, key, shape, self.mean, self.std, self.low, self.high)
@@ -267,10 +268,10 @@ class MonteCarloSpec:
                 raise ConfigError(f"dispersion.{key}", type(dist).__name__,
                                   "must be a jaxland.Distribution")
             Distribution.from_dict(key, dist.table())
-            unused = {k: v for k, v in dist.record().items()
-                      if k != "kind" and v is None and getattr(dist, k) != _UNSET[k]}
+            unused = [k for k in _UNSET if k not in TAKES[dist.kind]
+                      and getattr(dist, k) != _UNSET[k]]
             if unused:  # table() leaves them out: given, they would be ignored
-                k = sorted(unused)[0]
+                k = unused[0]
                 raise ConfigError(f"dispersion.{key}.{k}", getattr(dist, k), "not a parameter "
                                   f"of a {dist.kind} distribution "
                                   f"({', '.join(k for k in dist.table() if k != 'dist')})")
