@@ -332,10 +332,9 @@ def _fresh_seed(spec: DesignSpec, round_: int) -> int:
     """The verification seed of re-optimisation round ``round_``: fresh samples each round,
     never the design scenes' seed; past the largest seed a spec may give, the count goes on
     from 0 (a spec's seed near it would otherwise be refused only once a round needed it)."""
-    span = SEED_HIGH + 1
-    used = [(spec.montecarlo.seed + r) % span for r in range(round_ + 1)]
-    seed = used[-1]
-    if spec.scene_seed in used:  # skipped, one seed further on
+    span, first = SEED_HIGH + 1, spec.montecarlo.seed
+    seed = (first + round_) % span
+    if (spec.scene_seed - first) % span <= round_:  # this or an earlier round skipped it
         seed = (seed + 1) % span
     return seed
 
