@@ -4,14 +4,15 @@ from __future__ import annotations
 
 from .._errors import ConfigError
 from ._base import AbstractIntegrator
-from ._fixed import Euler, EulerImplicit, Leapfrog, Verlet
+from ._fixed import AbstractFixedStep, Euler, EulerImplicit, Leapfrog, Verlet
 from ._impulse import Impulse
 from ._tsit5 import Tsit5
 
 INTEGRATORS: dict[str, type[AbstractIntegrator]] = {
     cls.name: cls for cls in (Euler, EulerImplicit, Verlet, Leapfrog, Impulse, Tsit5)}
 METHODS = tuple(INTEGRATORS)
-FIXED_STEP_METHODS = ("euler", "euler_implicit", "verlet", "leapfrog")
+# the methods with one step size throughout (early stopping, a sparse ledger, Monte Carlo)
+FIXED_STEP_METHODS = tuple(n for n, c in INTEGRATORS.items() if issubclass(c, AbstractFixedStep))
 # option names as the CLI and simulate() spell them -> the integrator's field
 _OPTION_FIELDS = {"impulse": "dI", "rtol": "rtol", "atol": "atol", "max_steps": "max_steps",
                   "adjoint": "adjoint"}
