@@ -308,12 +308,17 @@ def _fail(section, f, val, rule):
                       f"must be {finite}{rule}{either} ({md['doc']})")
 
 
+# the leg counts the models hold: the legs stand evenly around the axis, and fewer than three
+# stand on no area
+N_LEGS_RANGE = (3, 12)
+
+
 def check_n_legs(n_legs) -> None:
-    """Refuse a leg count the models do not hold: the legs stand evenly around the axis, and
-    fewer than three stand on no area."""
+    """Refuse a leg count outside ``N_LEGS_RANGE``."""
+    lo, hi = N_LEGS_RANGE
     if (isinstance(n_legs, bool) or not isinstance(n_legs, numbers.Integral)
-            or not 3 <= n_legs <= 12):
-        raise ConfigError("body.n_legs", n_legs, "must be an integer in [3, 12]")
+            or not lo <= n_legs <= hi):
+        raise ConfigError("body.n_legs", n_legs, f"must be an integer in [{lo}, {hi}]")
 
 
 def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
@@ -590,7 +595,8 @@ def vehicle_to_toml(veh: Vehicle | None = None, *, given: set | None = None,
 
     for f in field_info(Vehicle):
         lines.append(line("body", f.metadata, getattr(veh, f.name)))
-    lines.append(f"n_legs = {veh.n_legs}  # number of legs, equally spaced in azimuth; >= 3")
+    lines.append(f"n_legs = {veh.n_legs}  # number of legs, equally spaced in azimuth; "
+                 f"an integer in [{N_LEGS_RANGE[0]}, {N_LEGS_RANGE[1]}]")
     for section, mod in (("leg", veh.leg), ("honeycomb", veh.honeycomb), ("ground", veh.ground)):
         lines += ["", f"[{section}]"]
         for f in field_info(type(mod)):
