@@ -38,7 +38,7 @@ from ._solvers import (
     stable_step,
     step_limit_reached,
 )
-from ._solvers._base import MAX_STEPS
+from ._solvers._base import MAX_STEPS, SAVE_DT_MIN
 
 __all__ = ["landing", "landings", "simulate", "Landing", "impacts_from_events", "choose_model",
            "get_model"]
@@ -205,7 +205,7 @@ def _outcomes(summary: dict, traj: dict, vehicle: Vehicle, scene: Scene, solver:
         stroke_first = s["max_stroke_m"]
         foot_v = None
     max_stroke = np.max(s["max_stroke_m"])
-    bottomed = bool(max_stroke > float(hc.x_L4))
+    bottomed = bool(s["bottomed"])  # the landing's own flag (integrate)
     out = {
         "model": model,
         "drop_height_m": float(scene.drop_height),
@@ -280,7 +280,7 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: Abst
             f"max_steps, or use a fixed-step method")
     hc_peak = float(np.max(summary["peak_honeycomb_force_N"]))
     n_peak = float(np.max(summary["peak_normal_force_N"]))
-    bottomed = bool(np.max(summary["max_stroke_m"]) > float(np.min(vehicle.honeycomb.x_L4)))
+    bottomed = bool(summary["bottomed"])
     fixed = not isinstance(method, Tsit5)
     energy0 = float(summary["energy_initial_J"])
     if fixed and not math.isfinite(energy0):
@@ -295,7 +295,7 @@ def _check_numerics(summary: dict, vehicle: Vehicle, solver: Solver, model: Abst
             why = (f"this landing reached a honeycomb force of {hc_peak:.4g} N and a ground "
                    f"force of {n_peak:.4g} N{' and bottomed out' if bottomed else ''}, which "
                    f"limits dt to {reached:.3g} s for {name}; rerun with dt <= "
-                   f"{0.5 * reached:.2g} s")
+                   f"{STEP_SAFETY * reached:.2g} s")
         else:  # the blown-up state's peaks say nothing: the forces its energy can reach
             again = retry_step(vehicle, scene, method, model)
             why = (f"the forces it reached are not finite; those this scene's energy can reach "
@@ -322,7 +322,8 @@ def default_step(vehicle: Vehicle, method="euler", model: AbstractModel = MODELS
     """The step ``simulate`` uses when none is given [s]: ``DEFAULT_DT``, or ``STEP_SAFETY``
     times the a-priori stability limit of ``method`` (an integrator or its name) for
     ``vehicle`` (its stiffest spring and damping on the foot) if that is smaller, rounded down
-    to a whole fraction of 1e-4 s so the default output interval is a whole number of steps."""
+    to a whole fraction of ``SAVE_DT_MIN`` (1e-4 s) so the default output interval is a whole
+    number of steps."""
     return _step_below(float(stable_step(vehicle, method=method, model=model)))
 
 
@@ -340,7 +341,7 @@ def _step_below(limit: float) -> float:
     safe = STEP_SAFETY * limit
     if not safe > 0.0:  # the impulse step itself is beyond its limit: simulate says so
         return DEFAULT_DT
-    return DEFAULT_DT if safe >= DEFAULT_DT else 1e-4 / math.ceil(1e-4 / safe)
+    return DEFAULT_DT if safe >= DEFAULT_DT else SAVE_DT_MIN / math.ceil(SAVE_DT_MIN / safe)
 
 
 def refuse_unsteppable(vehicle: Vehicle, limit: float, t_end: float) -> None:

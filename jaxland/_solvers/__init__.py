@@ -6,6 +6,7 @@ import jax.numpy as jnp
 
 from .._config import follows_rules
 from ._base import (
+    ENERGY_TOLERANCE as ENERGY_TOLERANCE,
     FAILED_CODES as FAILED_CODES,
     N_EVENTS as N_EVENTS,
     AbstractIntegrator as AbstractIntegrator,
@@ -21,7 +22,6 @@ from ._fixed import (
     Verlet as Verlet,
 )
 from ._impulse import Impulse as Impulse
-from ._loop import ENERGY_TOLERANCE as ENERGY_TOLERANCE
 from ._names import (
     FIXED_STEP_METHODS as FIXED_STEP_METHODS,
     INTEGRATORS as INTEGRATORS,

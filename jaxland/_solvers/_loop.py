@@ -19,7 +19,7 @@ from jaxtyping import Array
 from .._errors import ConfigError
 from .._laws._minmax import fmax
 from .._models import AbstractModel, Evaluation
-from ._base import N_EVENTS, Result
+from ._base import ENERGY_TOLERANCE, N_EVENTS, Result
 from ._settle import check_steps, mass_diagonal, settled
 
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
@@ -27,7 +27,6 @@ UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on 
 # UNFINISHED. At a strut deceleration of 1 g it would add 5 um of stroke, below 1e-3 of a max
 # stroke of 5 mm or more; a leg creeping under a settling vehicle stays below it.
 UNFINISHED_RATE_MPS = 0.01
-ENERGY_TOLERANCE = 0.1  # |ledger residual| above this fraction of the energy scale = failure
 # peaks that are always kept when ``Solver.peaks`` names a subset: the verdict judges the step
 # limit by the first two, the early-stop bound reads all four
 ALWAYS_KEPT = ("peak_normal_force_N", "peak_honeycomb_force_N", "peak_strut_force_N",

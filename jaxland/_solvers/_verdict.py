@@ -6,13 +6,9 @@ import jax
 import jax.numpy as jnp
 
 from .._models import AbstractModel
-from ._base import Result, Solver
+from ._base import CLOSURE_LIMIT, Result, Solver
 from ._stability import stable_step
 from ._tsit5 import Tsit5
-
-# Largest energy-ledger error, relative to the energy dissipated, accepted from a landing: at the
-# default dt the paper drop closes to 7e-5; a step near the stability limit gives ~0.3.
-CLOSURE_LIMIT = 1e-2
 
 
 def verdict(summary: dict, vehicle, solver: Solver, model: AbstractModel):
