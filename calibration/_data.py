@@ -605,8 +605,8 @@ class DropTest:
                 raise _err(f"{self.source}: {name}", f"swing {a:.4g} m/s^2", "must be at most "
                            f"{ACCEL_SWING_MAX:g} x the swing the force channels imply for the "
                            f"leg's {m:.4g} kg ({most:.4g} m/s^2; records give 0.5 to 1), and "
-                           f"is {a / most:.3g} x it after the conversion from g (x 9.81): "
-                           "values in m/s^2 under a g header?")
+                           f"is {a / most:.3g} x it after the conversion from g "
+                           f"(x {STANDARD_GRAVITY:g}): values in m/s^2 under a g header?")
             if a > PLAUSIBLE_FACTOR * most:
                 raise _err(f"{self.source}: {col}", f"swing {a:.4g} m/s^2", "must be at most "
                            f"{PLAUSIBLE_FACTOR:g} x the swing the force channels imply for the "

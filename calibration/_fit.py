@@ -173,16 +173,16 @@ ROBUST_K = 1.5
 # five always continued into the truth's basin.
 START_VARIANTS = ((1.0, None), (1.0, 0.2), (1.0, 0.8), (0.5, None), (2.0, None))
 # LM stops when a step lowers the loss by less than FTOL relative (MINPACK's and scipy's
-# default, sqrt(eps)). 1e-10 before: on the smoothed (C1) loss of the verlet option LM then
-# crept along a flat valley for 60 iterations per stage, each step gaining ~1e-9 (1.7e-6 in
-# all, parameters moving far below their standard errors); euler's results are unchanged
-# to 4 digits (benchmarks/bench_fit.py).
+# default, sqrt(eps)). At 1e-10, on the smoothed (C1) loss of the verlet option LM creeps
+# along a flat valley for 60 iterations per stage, each step gaining ~1e-9 (1.7e-6 in all,
+# parameters moving far below their standard errors); euler's results agree to 4 digits at
+# both (benchmarks/bench_fit.py).
 FTOL = 1e-8
 # The multistart stages only pick a basin for the long stages, which refine from it: they stop
 # at FTOL_MULTISTART, and two starts agree when their losses lie within AGREE_REL. Measured on
 # rig data with a crush peak: starts in one basin end 2e-6 to 3e-4 apart on the 30 ms window
-# (the valley is flat along D_b and k_b1), wrong basins 20 % to 40x higher; 1e-6 and 1e-8
-# before made every fit run all five starts to full convergence.
+# (the valley is flat along D_b and k_b1), wrong basins 20 % to 40x higher; tolerances of 1e-6
+# and 1e-8 make every fit run all five starts to full convergence.
 FTOL_MULTISTART = 1e-5
 AGREE_REL = 1e-3
 # starts run at once, and refits of a fit's uncertainty terms (this project's CI and most

@@ -77,10 +77,6 @@ class Prediction:
 
         return atomic_write_text(Path(path), json_text(self.to_dict()))
 
-    def max_abs_error(self, kind: str = "all") -> float:
-        keys = [k for k in self.metrics if kind == "all" or kind in k]
-        return max(abs(self.metrics[k]["rel_error"]) for k in keys)
-
     def plot(self, path) -> Path:
         from ._plots import plot_prediction
 

@@ -62,7 +62,7 @@ import numpy as np
 
 import jaxland as jl
 
-from ._data import CHANNELS, DropTest
+from ._data import CHANNELS, STANDARD_GRAVITY, DropTest
 from ._filter import cfc_coefficients, filtfilt_np
 from ._parameters import get_values, set_values
 from ._report import atomic_write_text
@@ -383,7 +383,7 @@ def write_lab_drop_test(out_dir, drop_height_m: float = 0.2, *, vehicle=None, se
              ("buffer_force_kN", 1e-3), "stroke_m": ("stroke_mm", 1e3)}
     for c, y in ch.items():
         if c == "body_accel_mps2":
-            cols["body_accel_g"] = y / 9.80665
+            cols["body_accel_g"] = y / STANDARD_GRAVITY
             continue
         leg, base = c.split("_", 1)
         name, factor = units[base]

@@ -199,7 +199,7 @@ class Honeycomb(eqx.Module):
         "k_b1 (both blocks in series). Above 1 part of the k_b3 rise is plastic set and the stack "
         "unloads stiffer; unload_ratio = k_b1 / k_b3 unloads the whole stack along the single "
         "stiffness k_b1. It sets the final stroke of drops reaching the secondary stage",
-        "our assumption: the paper leaves the unloading law open; default 1 (the law used so far)",
+        "our assumption: the paper leaves the unloading law open; default 1",
         ">= 1", toml="unload_ratio", off=1.0)
     bonded: bool = eqx.field(
         static=True, default=False,

@@ -113,7 +113,7 @@ class Scene(eqx.Module):
     def from_touchdown_speed(cls, speed_mps: float, **kwargs) -> Scene:
         """A scene that starts at touchdown with downward speed ``speed_mps`` [m/s]."""
         for name in ("drop_height", "sink_speed"):
-            if name in kwargs:  # a bare TypeError of repeated keywords escaped
+            if name in kwargs:  # named, where Python's repeated-keyword TypeError names no rule
                 raise ConfigError(name, kwargs[name], "is set by from_touchdown_speed (a "
                                   "touchdown: drop_height 0, sink_speed the speed given); "
                                   "for a release above the ground use jaxland.Scene")
@@ -223,8 +223,9 @@ class Scene(eqx.Module):
     def check_one(self) -> Scene:
         """Refuse, for one landing, a field holding several values: each of ``SCENE_FIELDS``,
         the friction and the mass scale one number, the plateau scale one per leg at most,
-        the centre-of-mass offset one vector. A batch given to ``landing`` failed deep inside
-        it, and four frictions ran, silently, as one per leg. Shapes are known under jit."""
+        the centre-of-mass offset one vector: a batch's shapes would otherwise fail deep inside
+        ``landing``, or, for the friction, run silently as one value per leg. Shapes are known
+        under jit."""
         one = {name: (f"scene.{f.toml}", 0) for name, f in SCENE_FIELDS.items()}
         one.update(friction=("scene.friction", 0), mass_scale=("scene.mass_scale", 0),
                    plateau_scale=("scene.plateau_scale", 1),

@@ -64,9 +64,6 @@ class Evaluation(eqx.Module):
         """Stores plus closed-form dissipation [J] (the rate channels excluded)."""
         return sum([*self.stores.values(), *self.dissipated.values()])
 
-    def energy_columns(self) -> dict[str, Array]:
-        return {**self.stores, **self.dissipated}
-
 
 class Oscillator(eqx.Module):
     """The stiffest, lightest oscillator a model contains: what limits a fixed time step.

@@ -294,8 +294,9 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
         return jnp.where(f_n > 0.0, f_n, jnp.where(f_h > BUFFERING_THRESHOLD_N, f_h, 0.0))
 
     def impulse_step_force(self, record):
-        """The force that sets the impulse method's step, dt = dI / F [N]: the primary force, or the
-        honeycomb force if larger (a stability guard for the strut damping; ``IMPULSE_NOTES``)."""
+        """The force that sets the impulse method's step, dt = dI / F [N]: the primary force, or
+        the honeycomb force if larger (a stability guard for the strut damping: the
+        ``_impulse`` module's notes)."""
         return jnp.maximum(self.primary_force(record), record["honeycomb_force_N"])
 
     def ode_state(self, s: QuarterState):
