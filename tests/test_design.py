@@ -208,6 +208,26 @@ def test_gear_mass_proxy_matches_hand_calculation():
     assert float(gear_mass_kg(v)) == pytest.approx(expect, rel=2e-3)  # F rounded to 0.1 N
 
 
+
+def test_every_design_variable_reads_its_baseline_and_moves_its_vehicle_field():
+    """The variables table (``VARIABLES``), ``baseline_value`` and ``apply_design`` each name
+    the variables: one added to the table alone would be optimised while changing nothing.
+    Each variable, set to its baseline, gives the baseline vehicle back (to the cells' four
+    digits), and set 5 % above it moves the vehicle."""
+    from jaxland._config import PAPER_CELLS
+    from jaxland._design._gear import baseline_value
+    from jaxland._design._spec import VARIABLES
+
+    v = jl.paper_vehicle()
+    leaves = lambda x: np.concatenate([np.ravel(a) for a in jax.tree.leaves(x)])  # noqa: E731
+    for name in VARIABLES:
+        base = baseline_value(v, name, PAPER_CELLS)
+        np.testing.assert_allclose(leaves(apply_design(v, {name: base})), leaves(v),
+                                   rtol=1e-3, err_msg=name)
+        moved = leaves(apply_design(v, {name: 1.05 * base}))
+        assert np.max(np.abs(moved - leaves(v)) / np.maximum(np.abs(leaves(v)), 1e-30)) > 1e-3, \
+            name
+
 # ---------------------------------------------------------------------------- (b) known optimum
 
 S_AVAIL = 0.120  # m: x_L4 - margin = 200 - 80 mm, inside the primary stage (x_L2 = 190 mm)
