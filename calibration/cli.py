@@ -67,13 +67,9 @@ def _out_dir(path: str, inputs=(), command: str | None = None) -> Path:
 
 
 def _file_record(path) -> dict:
-    """A file an output was made from: its path as given, its absolute path and its SHA-256
-    (which tells whether the file at that path is still the one used)."""
-    import hashlib
+    from jaxland._files import file_record
 
-    path = Path(path)
-    return dict(path=str(path), absolute=str(path.resolve()),
-                sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+    return file_record(path)
 
 
 def fit_inputs(args, drops) -> dict:

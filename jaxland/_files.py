@@ -74,6 +74,16 @@ def run_environment() -> dict:
                 backend=jax.default_backend(), xla_flags=os.environ.get("XLA_FLAGS", ""))
 
 
+def file_record(path) -> dict:
+    """A file an output was made from: its path as given, its absolute path and its SHA-256
+    (which tells whether the file at that path is still the one used)."""
+    import hashlib
+
+    path = Path(path)
+    return dict(path=str(path), absolute=str(path.resolve()),
+                sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+
+
 def atomic_write_text(path, text: str) -> Path:
     def write(tmp):
         with open(tmp, "w", newline="") as fh:

@@ -683,6 +683,11 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     assert report["inputs"]["spec"] == str(spec.resolve())
     assert report["inputs"]["baseline_vehicle"] == "the paper's vehicle"
     assert report["inputs"]["arguments"]["out"] == str(out)
+    import hashlib
+
+    assert report["inputs"]["files"] == {"spec": dict(
+        path=str(spec), absolute=str(spec.resolve()),
+        sha256=hashlib.sha256(TINY.encode()).hexdigest())}  # no vehicle file was read
     assert report["environment"]["jaxland"] == jl.__version__
     assert report["scenes"]["method"] == "euler"
     # every [design] setting as run, and a max measure's tolerance instead of a level

@@ -50,7 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--config", help="vehicle TOML (default: the paper's vehicle)")
     s.add_argument("--scene", help="scene TOML ([scene] table, keys as the flags below with "
                                    "their units, e.g. roll_deg = 3; a touchdown speed is "
-                                   "sink_speed_mps with drop_height_m = 0); flags override it")
+                                   "sink_speed_mps with drop_height_m = 0; also mass_scale and "
+                                   "com_offset_m, which have no flag); flags override it")
     s.add_argument("--model", default="auto", choices=("auto", "quarter", "full"),
                    help="auto (default): the smallest model that represents the scene exactly")
     s.add_argument("--drop-height", type=float,

@@ -18,7 +18,7 @@ from pathlib import Path
 from .. import use_batch_fusion
 from .._checks import named_as
 from .._config import named_by_file
-from .._files import staged
+from .._files import file_record, staged
 from .._montecarlo._stats import probability_text
 from .._progress import ProgressLine
 from ._common import out_dir, use_cpu_cores
@@ -75,6 +75,7 @@ def _cmd_design(args) -> int:
     # verification Monte Carlo are split over them
     use_batch_fusion()  # batches without trajectories (jaxland.use_batch_fusion)
     spec = load_design_spec(args.spec)
+    files = dict(spec=file_record(args.spec))  # as read, before the long run
     out_dir(args.out, (spec.vehicle,))  # the baseline vehicle the spec names is an input too
     # a flag's value is checked by the rule of the spec's key it overrides, named by the flag
     if args.iterations is not None:
@@ -87,6 +88,8 @@ def _cmd_design(args) -> int:
     vehicle = (jl.load_vehicle(args.config, "--config") if args.config else
                jl.load_vehicle(spec.vehicle, "design.vehicle") if spec.vehicle
                else jl.paper_vehicle())
+    if args.config or spec.vehicle:
+        files["baseline_vehicle"] = file_record(args.config or spec.vehicle)
     # every input check (bounds, scenes, steps) before the banner: one line if bad
     vehicle_by = ("--config", args.config) if args.config else (
         ("design.vehicle", spec.vehicle) if spec.vehicle else (None, None))
@@ -136,7 +139,8 @@ def _cmd_design(args) -> int:
             spec=str(Path(args.spec).resolve()),
             baseline_vehicle=(str(Path(args.config or spec.vehicle).resolve())
                               if args.config or spec.vehicle else "the paper's vehicle"),
-            arguments={k: v for k, v in vars(args).items() if k not in ("func", "command")}))
+            arguments={k: v for k, v in vars(args).items() if k not in ("func", "command")},
+            files=files))
         if not args.no_plots:
             result.plot(staging / "figures")
     total = time.perf_counter() - t0

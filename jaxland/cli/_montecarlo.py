@@ -114,7 +114,7 @@ def cmd_montecarlo(args) -> int:
     result.save(out, plots=not args.no_plots)
     tip, bot = s["tip_over"], s["bottoming"]
     print(f"jaxland montecarlo: {s['n']} landings, {s['model']} model, {s['devices']} device(s),"
-          f" {s['wall_s']:.1f} s ({s['landings_per_s']:.0f}/s)")
+          f" {s['wall_s']:.1f} s ({s['landings_per_s']:.3g}/s)")
     failures = f"  {s['failures']}" if s["failures"] else ""
     print(f"  failed samples      {s['n_failed']}{failures}")
     if s["n_retried"]:
