@@ -39,6 +39,7 @@ from ._solvers import (
     step_limit_reached,
 )
 from ._solvers._base import MAX_STEPS, SAVE_DT_MIN
+from ._solvers._tsit5 import step_cap
 
 __all__ = ["landing", "landings", "simulate", "Landing", "impacts_from_events", "choose_model",
            "get_model"]
@@ -389,9 +390,18 @@ def check_step(solver: Solver, vehicle: Vehicle, model: AbstractModel) -> None:
                           f"{float(2 * vehicle.m_foot / (leg.D_b + chi)):.3g} N s")
     if solver.dt > limit:
         what = "its time-step cap" if isinstance(method, Impulse) else "dt"
-        raise ConfigError("solver.dt", solver.dt, f"exceeds the stability limit {limit:.3g} s of "
-                          f"{method.name} for this vehicle ({method.stability_reason}); use "
-                          f"{what} <= that")
+        raise ConfigError("solver.dt", solver.dt, f"exceeds the stability limit {limit:.3g} s "
+                          f"of {method.name} for this vehicle ({method.stability_reason}); use "
+                          f"{what} <= {_at_most(limit)} s")
+
+
+def _at_most(x: float, digits: int = 3) -> str:
+    """``x`` to ``digits`` significant digits, rounded down: a step to use below a limit (the
+    euler limit 1.33676e-4 s, rounded to 0.000134 s, refuses that step)."""
+    if not (math.isfinite(x) and x > 0.0):
+        return f"{x:.{digits}g}"
+    unit = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    return f"{math.floor(x / unit) * unit:.{digits}g}"
 
 
 def _check_save_interval(solver: Solver, given: float | None) -> None:
@@ -461,6 +471,12 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
+    if isinstance(method, Tsit5) and not chosen:
+        cap = float(step_cap(mod, vehicle))
+        if solver.dt > cap:  # its first step, and the default output interval's unit
+            raise ConfigError("solver.dt", solver.dt, f"is tsit5's first step and must be <= "
+                              f"its step cap {_at_most(cap)} s (1/omega of the foot on its "
+                              "stiffest springs)")
     if isinstance(method, (Impulse, Tsit5)):
         # their steps follow the springs (tsit5's cap is 1/omega of the foot, the impulse's
         # cap is a spring limit): a vehicle whose springs leave no step is named, before an

@@ -105,6 +105,31 @@ def test_a_step_above_the_limit_is_refused_with_the_limit_stated(method):
         jl.simulate(dt=1.2 * limit, t_end=0.1, method=method)
 
 
+def test_the_step_a_refusal_offers_is_below_the_limit():
+    """The euler limit of the paper vehicle, 1.33676e-4 s, prints as 0.000134 s; the step the
+    refusal offers must be one the check accepts, so it is the limit rounded down."""
+    limit = float(jl.stable_step(VEH, method="euler"))
+    with pytest.raises(jl.ConfigError) as err:
+        jl.simulate(dt=float(f"{limit:.3g}"), t_end=0.01)
+    offered = float(str(err.value).split("use dt <= ")[1].split(" s")[0])
+    assert limit * 0.99 < offered <= limit
+    jl.simulate(dt=offered, t_end=0.01)  # accepted
+
+
+def test_tsit5_first_step_above_its_cap_is_refused():
+    """tsit5's dt is its first step, and the unit of its default output interval: a first step
+    of 0.9 s ran a 1 s landing to 1.8 s. It must not exceed the step cap."""
+    from jaxland._models import MODELS
+    from jaxland._solvers._tsit5 import step_cap
+
+    cap = float(step_cap(MODELS["quarter"], VEH))
+    with pytest.raises(jl.ConfigError, match=r"solver\.dt = 0\.9: is tsit5's first step and "
+                                             r"must be <= its step cap"):
+        jl.simulate(dt=0.9, t_end=1.0, method="tsit5")
+    with pytest.raises(jl.ConfigError, match="step cap"):
+        jl.simulate(dt=1.01 * cap, t_end=0.01, method="tsit5")
+
+
 def test_blow_up_past_the_limit_is_raised_by_simulate(monkeypatch):
     limit = float(jl.stable_step(VEH, method="verlet"))
     monkeypatch.setattr(_simulate, "stable_step", lambda v, **kw: 1.0)
