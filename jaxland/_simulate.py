@@ -471,12 +471,6 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
-    if isinstance(method, Tsit5) and not chosen:
-        cap = float(step_cap(mod, vehicle))
-        if solver.dt > cap:  # its first step, and the default output interval's unit
-            raise ConfigError("solver.dt", solver.dt, f"is tsit5's first step and must be <= "
-                              f"its step cap {_at_most(cap)} s (1/omega of the foot on its "
-                              "stiffest springs)")
     if isinstance(method, (Impulse, Tsit5)):
         # their steps follow the springs (tsit5's cap is 1/omega of the foot, the impulse's
         # cap is a spring limit): a vehicle whose springs leave no step is named, before an
@@ -492,6 +486,12 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
             refuse_unsteppable(vehicle, limit, t_end)
         check_step(solver, vehicle, mod)
     solver.validate()
+    if isinstance(method, Tsit5) and not chosen:
+        cap = float(step_cap(mod, vehicle))
+        if solver.dt > cap:  # its first step, and the default output interval's unit
+            raise ConfigError("solver.dt", solver.dt, f"is tsit5's first step and must be <= "
+                              f"its step cap {_at_most(cap)} s (1/omega of the foot on its "
+                              "stiffest springs)")
     _check_save_interval(solver, save_dt)
     traj, summary = _landing_jit(vehicle, scene, solver, mod)
     retried = None

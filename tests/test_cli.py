@@ -111,6 +111,10 @@ def test_simulate_writes_csv_summary_config_and_figures(tmp_path, capsys):
      "step: or give a smaller dt)"),
     (["--method", "tsit5", "--t-end", "5e-6"], "--t-end = 5e-06: must be >= dt = 1e-05 s "
      "(tsit5's first step: or give a smaller dt)"),
+    # step counts past float's range: the rule, not an OverflowError's traceback
+    (["--t-end", "1e308"], "--t-end = 1e+308: must be <= 100 s"),
+    (["--save-dt", "1e308"], "--save-dt = 1e+308: must be <= t_end = 0.05 s"),
+    (["--dt", "1e-320"], "--dt = 1e-320: t_end/dt must be <= 5e+08 steps"),
 ])
 def test_simulate_refuses_bad_input_and_writes_nothing(tmp_path, capsys, args, needle):
     out = tmp_path / "run"

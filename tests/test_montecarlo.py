@@ -532,6 +532,9 @@ def test_bad_specs_are_refused_by_name(tmp_path):
         # the run's limits, named by the spec's keys (they were named solver.dt, solver.t_end)
         ("[montecarlo]\ndt_s = 1e-300\n", "montecarlo.dt_s = 1e-300: t_end/dt must be <="),
         ("[montecarlo]\nt_end_s = 1e6\n", "montecarlo.t_end_s = 1000000.0: must be <= 100 s"),
+        # step counts past float's range: the rule, not an OverflowError
+        ("[montecarlo]\nt_end_s = 1e308\n", "montecarlo.t_end_s = 1e+308: must be <= 100 s"),
+        ("[montecarlo]\ndt_s = 1e-320\n", "montecarlo.dt_s = 1e-320: t_end/dt must be <="),
     ]
     for text, field in cases:
         path.write_text(text)

@@ -181,14 +181,18 @@ class Solver(eqx.Module):
         # a concrete 0-d array as the number it holds (the fields are static)
         for name in ("dt", "t_end", "save_dt", "smoothing_m", "smoothing_N"):
             setattr(self, name, as_number(getattr(self, name)))
-        if self.save_dt is None and _finite_positive(self.dt):
+        if self.save_dt is None and _finite_positive(self.dt) and _steps_fit(SAVE_DT_MIN,
+                                                                              self.dt):
             every = max(1, math.ceil(SAVE_DT_MIN / self.dt - 1e-9))
-            if _finite_positive(self.t_end):  # a run shorter than that saves at its end
+            if _finite_positive(self.t_end) and _steps_fit(self.t_end, self.dt):
+                # a run shorter than that saves at its end
                 every = min(every, max(1, math.floor(self.t_end / self.dt + 1e-9)))
             self.save_dt = self.dt * every
 
     @property
     def save_every(self) -> int:
+        if not _steps_fit(self.save_dt, self.dt):  # counted as too many (validate refuses it)
+            return int(MAX_STEPS) + 1
         return max(1, int(round(self.save_dt / self.dt)))
 
     @property
@@ -211,11 +215,17 @@ class Solver(eqx.Module):
         """Each setting on its own."""
         for name in ("smoothing_m", "smoothing_N"):
             positive("solver", name, getattr(self, name), f" {name[-1]}", zero_ok=True)
-        for name in ("dt", "t_end", "save_dt"):
+        for name in ("dt", "t_end"):
             positive("solver", name, getattr(self, name), " s")
         if self.t_end > T_END_MAX:
             raise ConfigError("solver.t_end", self.t_end, f"must be <= {T_END_MAX:g} s (a "
                               "landing settles within seconds)")
+        if not _steps_fit(self.t_end, self.dt):  # past float's range
+            raise ConfigError("solver.dt", self.dt, f"t_end/dt must be <= {MAX_STEPS:.0e} steps")
+        positive("solver", "save_dt", self.save_dt, " s")
+        if not _steps_fit(self.save_dt, self.dt):  # t_end/dt is a count: save_dt > t_end
+            raise ConfigError("solver.save_dt", self.save_dt,
+                              f"must be <= t_end = {self.t_end} s")
         if not isinstance(self.method, AbstractIntegrator):
             raise ConfigError("solver.method", self.method, "must be an integrator or its name")
         self.method.validate()
@@ -271,6 +281,9 @@ def check_spec_steps(section: str, dt: float, t_end: float, method: str) -> None
     ends on its one save interval, t_end), and what the run's ``Solver`` refuses (its
     duration and step count)."""
     dt_field, t_end_field = f"{section}.dt_s", f"{section}.t_end_s"
+    with named_as({"solver.dt": (dt_field, dt), "solver.t_end": (t_end_field, t_end)}):
+        # the values and the step count, before the count's fraction
+        Solver(dt=dt, t_end=t_end, save_dt=t_end, method=method).validate_values()
     if not _whole_steps(t_end, dt):
         raise ConfigError(dt_field, dt, f"must divide {t_end_field} = {t_end:g} s into whole "
                           f"steps (it gives {t_end / dt:.6g})")
@@ -279,9 +292,18 @@ def check_spec_steps(section: str, dt: float, t_end: float, method: str) -> None
 
 
 def _whole_steps(span: float, dt: float) -> bool:
-    """``span`` is a whole number of steps ``dt`` (to 1e-6 of the count: rounding)."""
+    """``span`` is a whole number of steps ``dt`` (to 1e-6 of the count: rounding); a count
+    past float's range is not."""
+    if not _steps_fit(span, dt):
+        return False
     ratio = span / dt
     return abs(ratio - round(ratio)) <= 1e-6 * ratio
+
+
+def _steps_fit(span: float, dt: float) -> bool:
+    """``span`` [s] is a count of steps ``dt`` [s] within float's range: a Python integer
+    can hold it (``round``, ``ceil`` and ``floor`` of an infinite count raise)."""
+    return math.isfinite(span / dt)
 
 
 def _finite_positive(x) -> bool:
