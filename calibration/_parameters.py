@@ -172,6 +172,9 @@ def check_peak_site(site, names) -> None:
 def check_names(names) -> tuple[str, ...]:
     """Validate a parameter selection (order kept, duplicates refused)."""
     if isinstance(names, str):
+        if names.strip() and any(not n.strip() for n in names.split(",")):
+            raise jl.ConfigError("params", names, "has an empty entry (two commas, or one at an "
+                                 "end): a name left out by a typo is refused, not skipped")
         names = [n.strip() for n in names.split(",") if n.strip()]
     names = tuple(names)
     if not names:

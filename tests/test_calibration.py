@@ -946,6 +946,11 @@ def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_v
     (["fit", "DATA/drop_h0.20m.toml", "--windows", "1e-9,0.05"], "--windows = '1e-9,0.05': "
                                                                  "must be increasing numbers "
                                                                  ">= 0.001 s"),
+    # a window repeated, or a parameter name left out by a typo, is refused, not skipped
+    (["fit", "DATA/drop_h0.20m.toml", "--windows", "0.01,0.01"], "--windows = '0.01,0.01': "
+                                                                 "must be increasing numbers"),
+    (["fit", "DATA/drop_h0.20m.toml", "--params", "k,,F1"], "--params = 'k,,F1': has an "
+                                                            "empty entry"),
     # the step must divide the model's 2e-5 s sampling (it named solver.save_dt)
     (["fit", "DATA/drop_h0.20m.toml", "--dt", "3e-5"], "--dt = 3e-05: must divide the model's "
                                                        "sampling interval, 2e-05 s"),
