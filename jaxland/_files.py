@@ -138,15 +138,24 @@ _INTERRUPTED = threading.Event()
 
 
 def interrupt_handler(signum, frame):
-    """SIGINT: remember the interrupt (``staged`` then publishes nothing), then raise
-    KeyboardInterrupt as Python's own handler does."""
+    """SIGINT or SIGTERM: remember the interrupt and its signal (``staged`` then publishes
+    nothing, and the command exits 128 + the signal's number), then raise KeyboardInterrupt as
+    Python's own SIGINT handler does."""
+    _INTERRUPTED.signum = signum
     _INTERRUPTED.set()
     raise KeyboardInterrupt
+
+
+def interrupt_signal(default: int) -> int:
+    """The number of the signal that interrupted the command (``default`` where none was
+    recorded: a KeyboardInterrupt raised otherwise)."""
+    return getattr(_INTERRUPTED, "signum", None) or default
 
 
 def clear_interrupt() -> None:
     """Forget an earlier interrupt (a command's start)."""
     _INTERRUPTED.clear()
+    _INTERRUPTED.signum = None
 
 
 def check_out(out, inputs=(), command: str | None = None) -> Path:

@@ -709,6 +709,31 @@ def test_an_interrupt_python_swallowed_still_publishes_nothing(tmp_path, capsys,
     assert _simulate(out, "--no-plots", "--drop-height", "0.03") == 0  # the next run is free
 
 
+def test_a_sigterm_stops_a_command_as_ctrl_c_does(tmp_path, capsys, monkeypatch):
+    """A scheduler's SIGTERM killed the command silently (exit 143) and left its staging
+    folder behind. The command takes it as Ctrl-C: one line, the output folder as it was,
+    exit 128 + 15; afterwards the caller's handler is back."""
+    import signal
+
+    from jaxland import _files
+
+    out = tmp_path / "run"
+    assert _simulate(out, "--no-plots") == 0
+    before = sorted(p.name for p in tmp_path.iterdir())
+    seen = []
+
+    def terminated(*a, **k):
+        seen.append(signal.getsignal(signal.SIGTERM))
+        _files.interrupt_handler(signal.SIGTERM, None)  # as the signal's delivery calls it
+
+    monkeypatch.setattr(jl._simulate, "simulate", terminated)
+    assert _simulate(out, "--no-plots") == 128 + signal.SIGTERM
+    assert seen == [_files.interrupt_handler]
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("jaxland: interrupted")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no staging folder left
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
 def test_one_landing_refuses_a_scene_field_holding_several_values():
     """jl.landing given a Scene.batch, or a friction or mass scale as an array, failed deep
     inside the landing with a bare shape error, and four frictions ran, silently, as one per

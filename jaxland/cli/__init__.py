@@ -172,6 +172,7 @@ def _quiet_closed_stdout() -> None:
 
 
 def main(argv=None) -> int:
+    argv_given = argv
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(_join_negative_values(argv))
     from ._common import use_compilation_cache
@@ -180,14 +181,17 @@ def main(argv=None) -> int:
     import signal
     import threading
 
-    from .._files import clear_interrupt, interrupt_handler
+    from .._files import clear_interrupt, interrupt_handler, interrupt_signal
 
     clear_interrupt()
-    # only from the main thread, and only over Python's own handler (not one a caller set)
-    own = (threading.current_thread() is threading.main_thread()
-           and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
-    if own:
-        signal.signal(signal.SIGINT, interrupt_handler)
+    # only from the main thread, and only over Python's own handlers (not one a caller set):
+    # Ctrl-C and a SIGTERM (a scheduler's stop) leave the output folder as it was, with one line
+    main_thread = threading.current_thread() is threading.main_thread()
+    own = {sig: before for sig, before in (
+        (signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL))
+        if main_thread and signal.getsignal(sig) is before}
+    for sig in own:
+        signal.signal(sig, interrupt_handler)
     try:
         _refuse_empty_paths(args)
         code = args.func(args)
@@ -201,7 +205,7 @@ def main(argv=None) -> int:
         return EXIT_NUMERICAL
     except KeyboardInterrupt:
         print("jaxland: interrupted (nothing was written to the output folder)", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return 128 + interrupt_signal(signal.SIGINT)  # EXIT_INTERRUPTED for Ctrl-C
     except BrokenPipeError:  # the reader of stdout stopped (| head): the report stops here
         _quiet_closed_stdout()
         try:  # stderr may be the same closed pipe (2>&1 | head)
@@ -215,8 +219,11 @@ def main(argv=None) -> int:
         print(f"jaxland: cannot write: {err}", file=sys.stderr)
         return EXIT_OS
     finally:
-        if own:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+        # as the process's command (argv from the command line), an ended command ignores a
+        # late interrupt: one during the interpreter's shutdown exited 130 after the folder
+        # was published; called from Python, the caller's handlers come back
+        for sig, before in own.items():
+            signal.signal(sig, signal.SIG_IGN if argv_given is None else before)
 
 
 if __name__ == "__main__":
