@@ -146,6 +146,17 @@ def interrupt_handler(signum, frame):
     raise KeyboardInterrupt
 
 
+def quiet_unraisable(hook):
+    """``sys.unraisablehook`` that drops the KeyboardInterrupt of a remembered interrupt (one
+    that landed in a callback Python cannot raise from: ``staged`` still publishes nothing, and
+    the command says it was interrupted, in one line) and passes anything else to ``hook``."""
+    def quiet(unraisable):
+        if not (_INTERRUPTED.is_set()
+                and isinstance(unraisable.exc_value, KeyboardInterrupt)):
+            hook(unraisable)
+    return quiet
+
+
 def interrupt_signal(default: int) -> int:
     """The number of the signal that interrupted the command (``default`` where none was
     recorded: a KeyboardInterrupt raised otherwise)."""

@@ -709,6 +709,29 @@ def test_an_interrupt_python_swallowed_still_publishes_nothing(tmp_path, capsys,
     assert _simulate(out, "--no-plots", "--drop-height", "0.03") == 0  # the next run is free
 
 
+def test_an_interrupt_in_a_finaliser_prints_one_line_not_a_traceback(tmp_path, capsys,
+                                                                      monkeypatch):
+    """Ctrl-C that lands in a finaliser (XLA's garbage-collection callback) made Python print
+    "Exception ignored in ..." and a traceback above the command's one line."""
+    from jaxland import _files
+    from jaxland._simulate import Landing
+
+    class Finalised:
+        def __del__(self):
+            _files.interrupt_handler(2, None)
+
+    to_json = Landing.to_json
+
+    def interrupted_in_a_finaliser(self, path):
+        Finalised()  # collected at once: its KeyboardInterrupt cannot be raised
+        return to_json(self, path)
+
+    monkeypatch.setattr(Landing, "to_json", interrupted_in_a_finaliser)
+    assert _simulate(tmp_path / "run", "--no-plots") == 130
+    err = capsys.readouterr().err
+    assert err == "jaxland: interrupted (nothing was written to the output folder)\n", err
+
+
 def test_a_sigterm_stops_a_command_as_ctrl_c_does(tmp_path, capsys, monkeypatch):
     """A scheduler's SIGTERM killed the command silently (exit 143) and left its staging
     folder behind. The command takes it as Ctrl-C: one line, the output folder as it was,

@@ -181,7 +181,12 @@ def main(argv=None) -> int:
     import signal
     import threading
 
-    from .._files import clear_interrupt, interrupt_handler, interrupt_signal
+    from .._files import (
+        clear_interrupt,
+        interrupt_handler,
+        interrupt_signal,
+        quiet_unraisable,
+    )
 
     clear_interrupt()
     # only from the main thread, and only over Python's own handlers (not one a caller set):
@@ -192,6 +197,8 @@ def main(argv=None) -> int:
         if main_thread and signal.getsignal(sig) is before}
     for sig in own:
         signal.signal(sig, interrupt_handler)
+    unraisable = sys.unraisablehook
+    sys.unraisablehook = quiet_unraisable(unraisable)
     try:
         _refuse_empty_paths(args)
         code = args.func(args)
@@ -224,6 +231,7 @@ def main(argv=None) -> int:
         # was published; called from Python, the caller's handlers come back
         for sig, before in own.items():
             signal.signal(sig, signal.SIG_IGN if argv_given is None else before)
+        sys.unraisablehook = unraisable
 
 
 if __name__ == "__main__":
