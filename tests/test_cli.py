@@ -282,6 +282,22 @@ def test_an_empty_file_flag_is_refused_not_taken_as_none(tmp_path, capsys, argv)
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("argv,line", [
+    (["simulate", "--out", ""], "--out = '': is empty: give a folder"),
+    (["montecarlo", ""], "spec = '': is empty: give the spec's TOML file"),
+    (["design", ""], "spec = '': is empty: give the spec's TOML file"),
+    (["fit", ""], "DATA = '': is empty: give a drop test's"),
+    (["predict", "--config", "CFG", ""], "DATA = '': is empty: give a drop test's")])
+def test_an_empty_path_is_refused_as_empty_not_as_the_current_folder(tmp_path, capsys, argv,
+                                                                      line):
+    """An empty path read as '.': "--out = '.': is the current folder", "spec = '.': is a
+    folder"."""
+    cfg = str(Path(__file__).parents[1] / "data" / "paper_vehicle.toml")
+    assert main([cfg if a == "CFG" else a for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"jaxland: error: {line}") and err.count("\n") == 1, err
+
+
 @pytest.mark.parametrize("text", ["", "# the paper's gear\n", "[ground]\n[body]\n"])
 def test_a_vehicle_file_that_sets_nothing_is_refused_by_the_flag_that_named_it(tmp_path, capsys,
                                                                               text):

@@ -156,6 +156,13 @@ def _refuse_empty_paths(args) -> None:
     for name in ("config", "scene"):
         if getattr(args, name, None) == "":
             raise ConfigError(f"--{name}", "", "is empty: give a file, or leave the flag out")
+    # an empty path reads as the current folder ('.'), which no refusal should name
+    if getattr(args, "out", None) == "":
+        raise ConfigError("--out", "", "is empty: give a folder, or leave the flag out")
+    if getattr(args, "spec", None) == "":
+        raise ConfigError("spec", "", "is empty: give the spec's TOML file")
+    if "" in (getattr(args, "data", None) or ()):
+        raise ConfigError("DATA", "", "is empty: give a drop test's metadata TOML or CSV")
 
 
 def _quiet_closed_stdout() -> None:
