@@ -855,11 +855,16 @@ def _check_uniform(t: np.ndarray, rate: float) -> None:
                    f"{1.0 / late:.6g} Hz in its second; sample_rate_Hz = {rate:g})")
 
 
-def _num(key, val, lo, hi, lo_open=False):
+def _num(key, val, field, lo_open=False):
+    """``val`` of metadata ``key`` inside the scene envelope of ``jaxland``'s scene field
+    ``field`` (``SCENE_FIELDS``: its limits and unit)."""
+    from jaxland._scene import SCENE_FIELDS
+
+    lo, hi, unit = SCENE_FIELDS[field].lo, SCENE_FIELDS[field].hi, SCENE_FIELDS[field].unit
     if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
         raise _err(key, val, "must be a finite number")
     if val < lo or val > hi or (lo_open and val == lo):
-        raise _err(key, val, f"must be in {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+        raise _err(key, val, f"must be in {'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}")
     return float(val)
 
 
@@ -868,12 +873,12 @@ def _touchdown_speed(h, v0, v_td, g):
         if h is not None or v0 is not None:
             raise _err("touchdown_speed_mps", v_td, "give either touchdown_speed_mps or "
                        "drop_height_m (with optional sink_speed_mps), not both")
-        return _num("touchdown_speed_mps", v_td, 0.0, 30.0, lo_open=True), None, 0.0
+        return _num("touchdown_speed_mps", v_td, "sink_speed", lo_open=True), None, 0.0
     if h is None:
         raise _err("drop_height_m", None, "missing: give drop_height_m (optionally with "
                    "sink_speed_mps) or touchdown_speed_mps")
-    h = _num("drop_height_m", h, 0.0, 50.0)
-    v0 = 0.0 if v0 is None else _num("sink_speed_mps", v0, 0.0, 30.0)
+    h = _num("drop_height_m", h, "drop_height")
+    v0 = 0.0 if v0 is None else _num("sink_speed_mps", v0, "sink_speed")
     v = math.sqrt(v0 * v0 + 2.0 * g * h)
     if v <= 0.0:
         raise _err("drop_height_m", h, "with sink_speed_mps = 0 must be > 0 (no impact)")
