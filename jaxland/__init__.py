@@ -181,6 +181,6 @@ __all__ = [
     "EulerImplicit", "Impulse", "Leapfrog", "Result", "Tsit5", "Verlet", "integrator",
     "ProgressLine",
     "scene_to_toml", "init_distributed", "atomic_write_csv", "check_output_folder", "read_text",
-    "PAPER_CELLS", "CLOSURE_LIMIT", "plateau_forces_from_cells", "apply_design",
+    "PAPER_CELLS", "CLOSURE_LIMIT", "use_batch_fusion", "plateau_forces_from_cells", "apply_design",
     "gear_mass_kg", "risk_measure",
 ]

@@ -107,7 +107,8 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
     def energy_scale(self, vehicle: Vehicle, scene: Scene):
         """Energy the landing has to absorb, generously bounded [J]: the scale of ledger checks."""
         m = vehicle.m_quarter + vehicle.m_foot  # the quarter ledger's own masses
-        height = scene.drop_height + 2.5 * vehicle.honeycomb.x_L4  # body sinks ~2 x stroke
+        # the body sinks about twice the stroke (strut, pit and aux give); 2.5 for margin
+        height = scene.drop_height + 2.5 * vehicle.honeycomb.x_L4
         return m * (0.5 * scene.sink_speed**2 + vehicle.g * height)
 
     def drift(self, q, v, dt):
