@@ -304,8 +304,8 @@ class FullModel(AbstractModel):
     def energy_scale(self, vehicle: Vehicle, scene: Scene):
         m = vehicle.m_body + vehicle.n_legs * vehicle.m_foot
         w = jnp.stack([scene.roll_rate, scene.pitch_rate, scene.yaw_rate])
-        # the quarter's bound with more margin for a tilted body, plus 1 m for a centre of
-        # mass that falls as the vehicle rocks or tips
+        # generous, as the quarter's (the scale only sets the ledger's tolerance): three strokes
+        # for the legs, and 1 m of fall for a vehicle that tips
         height = scene.drop_height + 3.0 * vehicle.honeycomb.x_L4 + 1.0
         return (m * (0.5 * (scene.sink_speed**2 + scene.horizontal_speed**2) + vehicle.g * height)
                 + 0.5 * jnp.sum(_inertia(vehicle) * w * w))

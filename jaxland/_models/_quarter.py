@@ -107,7 +107,8 @@ class QuarterModel(AbstractImpulseModel, AbstractODEModel):
     def energy_scale(self, vehicle: Vehicle, scene: Scene):
         """Energy the landing has to absorb, generously bounded [J]: the scale of ledger checks."""
         m = vehicle.m_quarter + vehicle.m_foot  # the quarter ledger's own masses
-        # the body sinks about twice the stroke (strut, pit and aux give); 2.5 for margin
+        # the body sinks about twice the stroke; 2.5 strokes bound it generously (the scale only
+        # sets the ledger's tolerance)
         height = scene.drop_height + 2.5 * vehicle.honeycomb.x_L4
         return m * (0.5 * scene.sink_speed**2 + vehicle.g * height)
 
