@@ -124,6 +124,41 @@ def test_bootstrap_interval_of_the_mean_matches_the_normal_theory():
     assert ch["violators"] == [int(i) for i in np.argsort(-g) if g[i] > 0]
 
 
+def test_the_binomial_tail_is_the_sum_of_its_terms():
+    """The exact one-sided p-value against its definition, term by term with math.comb."""
+    from math import comb
+
+    from jaxland._montecarlo._stats import binomial_tail
+
+    for k, n, p in ((0, 10, 0.3), (1, 100, 0.001), (3, 100, 0.001), (2, 160, 0.001),
+                    (5, 5, 0.5), (7, 40, 0.2), (11, 10, 0.5)):
+        exact = sum(comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(k, n + 1))
+        assert binomial_tail(k, n, p) == pytest.approx(exact, rel=1e-9, abs=1e-15), (k, n, p)
+
+
+def test_a_normal_measure_is_not_met_where_its_landings_count_more_violations_than_it_allows():
+    """A stroke constraint at level 0.999 allows a landing past the limit with probability
+    0.001. A normal tail fitted to 200 landings met it while 3 of them were past the limit (a
+    heavy right tail): 3 or more of 200 at 0.001 has p = 1.1e-3. The counts decide it; one
+    violation in 200 (p = 0.18) leaves the bootstrap's verdict."""
+    from jaxland._design._spec import Constraint
+
+    c = Constraint("stroke", 0.02, measure="normal", level=0.999, scale=1.0)
+    rng = np.random.default_rng(1)
+    body = rng.normal(-60.0, 3.0, 200)  # the normal tail sits far inside the limit
+    for k, met in ((3, False), (1, True)):
+        g = body.copy()
+        g[:k] = 0.5  # k landings just past the limit
+        ch = _check(c, g, np.arange(g.size), 3)
+        assert ch["n_violating"] == k and ch["violation_allowed"] == pytest.approx(1e-3)
+        assert ch["ci95"][1] <= 0.0  # the measure alone would meet it
+        assert ch["met"] is met, ch["verdict"]
+        assert ch["judged_by"] == ("bootstrap" if met else "violation count")
+        if not met:
+            assert ch["p_value_violations"] < 0.025
+            assert ch["verdict"].startswith(f"not met: {k} of 200 landings violate it")
+
+
 @pytest.mark.parametrize("measure, level", [("mean", 0.9), ("max", 0.9), ("cvar", 0.8),
                                             ("normal", 0.99)])
 def test_numpy_risk_rows_equal_the_optimisers_measure(measure, level):

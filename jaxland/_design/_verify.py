@@ -32,7 +32,7 @@ from .._montecarlo._run import (
 )
 from .._montecarlo._sample import sample_scenes
 from .._montecarlo._spec import SEED_HIGH
-from .._montecarlo._stats import Z95, tip_over_of
+from .._montecarlo._stats import Z95, binomial_tail, tip_over_of
 from .._params import Vehicle
 from .._progress import ProgressLine
 from .._solvers import Result
@@ -176,6 +176,12 @@ BOOTSTRAP = 2000  # resamples of the verification landings for the measures' 95 
 # Fewest judged landings for a 95 % bootstrap interval: below, the resamples are a handful of
 # values (at 1 landing the "interval" is that landing), and no constraint is called met.
 MIN_JUDGED = 20
+# The normal measure (mean + z sd at ``level``) <= 0 stands for landings past the limit with a
+# probability of at most 1 - level, if the outcome's tail is normal. Its verdict is not met
+# where more landings are past the limit than that allows, by an exact binomial test at this
+# one-sided significance: a normal tail fitted to a heavy-tailed stroke says "met" where the
+# counts say otherwise. (An empirical CVaR <= 0 already keeps the counts within 1 - level.)
+EXCEEDANCE_ALPHA = 0.025
 
 
 def _risk_rows(values: np.ndarray, measure: str, level: float) -> np.ndarray:
@@ -230,12 +236,24 @@ def _check(c, bad: np.ndarray, index: np.ndarray, seed: int) -> dict:
     order = np.argsort(-g)
     out = dict(common, g=est, value_si=est * c.scale, ci95=[lo, hi],
                violators=[int(index[i]) for i in order if g[i] > 0])
+    k = int(np.sum(g > 0))
     if c.measure != "max":
         met = bool(hi <= 0.0)
-        return dict(out, met=met, judged=True, judged_by="bootstrap",
-                    verdict=f"{'met' if met else 'not met'} by the 95 % bootstrap interval: "
-                            f"g = {est:+.4g}, up to {hi:+.4g} (met: <= 0)")
-    k = int(np.sum(g > 0))
+        verdict = (f"{'met' if met else 'not met'} by the 95 % bootstrap interval: "
+                   f"g = {est:+.4g}, up to {hi:+.4g} (met: <= 0)")
+        if c.measure != "normal":
+            return dict(out, met=met, judged=True, judged_by="bootstrap", verdict=verdict)
+        allowed = 1.0 - c.level
+        p_value = binomial_tail(k, g.size, allowed)
+        counted = dict(n_violating=k, violation_allowed=allowed, p_value_violations=p_value)
+        if met and p_value < EXCEEDANCE_ALPHA:
+            return dict(out, **counted, met=False, judged=True, judged_by="violation count",
+                        verdict=f"not met: {k} of {g.size} landings violate it, more than a "
+                                f"violation probability of {allowed:g} allows (exact binomial "
+                                f"p = {p_value:.2g} < {EXCEEDANCE_ALPHA:g}), although its "
+                                f"{c.measure} estimate is g = {est:+.4g}, up to {hi:+.4g}")
+        return dict(out, **counted, met=met, judged=True, judged_by="bootstrap",
+                    verdict=verdict)
     bound = wilson_interval(k, g.size)[1]
     tol = c.violation_tolerance
     met = bool(k == 0 and bound <= tol)
@@ -309,6 +327,10 @@ def _unmet_text(name: str, ch: dict) -> str:
     if ch["judged_by"] == "violation bound":
         return (f"{name} (max) {ch['n_violating']} of {ch['n']} landings violate it (95 % "
                 f"upper bound on the violation probability {ch['p_violation_upper95']:.3g})")
+    if ch["judged_by"] == "violation count":
+        return (f"{name} ({ch['measure']}) {ch['n_violating']} of {ch['n']} landings violate "
+                f"it (a probability of {ch['violation_allowed']:g} allows fewer: exact "
+                f"binomial p = {ch['p_value_violations']:.2g})")
     return f"{name} g = {ch['g']:+.3g} (95 % up to {ch['ci95'][1]:+.3g})"
 
 

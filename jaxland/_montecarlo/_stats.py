@@ -22,6 +22,23 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     return (lo, hi)
 
 
+def binomial_tail(k: int, n: int, p: float) -> float:
+    """P(X >= k) for X binomial(n, p): the exact one-sided p-value of seeing ``k`` or more of
+    ``n`` landings where each has probability ``p``."""
+    if k <= 0:
+        return 1.0
+    if k > n:
+        return 0.0
+    if p <= 0.0:
+        return 0.0
+    if p >= 1.0:
+        return 1.0
+    log_p, log_q = math.log(p), math.log1p(-p)
+    below = sum(math.exp(math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1)
+                         + i * log_p + (n - i) * log_q) for i in range(k))
+    return max(0.0, 1.0 - below)
+
+
 def proportion(flags) -> dict:
     """How many of some landings carry a flag (a boolean array): count, n, probability (None
     over no landing: 0/0 is no probability) and its 95 % Wilson interval (None with it)."""

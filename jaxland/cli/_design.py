@@ -173,7 +173,7 @@ def _cmd_design(args) -> int:
                       f"not judged ({v['after']['n_ok']} landings; a 95 % interval needs "
                       f"{MIN_JUDGED})")
                 continue
-            if ch.get("judged_by") == "violation bound":
+            if ch.get("judged_by") in ("violation bound", "violation count"):
                 print(f"    constraint {name:<10} {ch['measure']} on the verification landings: "
                       f"{ch['verdict']}")
                 continue
