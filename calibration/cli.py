@@ -162,6 +162,8 @@ def peak_site_line(check: dict | None) -> str:
 
 
 def held_fixed_line(result) -> str:
+    from ._fit import ASSUMED_EXACT
+
     """fit's line naming the parameters it held at the vehicle's values
     (``FitResult.held_fixed``), on which every interval it prints is conditional."""
     held = result.held_fixed()
@@ -172,7 +174,9 @@ def held_fixed_line(result) -> str:
             + ", ".join(on) + (f"; off: {', '.join(off)}" if off else "")
             + ". A truth that differs in them biases the values by more than the interval "
             "shows, with no misfit to warn of it (fit them with --params where the records "
-            "determine them; fit_report.json, interval_conditional_on)")
+            "determine them; fit_report.json, interval_conditional_on); so do errors in what "
+            "the fit takes as exact: " + ", ".join(ASSUMED_EXACT)
+            + " (fit_report.json, interval_assumes_exact)")
 
 
 def _cmd_fit(args) -> int:

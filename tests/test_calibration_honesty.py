@@ -266,6 +266,11 @@ def test_the_interval_names_the_parameters_held_fixed_it_is_conditional_on(
     line = held_fixed_line(res)
     assert f"chi {held['chi']['value']:.4g} s/m" in line and "off: peak1" in line
     assert "interval_conditional_on" in line
+    # and it names what every fit takes as exact beside them: the masses, the gains and the
+    # touchdown speed
+    assert res.report()["interval_assumes_exact"] == list(cal_fit.ASSUMED_EXACT)
+    assert "body.m_body_kg" in line and "gain" in line and "drop_height_m" in line
+    assert "interval_assumes_exact" in line
 
 
 @pytest.fixture(scope="module")
