@@ -751,6 +751,19 @@ def test_the_sensitivity_ranks_no_rounding_noise():
     s = sensitivity(inputs, moved, ok)
     assert s["not_estimated"] is None and s["ranking"][0]["input"] == "sink_speed_mps"
     assert s["ranking"][0]["r2_of_fit"] > 0.99
+    # the standard errors against ordinary least squares' own formula, from scratch: the
+    # noise 1e-3 over sqrt(n) per standardised input, and t the effect over it
+    X = np.column_stack([np.ones(64), (inputs["sink_speed_mps"] - inputs["sink_speed_mps"].mean())
+                         / inputs["sink_speed_mps"].std()]
+                        + [(c - c.mean()) / c.std() for c in inputs["plateau_scale"].T])
+    beta = np.linalg.solve(X.T @ X, X.T @ moved)
+    res = moved - X @ beta
+    se = np.sqrt(res @ res / (64 - 6) * np.diag(np.linalg.inv(X.T @ X)))
+    top = s["ranking"][0]
+    assert top["effect_per_std"] == pytest.approx(beta[1], rel=1e-9)
+    assert top["std_error"] == pytest.approx(se[1], rel=1e-6)
+    assert top["t"] == pytest.approx(beta[1] / se[1], rel=1e-6) and top["t"] > 100
+    assert all(abs(r["t"]) < 4 for r in s["ranking"][1:])  # the plateau scales do nothing
     s = sensitivity(inputs, moved, np.arange(64) < 5)  # 5 landings, 5 inputs
     assert s["ranking"] == [] and s["not_estimated"].startswith("5 successful landings")
 

@@ -133,7 +133,8 @@ CONSTANT_REL = 1e-9
 def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> dict:
     """Linear regression of ``target`` [m] (a stroke or a margin) on the standardised
     dispersed inputs (per-leg inputs enter per leg): {"ranking": the change of the target per
-    standard deviation of each input, ranked; "not_estimated": None, or why there is no
+    standard deviation of each input, ranked, with its standard error [m] and t (the effect
+    over it) and the fit's R^2; "not_estimated": None, or why there is no
     ranking (too few landings ``ok``, no input dispersed, or a target the same in every
     landing up to rounding)}."""
     cols, names = [], []
@@ -166,6 +167,11 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> dict:
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     resid = y - X @ coef
     r2 = 1.0 - resid.var() / y.var()
-    ranked = sorted(zip(names, coef[1:]), key=lambda t: -abs(t[1]))
-    return dict(ranking=[dict(input=n, effect_per_std=float(c), r2_of_fit=float(r2))
-                         for n, c in ranked], not_estimated=None)
+    # each effect's standard error (ordinary least squares): an effect within about two of
+    # them is not told apart from none
+    s2 = float(resid @ resid) / (y.size - X.shape[1])
+    se = np.sqrt(s2 * np.diag(np.linalg.pinv(X.T @ X)))[1:]
+    ranked = sorted(zip(names, coef[1:], se), key=lambda t: -abs(t[1]))
+    return dict(ranking=[dict(input=n, effect_per_std=float(c), std_error=float(e),
+                              t=float(c / e) if e > 0 else None, r2_of_fit=float(r2))
+                         for n, c, e in ranked], not_estimated=None)

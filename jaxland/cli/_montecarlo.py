@@ -146,7 +146,8 @@ def cmd_montecarlo(args) -> int:
     if s.get("t_end_check"):
         print(f"  t_end check         {_t_end_check_text(s)}")
     if s["sensitivity"]["ranking"]:
-        top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g})"
+        top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g}"
+                        + ("" if r["t"] is None else f", t {r['t']:+.2g}") + ")"
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
     else:
