@@ -757,6 +757,29 @@ def test_a_sigterm_stops_a_command_as_ctrl_c_does(tmp_path, capsys, monkeypatch)
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 
 
+def test_a_late_interrupt_ends_the_process_with_the_commands_own_exit_code(tmp_path):
+    """An interrupt that arrived after the command had ended (during the interpreter's
+    shutdown, JAX's exit handlers) exited 130 after the folder was published. As the process's
+    command, main leaves a handler that ends the process at once with the command's code."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    script = (
+        "import os, signal, sys, time\n"
+        "from jaxland.cli import main\n"
+        f"sys.argv = ['jaxland', 'simulate', '--drop-height', '0.02', '--t-end', '0.05', "
+        f"'--no-plots', '--out', {str(out)!r}]\n"
+        "code = main()\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "time.sleep(60)\n"
+        "sys.exit(99)\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (out / "summary.json").exists()
+
+
 def test_one_landing_refuses_a_scene_field_holding_several_values():
     """jl.landing given a Scene.batch, or a friction or mass scale as an array, failed deep
     inside the landing with a bare shape error, and four frictions ran, silently, as one per

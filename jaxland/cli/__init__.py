@@ -188,12 +188,7 @@ def main(argv=None) -> int:
     import signal
     import threading
 
-    from .._files import (
-        clear_interrupt,
-        interrupt_handler,
-        interrupt_signal,
-        quiet_unraisable,
-    )
+    from .._files import clear_interrupt, interrupt_handler, quiet_unraisable
 
     clear_interrupt()
     # only from the main thread, and only over Python's own handlers (not one a caller set):
@@ -206,6 +201,42 @@ def main(argv=None) -> int:
         signal.signal(sig, interrupt_handler)
     unraisable = sys.unraisablehook
     sys.unraisablehook = quiet_unraisable(unraisable)
+    code = None
+    try:
+        code = _run(args)
+        return code
+    finally:
+        # as the process's command (argv from the command line), a late interrupt ends the
+        # process at once with the command's own exit code: one during the interpreter's
+        # shutdown exited 130 after the folder was published. Called from Python, or where
+        # the command raised, the caller's handlers come back.
+        for sig, before in own.items():
+            signal.signal(sig, _exit_at_once(code) if argv_given is None and code is not None
+                          else before)
+        sys.unraisablehook = unraisable
+
+
+def _exit_at_once(code: int):
+    """A signal handler that ends the process with ``code`` (the command has ended: its output
+    is written, or refused, and said)."""
+    import os
+
+    def handler(signum, frame):
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+    return handler
+
+
+def _run(args) -> int:
+    """The command, its refusals and failures as exit codes, each said in one line."""
+    import signal
+
+    from .._files import interrupt_signal
+
     try:
         _refuse_empty_paths(args)
         code = args.func(args)
@@ -232,13 +263,6 @@ def main(argv=None) -> int:
     except OSError as err:  # a full disk: the output folder is left untouched
         print(f"jaxland: cannot write: {err}", file=sys.stderr)
         return EXIT_OS
-    finally:
-        # as the process's command (argv from the command line), an ended command ignores a
-        # late interrupt: one during the interpreter's shutdown exited 130 after the folder
-        # was published; called from Python, the caller's handlers come back
-        for sig, before in own.items():
-            signal.signal(sig, signal.SIG_IGN if argv_given is None else before)
-        sys.unraisablehook = unraisable
 
 
 if __name__ == "__main__":
