@@ -758,26 +758,36 @@ def test_a_sigterm_stops_a_command_as_ctrl_c_does(tmp_path, capsys, monkeypatch)
 
 
 def test_a_late_interrupt_ends_the_process_with_the_commands_own_exit_code(tmp_path):
-    """An interrupt that arrived after the command had ended (during the interpreter's
-    shutdown, JAX's exit handlers) exited 130 after the folder was published. As the process's
-    command, main leaves a handler that ends the process at once with the command's code."""
+    """An interrupt that arrives after the command has ended (during the interpreter's
+    shutdown: here an exit handler that interrupts itself and then hangs) ends the process at
+    once with the command's code: the folder is published. main itself, called from Python,
+    gives the caller's handlers back."""
     import subprocess
     import sys
 
     out = tmp_path / "run"
     script = (
-        "import os, signal, sys, time\n"
-        "from jaxland.cli import main\n"
+        "import atexit, os, signal, sys, time\n"
+        "from jaxland.cli import console\n"
+        "def late():\n"
+        "    try:\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "        time.sleep(60)\n"
+        "    except KeyboardInterrupt:  # as the interpreter's own shutdown takes it\n"
+        "        os._exit(130)\n"
+        "atexit.register(late)\n"
         f"sys.argv = ['jaxland', 'simulate', '--drop-height', '0.02', '--t-end', '0.05', "
         f"'--no-plots', '--out', {str(out)!r}]\n"
-        "code = main()\n"
-        "os.kill(os.getpid(), signal.SIGINT)\n"
-        "time.sleep(60)\n"
-        "sys.exit(99)\n")
+        "console()\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr
     assert (out / "summary.json").exists()
+    import signal
+
+    before = (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM))
+    assert main(["simulate", "--out", ""]) == 2  # refused: the handlers come back all the same
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
 def test_one_landing_refuses_a_scene_field_holding_several_values():

@@ -20,7 +20,7 @@ from ._simulate import cmd_config, cmd_simulate
 
 EXIT_INVALID = 2
 EXIT_NUMERICAL = 3
-EXIT_INTERRUPTED = 130
+EXIT_SIGNAL = 128  # + the signal's number: a command a signal stopped (130: Ctrl-C)
 EXIT_OS = 1  # writing failed (the system's error, named)
 
 
@@ -179,7 +179,9 @@ def _quiet_closed_stdout() -> None:
 
 
 def main(argv=None) -> int:
-    argv_given = argv
+    """Run one ``jaxland`` command (``argv``: its arguments; None: ``sys.argv[1:]``) and
+    return its exit code. Ctrl-C and SIGTERM stop it with one line and the output folder as it
+    was; the signal handlers found are restored on return."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(_join_negative_values(argv))
     from ._common import use_compilation_cache
@@ -200,20 +202,28 @@ def main(argv=None) -> int:
     for sig in own:
         signal.signal(sig, interrupt_handler)
     unraisable = sys.unraisablehook
-    sys.unraisablehook = quiet_unraisable(unraisable)
-    code = None
+    if own:  # the process's hook, from its main thread only
+        sys.unraisablehook = quiet_unraisable(unraisable)
     try:
-        code = _run(args)
-        return code
+        return _run(args)
     finally:
-        # as the process's command (argv from the command line), a late interrupt ends the
-        # process at once with the command's own exit code: one during the interpreter's
-        # shutdown exited 130 after the folder was published. Called from Python, or where
-        # the command raised, the caller's handlers come back.
         for sig, before in own.items():
-            signal.signal(sig, _exit_at_once(code) if argv_given is None and code is not None
-                          else before)
-        sys.unraisablehook = unraisable
+            signal.signal(sig, before)
+        if own:
+            sys.unraisablehook = unraisable
+
+
+def console() -> None:
+    """The ``jaxland`` command's entry point: ``main``, then the process's exit with its
+    code. An interrupt that arrives once the command has ended (during the interpreter's
+    shutdown: JAX's exit handlers, a distributed run's last barrier) ends the process at once
+    with that code: the output is written, or refused, and said."""
+    import signal
+
+    code = main(sys.argv[1:])
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _exit_at_once(code))
+    sys.exit(code)
 
 
 def _exit_at_once(code: int):
@@ -250,7 +260,7 @@ def _run(args) -> int:
         return EXIT_NUMERICAL
     except KeyboardInterrupt:
         print("jaxland: interrupted (nothing was written to the output folder)", file=sys.stderr)
-        return 128 + interrupt_signal(signal.SIGINT)  # EXIT_INTERRUPTED for Ctrl-C
+        return EXIT_SIGNAL + interrupt_signal(signal.SIGINT)
     except BrokenPipeError:  # the reader of stdout stopped (| head): the report stops here
         _quiet_closed_stdout()
         try:  # stderr may be the same closed pipe (2>&1 | head)
@@ -266,4 +276,4 @@ def _run(args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    console()
