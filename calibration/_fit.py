@@ -210,14 +210,14 @@ class MisfitWarning(UserWarning):
 # (``_predict.read_fit_status``)
 HEADER_FIT = "# Calibrated by `jaxland fit` (calibration package) against: "
 HEADER_VALUES = "# fitted (+/- {interval}, the standard error the fit reports): "
-# what every fit takes as exact beside the held parameters: an error in one biases the values
-# beyond their interval before the misfit test sees it (the rig's 0.2 m drop with a 0.25 %
-# gain on both force channels: variance factor 1.14, no misfit, k, gamma and F2 5.3, 5.1
-# and 6.7 classical standard errors from the truth; docs/calibration.md)
+# beside the held parameters, every value the fit cannot fit is taken as exact; an error in
+# one of these biases the values beyond their interval before the misfit test sees it
+# (tests/test_calibration_honesty.py: a 0.25 % gain on both force channels)
 ASSUMED_EXACT = ("the vehicle's masses (body.m_body_kg, body.m_foot_kg)",
                  "each channel's gain (its calibration)",
                  "the touchdown speed the metadata set (drop_height_m, sink_speed_mps or "
-                 "touchdown_speed_mps)")
+                 "touchdown_speed_mps)",
+                 "the rest of the vehicle file (its geometry, x_L2_mm, x_L4_mm, g_mps2)")
 # the parameters the fit held (active ones), which every interval is conditional on: predict
 # names a file that holds them differently as edited
 HEADER_HELD = "# held at the vehicle's values (every interval is conditional on them): "

@@ -162,10 +162,11 @@ def peak_site_line(check: dict | None) -> str:
 
 
 def held_fixed_line(result) -> str:
+    """fit's line naming the parameters it held at the vehicle's values
+    (``FitResult.held_fixed``), on which every interval it prints is conditional, and what
+    else it takes as exact (``ASSUMED_EXACT``)."""
     from ._fit import ASSUMED_EXACT
 
-    """fit's line naming the parameters it held at the vehicle's values
-    (``FitResult.held_fixed``), on which every interval it prints is conditional."""
     held = result.held_fixed()
     on = [f"{n} {p['value']:.4g}" + ("" if p["unit"] == "1" else f" {p['unit']}")
           for n, p in held.items() if p["active"]]

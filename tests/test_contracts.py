@@ -727,9 +727,12 @@ def test_an_interrupt_in_a_finaliser_prints_one_line_not_a_traceback(tmp_path, c
         return to_json(self, path)
 
     monkeypatch.setattr(Landing, "to_json", interrupted_in_a_finaliser)
+    seen = []  # what reaches the process's hook (Python's prints the traceback)
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
     assert _simulate(tmp_path / "run", "--no-plots") == 130
     err = capsys.readouterr().err
     assert err == "jaxland: interrupted (nothing was written to the output folder)\n", err
+    assert seen == []
 
 
 def test_a_sigterm_stops_a_command_as_ctrl_c_does(tmp_path, capsys, monkeypatch):

@@ -125,15 +125,19 @@ def test_bootstrap_interval_of_the_mean_matches_the_normal_theory():
 
 
 def test_the_binomial_tail_is_the_sum_of_its_terms():
-    """The exact one-sided p-value against its definition, term by term with math.comb."""
+    """The exact one-sided p-value against its definition in rational arithmetic (1 minus the
+    terms below k, exact), down to tails of 1e-14, where a float 1 - sum loses every digit."""
+    from fractions import Fraction
     from math import comb
 
     from jaxland._montecarlo._stats import binomial_tail
 
     for k, n, p in ((0, 10, 0.3), (1, 100, 0.001), (3, 100, 0.001), (2, 160, 0.001),
-                    (5, 5, 0.5), (7, 40, 0.2), (11, 10, 0.5)):
-        exact = sum(comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(k, n + 1))
-        assert binomial_tail(k, n, p) == pytest.approx(exact, rel=1e-9, abs=1e-15), (k, n, p)
+                    (5, 5, 0.5), (7, 40, 0.2), (11, 10, 0.5), (20, 2000, 0.001),
+                    (8, 200, 0.001), (1, 5000, 0.001)):
+        q = Fraction(p).limit_denominator(10**6)
+        exact = float(1 - sum(comb(n, i) * q**i * (1 - q) ** (n - i) for i in range(k)))
+        assert binomial_tail(k, n, p) == pytest.approx(exact, rel=1e-9, abs=1e-300), (k, n, p)
 
 
 def test_a_normal_measure_is_not_met_where_its_landings_count_more_violations_than_it_allows():

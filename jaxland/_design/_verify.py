@@ -219,7 +219,10 @@ def _check(c, bad: np.ndarray, index: np.ndarray, seed: int) -> dict:
     value observed, so its interval shows nothing beyond "no violation seen"; met when no
     landing violates it and the 95 % Wilson upper bound on the violation probability is at
     most ``c.violation_tolerance``. With no violation but a bound above the tolerance the
-    landings are too few to judge it (``judged`` false; ``landings_needed`` would do)."""
+    landings are too few to judge it (``judged`` false; ``landings_needed`` would do).
+    "violation count" (normal): the bootstrap's "met" overruled where more landings violate
+    it than a probability of 1 - level allows (``EXCEEDANCE_ALPHA``); a normal measure's
+    result always carries ``n_violating``, ``violation_allowed`` and ``p_value_violations``."""
     g = bad / c.scale
     common = dict(measure=c.measure, level=c.level, n=int(g.size))
     if g.size < MIN_JUDGED:  # no interval to judge it by (MIN_JUDGED)
@@ -364,8 +367,9 @@ def _fresh_seed(spec: DesignSpec, round_: int) -> int:
 def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int | None = None,
                     rounds: int | None = None, progress=None, mc_progress: bool = False,
                     say=None, problem: DesignProblem | None = None) -> DesignResult:
-    """Optimise, verify on fresh landings, and while a constraint is not met (the upper end of
-    its 95 % interval on the verification landings is above its limit) add the violating
+    """Optimise, verify on fresh landings, and while a constraint is not met (``_check``: the
+    upper end of its 95 % interval on the verification landings above its limit, more
+    violations than its level allows, or a max constraint violated) add the violating
     landings to the design scenes and re-optimise from the last design, at most ``rounds``
     (default ``design.verify_rounds``) times, each verified on new fresh samples.
 
@@ -400,7 +404,11 @@ def design_verified(spec: DesignSpec, vehicle: Vehicle | None = None, *, n: int 
                         ci95={k: ch["ci95"] for k, ch in after["constraints"].items()},
                         judged_by={k: ch["judged_by"] for k, ch in after["constraints"].items()},
                         p_violation_upper95={k: ch.get("p_violation_upper95")
-                                             for k, ch in after["constraints"].items()}))
+                                             for k, ch in after["constraints"].items()},
+                        n_violating={k: ch.get("n_violating")
+                                     for k, ch in after["constraints"].items()},
+                        p_value_violations={k: ch.get("p_value_violations")
+                                            for k, ch in after["constraints"].items()}))
         if after["n_unfinished"]:  # no outcome to judge them on: re-optimising cannot help
             reason = _unfinished_text(after, spec)
             break

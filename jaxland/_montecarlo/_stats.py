@@ -33,10 +33,15 @@ def binomial_tail(k: int, n: int, p: float) -> float:
         return 0.0
     if p >= 1.0:
         return 1.0
-    log_p, log_q = math.log(p), math.log1p(-p)
-    below = sum(math.exp(math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1)
-                         + i * log_p + (n - i) * log_q) for i in range(k))
-    return max(0.0, 1.0 - below)
+    log_p, log_q, log_n = math.log(p), math.log1p(-p), math.lgamma(n + 1)
+    total = 0.0
+    for i in range(k, n + 1):  # the tail's own terms: a small tail keeps its digits
+        term = math.exp(log_n - math.lgamma(i + 1) - math.lgamma(n - i + 1)
+                        + i * log_p + (n - i) * log_q)
+        total += term
+        if i > n * p and term < 1e-17 * total:  # past the mode the terms only fall
+            break
+    return min(1.0, total)
 
 
 def proportion(flags) -> dict:

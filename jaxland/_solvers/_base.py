@@ -191,8 +191,6 @@ class Solver(eqx.Module):
 
     @property
     def save_every(self) -> int:
-        if not _steps_fit(self.save_dt, self.dt):  # counted as too many (validate refuses it)
-            return int(MAX_STEPS) + 1
         return max(1, int(round(self.save_dt / self.dt)))
 
     @property
@@ -221,7 +219,7 @@ class Solver(eqx.Module):
             raise ConfigError("solver.t_end", self.t_end, f"must be <= {T_END_MAX:g} s (a "
                               "landing settles within seconds)")
         if not _steps_fit(self.t_end, self.dt):  # past float's range
-            raise ConfigError("solver.dt", self.dt, f"t_end/dt must be <= {MAX_STEPS:.0e} steps")
+            raise _too_many_steps(self.dt)
         positive("solver", "save_dt", self.save_dt, " s")
         if not _steps_fit(self.save_dt, self.dt):  # t_end/dt is a count: save_dt > t_end
             raise ConfigError("solver.save_dt", self.save_dt,
@@ -259,7 +257,7 @@ class Solver(eqx.Module):
                               f"gives {self.n_saves} saved samples over t_end = {self.t_end:g} s;"
                               f" at most {SAVES_MAX:.0e}: raise save_dt")
         if self.n_steps > MAX_STEPS:
-            raise ConfigError("solver.dt", self.dt, f"t_end/dt must be <= {MAX_STEPS:.0e} steps")
+            raise _too_many_steps(self.dt)
         if self.early_stop or self.ledger_every > 1:
             from ._names import FIXED_STEP_METHODS
 
@@ -298,6 +296,10 @@ def _whole_steps(span: float, dt: float) -> bool:
         return False
     ratio = span / dt
     return abs(ratio - round(ratio)) <= 1e-6 * ratio
+
+
+def _too_many_steps(dt) -> ConfigError:
+    return ConfigError("solver.dt", dt, f"t_end/dt must be <= {MAX_STEPS:.0e} steps")
 
 
 def _steps_fit(span: float, dt: float) -> bool:

@@ -147,7 +147,7 @@ def cmd_montecarlo(args) -> int:
         print(f"  t_end check         {_t_end_check_text(s)}")
     if s["sensitivity"]["ranking"]:
         top = ", ".join(f"{r['input']} ({r['effect_per_std']:+.3g}"
-                        + ("" if r["t"] is None else f", t {r['t']:+.2g}") + ")"
+                        + ("" if r["t"] is None else f", t {r['t']:+.1f}") + ")"
                         for r in s["sensitivity"]["ranking"][:3])
         print(f"  drivers of {s['sensitivity']['target']}: {top}")
     else:
