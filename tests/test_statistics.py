@@ -129,3 +129,40 @@ def test_a_probability_over_no_landing_is_reported_as_none():
         "undefined (no successful landing)"
     p = dict(count=3, n=10, probability=0.3, ci95_wilson=jl.wilson_interval(3, 10))
     assert probability_text(p) == "0.3 [0.108, 0.603]"
+
+
+def test_percentile_intervals_are_the_order_statistics_the_binomial_law_gives():
+    """Each envelope percentile's 95 % interval: the order statistics l, u with P(B <= l - 1)
+    <= 0.025 and P(B >= u) <= 0.025 for B binomial(n, q), found here by exact rational sums;
+    a bound past the sample is None; and over 400 normal samples of 100 each interval holds
+    the true quantile at least 94 % of the time."""
+    from fractions import Fraction
+    from math import comb
+    from statistics import NormalDist
+
+    from jaxland._montecarlo._stats import PERCENTILES, percentile_intervals
+
+    rng = np.random.default_rng(3)
+    for n in (7, 60, 120, 333):
+        x = rng.normal(size=n)
+        got = percentile_intervals(x)
+        xs = np.sort(x)
+        for q in PERCENTILES:
+            p = Fraction(q, 100)
+            cdf = [sum(comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(j + 1))
+                   for j in range(n + 1)]
+            below = sum(1 for c in cdf if c <= Fraction(1, 40))
+            above = next(j for j, c in enumerate(cdf) if c >= Fraction(39, 40))
+            want = [float(xs[below - 1]) if below >= 1 else None,
+                    float(xs[above]) if above <= n - 1 else None]
+            assert got[f"p{q:02d}"] == want, (n, q)
+    assert percentile_intervals(rng.normal(size=120))["p99"][1] is None  # 0.99^120 = 0.30
+    assert percentile_intervals([]) is None
+    truth = {f"p{q:02d}": NormalDist().inv_cdf(q / 100) for q in PERCENTILES}
+    held = dict.fromkeys(truth, 0)
+    for _ in range(400):
+        iv = percentile_intervals(rng.normal(size=100))
+        for k, t in truth.items():
+            lo, hi = iv[k]
+            held[k] += (lo is None or lo <= t) and (hi is None or t <= hi)
+    assert all(h / 400 >= 0.94 for h in held.values()), held

@@ -30,6 +30,7 @@ from ._sample import check_fixed, draw, sample_scenes, scene_fields
 from ._spec import LEDGER_CHECK_S, MonteCarloSpec, montecarlo_spec_to_toml
 from ._stats import (
     over_all_landings,
+    percentile_intervals,
     percentiles,
     proportion,
     sensitivity,
@@ -576,6 +577,14 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
               else outputs["max_stroke_m"].max(axis=1))
     reasons = {r.message: int((failure == r).sum()) for r in Result
                if r.failed and (failure == r).any()}
+    envelope_samples = {
+        "max_stroke_m (any leg)": outputs["max_stroke_m"][ok].max(axis=1),
+        "peak_body_accel_mps2": outputs["peak_body_accel_mps2"][ok],
+        "peak_strut_force_N (any leg)": outputs["peak_strut_force_N"][ok].max(axis=1),
+        "slip_distance_m (any leg)": outputs["slip_distance_m"][ok].max(axis=1),
+        **({"min_stability_margin_m": outputs["min_stability_margin_m"][ok]}
+           if "min_stability_margin_m" in outputs else {}),
+    }
     return dict(
         n=spec.n, seed=spec.seed, model=model, method=spec.method, dt_s=spec.dt,
         t_end_s=spec.t_end, ledger_check_s=ledger_check_s(spec, model),
@@ -602,16 +611,10 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
                                  outputs["tipped_over"][unfinished], int(landed_failed.sum())),
         bottoming=over_all_landings(proportion(outputs["bottomed_out"][ok]),
                                   outputs["bottomed_out"][unfinished], int(landed_failed.sum())),
-        envelopes={
-            "max_stroke_m (any leg)": percentiles(outputs["max_stroke_m"][ok].max(axis=1)),
-            "peak_body_accel_mps2": percentiles(outputs["peak_body_accel_mps2"][ok]),
-            "peak_strut_force_N (any leg)":
-                percentiles(outputs["peak_strut_force_N"][ok].max(axis=1)),
-            "slip_distance_m (any leg)":
-                percentiles(outputs["slip_distance_m"][ok].max(axis=1)),
-            **({"min_stability_margin_m": percentiles(outputs["min_stability_margin_m"][ok])}
-               if "min_stability_margin_m" in outputs else {}),
-        },
+        envelopes={k: percentiles(v) for k, v in envelope_samples.items()},
+        # each percentile's 95 % interval: a p99 of a few hundred landings is about their
+        # largest, and the interval says how far it may lie from the truth
+        envelopes_ci95={k: percentile_intervals(v) for k, v in envelope_samples.items()},
         sensitivity=dict(
             target="min_stability_margin_m" if model == "full" else "max_stroke_m",
             method="least squares on standardised inputs: change per standard deviation",

@@ -124,9 +124,37 @@ def percentiles(x) -> dict | None:
     x = np.asarray(x, dtype=float)
     if x.size == 0:
         return None
-    q = np.percentile(x, [1, 5, 50, 95, 99])
+    q = np.percentile(x, PERCENTILES)
     return dict(p01=q[0], p05=q[1], p50=q[2], p95=q[3], p99=q[4], min=float(np.min(x)),
                 max=float(np.max(x)), mean=float(np.mean(x)))
+
+
+PERCENTILES = (1, 5, 50, 95, 99)  # the envelopes' percentiles [%]
+
+
+def percentile_intervals(x) -> dict | None:
+    """A 95 % interval of each of the envelopes' percentiles (``PERCENTILES``), free of any
+    distribution: order statistics l and u of the sorted sample with P(l <= B < u) >= 0.95,
+    B binomial(n, q) the count below the true q-quantile. ``{"p01": [lo, hi], ...}``; a bound
+    the sample is too small to give is None (the p99 of 120 landings has no upper bound: all
+    120 lie below it with probability 0.99^120 = 0.30). None for an empty sample."""
+    x = np.sort(np.asarray(x, dtype=float))
+    n = x.size
+    if n == 0:
+        return None
+    i = np.arange(n)
+    out = {}
+    for q in PERCENTILES:
+        p = q / 100.0
+        # P(B <= j), j = 0..n, from the ratio of successive binomial terms, in logs
+        steps = np.log((n - i) / (i + 1.0)) + math.log(p / (1.0 - p))
+        log_pmf = n * math.log1p(-p) + np.concatenate([[0.0], np.cumsum(steps)])
+        cdf = np.cumsum(np.exp(log_pmf - log_pmf.max())) * math.exp(log_pmf.max())
+        below = int(np.searchsorted(cdf, 0.025, side="right"))  # l: P(B <= l - 1) <= 0.025
+        above = int(np.searchsorted(cdf, 0.975, side="left"))  # u - 1: P(B >= u) <= 0.025
+        out[f"p{q:02d}"] = [float(x[below - 1]) if below >= 1 else None,
+                            float(x[above]) if above <= n - 1 else None]
+    return out
 
 
 # a target whose spread over the landings is at most this fraction of its size is the same in

@@ -142,7 +142,11 @@ def cmd_montecarlo(args) -> int:
         if name in LOW_SIDE:  # the side that matters: a small margin is the danger
             print(f"  {name:<30s} min {env['min']:.4g}  p01 {env['p01']:.4g}  p50 {env['p50']:.4g}")
         else:
-            print(f"  {name:<30s} p50 {env['p50']:.4g}  p99 {env['p99']:.4g}  max {env['max']:.4g}")
+            lo, hi = s["envelopes_ci95"][name]["p99"]
+            print(f"  {name:<30s} p50 {env['p50']:.4g}  p99 {env['p99']:.4g} (95 % "
+                  + ("-" if lo is None else f"{lo:.4g}") + " to "
+                  + ("beyond the sample" if hi is None else f"{hi:.4g}")
+                  + f")  max {env['max']:.4g}")
     if s.get("t_end_check"):
         print(f"  t_end check         {_t_end_check_text(s)}")
     if s["sensitivity"]["ranking"]:
