@@ -22,26 +22,25 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     return (lo, hi)
 
 
+def binomial_pmf(n: int, p: float) -> np.ndarray:
+    """P(B = j), j = 0..n, for B binomial(n, p) with 0 < p < 1: from the ratio of successive
+    terms, in logs (no factorial overflows; a term below float's range is 0)."""
+    i = np.arange(n)
+    steps = np.log((n - i) / (i + 1.0)) + math.log(p / (1.0 - p))
+    return np.exp(n * math.log1p(-p) + np.concatenate([[0.0], np.cumsum(steps)]))
+
+
 def binomial_tail(k: int, n: int, p: float) -> float:
     """P(X >= k) for X binomial(n, p): the exact one-sided p-value of seeing ``k`` or more of
     ``n`` landings where each has probability ``p``."""
     if k <= 0:
         return 1.0
-    if k > n:
-        return 0.0
-    if p <= 0.0:
+    if k > n or p <= 0.0:
         return 0.0
     if p >= 1.0:
         return 1.0
-    log_p, log_q, log_n = math.log(p), math.log1p(-p), math.lgamma(n + 1)
-    total = 0.0
-    for i in range(k, n + 1):  # the tail's own terms: a small tail keeps its digits
-        term = math.exp(log_n - math.lgamma(i + 1) - math.lgamma(n - i + 1)
-                        + i * log_p + (n - i) * log_q)
-        total += term
-        if i > n * p and term < 1e-17 * total:  # past the mode the terms only fall
-            break
-    return min(1.0, total)
+    # the tail's own terms, not 1 minus the others: a small tail keeps its digits
+    return min(1.0, float(binomial_pmf(n, p)[k:].sum()))
 
 
 def proportion(flags) -> dict:
@@ -119,17 +118,16 @@ def all_landings_text(p: dict) -> str:
     return (f"; with the {which}: {lo:.4g} to {hi:.4g} (95% CI [{clo:.4g}, {chi:.4g}])")
 
 
+PERCENTILES = (1, 5, 50, 95, 99)  # the envelopes' percentiles [%]
+
+
 def percentiles(x) -> dict | None:
     """Tails and centre of a sample: p01, p05, p50, p95, p99, min, max, mean (None if empty)."""
     x = np.asarray(x, dtype=float)
     if x.size == 0:
         return None
-    q = np.percentile(x, PERCENTILES)
-    return dict(p01=q[0], p05=q[1], p50=q[2], p95=q[3], p99=q[4], min=float(np.min(x)),
-                max=float(np.max(x)), mean=float(np.mean(x)))
-
-
-PERCENTILES = (1, 5, 50, 95, 99)  # the envelopes' percentiles [%]
+    return {**{f"p{q:02d}": v for q, v in zip(PERCENTILES, np.percentile(x, PERCENTILES))},
+            "min": float(np.min(x)), "max": float(np.max(x)), "mean": float(np.mean(x))}
 
 
 def percentile_intervals(x) -> dict | None:
@@ -142,14 +140,9 @@ def percentile_intervals(x) -> dict | None:
     n = x.size
     if n == 0:
         return None
-    i = np.arange(n)
     out = {}
     for q in PERCENTILES:
-        p = q / 100.0
-        # P(B <= j), j = 0..n, from the ratio of successive binomial terms, in logs
-        steps = np.log((n - i) / (i + 1.0)) + math.log(p / (1.0 - p))
-        log_pmf = n * math.log1p(-p) + np.concatenate([[0.0], np.cumsum(steps)])
-        cdf = np.cumsum(np.exp(log_pmf - log_pmf.max())) * math.exp(log_pmf.max())
+        cdf = np.cumsum(binomial_pmf(n, q / 100.0))  # P(B <= j), j = 0..n
         below = int(np.searchsorted(cdf, 0.025, side="right"))  # l: P(B <= l - 1) <= 0.025
         above = int(np.searchsorted(cdf, 0.975, side="left"))  # u - 1: P(B >= u) <= 0.025
         out[f"p{q:02d}"] = [float(x[below - 1]) if below >= 1 else None,
