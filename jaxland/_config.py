@@ -344,7 +344,7 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
     if known:  # the law's own structure: checked with the fields (follows_rules too)
         x1 = F1 / k1
         x3 = x2 + (F2 - F1) / k3
-        f2_ok, x2_ok, x4_ok = stages_in_order(F1, F2, k1, k3, x2, x4)
+        f2_ok, x2_ok, x4_ok = stages_in_order(F1, F2, x1, x2, x3, x4)
         if np.any(~f2_ok):
             raise ConfigError("honeycomb.F2_N", float(np.max(F2)),
                               f"must exceed F1_N = {float(np.min(F1))} (the secondary stage "
@@ -399,18 +399,18 @@ def follows_rules(veh: Vehicle):
         if val is not None:
             ok = ok & jnp.all(field_ok(f, jnp.asarray(val), jnp))
     hc = veh.honeycomb
-    for in_order in stages_in_order(hc.F1, hc.F2, hc.k_b1, hc.k_b3, hc.x_L2, hc.x_L4):
+    for in_order in stages_in_order(hc.F1, hc.F2, hc.x_L1, hc.x_L2, hc.x_L3, hc.x_L4):
         ok = ok & jnp.all(in_order)
     return ok
 
 
-def stages_in_order(F1, F2, k_b1, k_b3, x_L2, x_L4):
+def stages_in_order(F1, F2, x_L1, x_L2, x_L3, x_L4):
     """Per element (numpy or jax values alike): F2 > F1, x_L1 < x_L2 and x_L3 < x_L4, the
     honeycomb's stages in order. Out of order the law's clip has a negative width and an
     unstroked honeycomb pulls, so these hold wherever the law runs: ``validate_vehicle``
     checks them with each field's own rule (also with ``fields_only``), ``follows_rules``
     on traced values."""
-    return F2 > F1, F1 / k_b1 < x_L2, x_L2 + (F2 - F1) / k_b3 < x_L4
+    return F2 > F1, x_L1 < x_L2, x_L3 < x_L4
 
 
 def _check_peaks_and_unloading(hc, ground, F1, F2, k1, k3, x2, x4):
