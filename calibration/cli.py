@@ -16,6 +16,7 @@ from pathlib import Path
 import jaxland as jl
 from jaxland import staged
 from jaxland._checks import named_as
+from jaxland._files import file_record
 
 __all__ = ["add_subcommands"]
 
@@ -66,12 +67,6 @@ def _out_dir(path: str, inputs=(), command: str | None = None) -> Path:
     return jl.check_output_folder(path, inputs, command)
 
 
-def _file_record(path) -> dict:
-    from jaxland._files import file_record
-
-    return file_record(path)
-
-
 def fit_inputs(args, drops) -> dict:
     """``fit_report.json``'s ``inputs``: the drop tests as given with the files their metadata
     named, the ``--config`` file, and every argument of the command as parsed (defaults
@@ -79,12 +74,12 @@ def fit_inputs(args, drops) -> dict:
     report's ``environment``)."""
     def named(files) -> dict:  # the metadata, its traces, its vehicle_config (or None)
         meta, data, *cfg = files
-        return dict(metadata=_file_record(meta), data_file=_file_record(data),
-                    vehicle_config=_file_record(cfg[0]) if cfg else None)
+        return dict(metadata=file_record(meta), data_file=file_record(data),
+                    vehicle_config=file_record(cfg[0]) if cfg else None)
 
     return dict(
         data=[dict(given=given, **named(d.files)) for given, d in zip(args.data, drops)],
-        config=_file_record(args.config) if args.config else None,
+        config=file_record(args.config) if args.config else None,
         arguments={k: v for k, v in vars(args).items() if k not in ("func", "command")})
 
 
@@ -470,9 +465,9 @@ def _cmd_predict(args) -> int:
                         jaxland_version=jl.__version__,
                         # each file with its SHA-256: whether the file at that path is still
                         # the one used (a refit replaces the fit's folder as a whole)
-                        files=dict(vehicle_config=_file_record(args.config),
-                                   metadata=_file_record(meta), data_file=_file_record(data),
-                                   drop_vehicle_config=_file_record(cfg[0]) if cfg else None),
+                        files=dict(vehicle_config=file_record(args.config),
+                                   metadata=file_record(meta), data_file=file_record(data),
+                                   drop_vehicle_config=file_record(cfg[0]) if cfg else None),
                         environment=environment)
         p.fit_status = status
     # a fitted vehicle keeps what the fit said of it: predict reads its flags from there
