@@ -33,6 +33,9 @@ class SceneField(NamedTuple):
     hi: float
     toml: str  # TOML key (unit in the name)
     to_si: float  # TOML -> SI factor
+    # an azimuth repeats every 2 pi: a statistic over it reads its sine and cosine, never the
+    # angle as a line
+    circular: bool = False
 
 
 # Limits are our documented envelope: attitude within 30 deg (a steeper vehicle is not
@@ -45,10 +48,11 @@ SCENE_FIELDS = {
     "horizontal_speed": SceneField("m/s", "horizontal speed at t = 0", 0.0, 30.0,
                                    "horizontal_speed_mps", 1.0),
     "heading": SceneField("rad", "direction of the horizontal velocity (azimuth from world x)",
-                          -4 * math.pi, 4 * math.pi, "heading_deg", _DEG),
+                          -4 * math.pi, 4 * math.pi, "heading_deg", _DEG, circular=True),
     "roll": SceneField("rad", "body roll about x''", -30 * _DEG, 30 * _DEG, "roll_deg", _DEG),
     "pitch": SceneField("rad", "body pitch about y'", -30 * _DEG, 30 * _DEG, "pitch_deg", _DEG),
-    "yaw": SceneField("rad", "body yaw about z", -4 * math.pi, 4 * math.pi, "yaw_deg", _DEG),
+    "yaw": SceneField("rad", "body yaw about z", -4 * math.pi, 4 * math.pi, "yaw_deg", _DEG,
+                      circular=True),
     "roll_rate": SceneField("rad/s", "body-frame angular rate about x", -5.0, 5.0,
                             "roll_rate_degps", _DEG),
     "pitch_rate": SceneField("rad/s", "body-frame angular rate about y", -5.0, 5.0,
@@ -57,7 +61,8 @@ SCENE_FIELDS = {
                            "yaw_rate_degps", _DEG),
     "slope": SceneField("rad", "ground slope", 0.0, 30 * _DEG, "slope_deg", _DEG),
     "slope_direction": SceneField("rad", "downhill direction of the slope (azimuth from world x)",
-                                  -4 * math.pi, 4 * math.pi, "slope_direction_deg", _DEG),
+                                  -4 * math.pi, 4 * math.pi, "slope_direction_deg", _DEG,
+                                  circular=True),
 }
 # Envelope of the optional scene fields, SI: friction within [0, 2], body mass within a factor 2
 # either way, honeycomb scatter within a factor 5, centre-of-mass offset within +/-0.3 m.

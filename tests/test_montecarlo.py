@@ -768,6 +768,46 @@ def test_the_sensitivity_ranks_no_rounding_noise():
     assert s["ranking"] == [] and s["not_estimated"].startswith("5 successful landings")
 
 
+def test_the_sensitivity_reads_an_azimuth_as_its_sine_and_cosine():
+    """A heading drawn over the whole circle moves a target through its cosine: 0 and 360 deg
+    are one heading. A line through the angle reads them as its two extremes and finds no
+    effect (t about 0); the sine and cosine find it (the effect against ordinary least squares
+    on the cosine, from scratch), and the summary and the tip-over map name the heading once."""
+    from jaxland._montecarlo._spec import period
+    from jaxland._montecarlo._stats import ranked_inputs, sensitivity
+
+    rng = np.random.default_rng(1)
+    heading = rng.uniform(0.0, 360.0, 400)
+    inputs = {"heading_deg": heading, "sink_speed_mps": rng.uniform(1, 3, 400)}
+    y = 0.05 * np.cos(np.radians(heading)) + rng.normal(0, 1e-3, 400)
+    ok = np.ones(400, bool)
+    assert period("heading_deg") == pytest.approx(360.0) and period("sink_speed_mps") is None
+    assert period("slope_direction_deg") == pytest.approx(360.0)
+    assert period("yaw_deg") == pytest.approx(360.0) and period("roll_deg") is None
+    as_line = sensitivity(inputs, y, ok)  # no period: the angle as a line
+    assert abs({r["input"]: r["t"] for r in as_line["ranking"]}["heading_deg"]) < 4
+    s = sensitivity(inputs, y, ok, {"heading_deg": period("heading_deg")})
+    top = s["ranking"][0]
+    c = np.cos(np.radians(heading))
+    X = np.column_stack([np.ones(400), (np.sin(np.radians(heading)) - np.sin(np.radians(
+        heading)).mean()) / np.sin(np.radians(heading)).std(), (c - c.mean()) / c.std(),
+        (inputs["sink_speed_mps"] - inputs["sink_speed_mps"].mean())
+        / inputs["sink_speed_mps"].std()])
+    beta = np.linalg.lstsq(X, y, rcond=None)[0]
+    assert top["input"] == "heading_deg (cos)" and top["t"] > 100
+    assert top["effect_per_std"] == pytest.approx(beta[2], rel=1e-9)
+    assert top["r2_of_fit"] > 0.99
+    assert ranked_inputs(s["ranking"]) == ["heading_deg", "sink_speed_mps"]
+    # the run's summary regresses on them: a heading drawn over the circle in a vertical drop
+    spec = MonteCarloSpec(**{**QUARTER_SPEC, "n": 8, "dispersion": {
+        **QUARTER_SPEC["dispersion"], "heading_deg": Distribution("uniform", low=0.0,
+                                                                  high=360.0)}})
+    ranked = run_montecarlo(spec, chunk=8, progress=False).summary["sensitivity"]
+    assert {r["input"] for r in ranked["ranking"]} == {
+        "sink_speed_mps", "mass_scale", "heading_deg (sin)", "heading_deg (cos)"}
+    assert "sine and cosine" in ranked["method"]
+
+
 def test_spec_toml_writes_numpy_numbers_as_their_values():
     """A spec built in Python with numpy numbers ran with them, but spec.toml truncated each to
     an integer (high = 2.5 as float32 read back 2, dt 1e-4 as 0): the folder's rerun drew other

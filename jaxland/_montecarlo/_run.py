@@ -27,7 +27,7 @@ from .._simulate import landings, refuse_unsteppable
 from .._solvers import FAILED_CODES, Result, Solver, stable_step
 from .._solvers._base import T_END_MAX
 from ._sample import check_fixed, draw, sample_scenes, scene_fields
-from ._spec import LEDGER_CHECK_S, MonteCarloSpec, montecarlo_spec_to_toml
+from ._spec import LEDGER_CHECK_S, MonteCarloSpec, montecarlo_spec_to_toml, period
 from ._stats import (
     over_all_landings,
     percentile_intervals,
@@ -617,8 +617,10 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
         envelopes_ci95={k: percentile_intervals(v) for k, v in envelope_samples.items()},
         sensitivity=dict(
             target="min_stability_margin_m" if model == "full" else "max_stroke_m",
-            method="least squares on standardised inputs: change per standard deviation",
-            **sensitivity(inputs, target, ok)),
+            method="least squares on standardised inputs: change per standard deviation; "
+                   "an azimuth enters as its sine and cosine",
+            **sensitivity(inputs, target, ok,
+                          {k: period(k) for k in inputs if period(k) is not None})),
         dispersion={k: v.record() for k, v in spec.dispersion.items()},
         fixed=spec.fixed,
         environment=run_environment(),

@@ -51,6 +51,13 @@ _EXTRA_LIMITS = {
 }
 
 
+def period(key: str) -> float | None:
+    """The period of a dispersible input in its TOML units (360 for an azimuth in degrees), or
+    None for an input that does not repeat."""
+    f = SCENE_FIELDS.get(DISPERSIBLE[key].field)
+    return 2.0 * math.pi / DISPERSIBLE[key].to_si if f is not None and f.circular else None
+
+
 def envelope(key: str) -> tuple[float, float]:
     """The scene envelope of a dispersible input, in its TOML units."""
     if key in _EXTRA_LIMITS:

@@ -156,22 +156,36 @@ def percentile_intervals(x) -> dict | None:
 CONSTANT_REL = 1e-9
 
 
-def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> dict:
+def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray,
+                periods: dict | None = None) -> dict:
     """Linear regression of ``target`` [m] (a stroke or a margin) on the standardised
     dispersed inputs (per-leg inputs enter per leg): {"ranking": the change of the target per
     standard deviation of each input, ranked, with its standard error [m] and t (the effect
     over it) and the fit's R^2; "not_estimated": None, or why there is no
     ranking (too few landings ``ok``, no input dispersed, or a target the same in every
-    landing up to rounding)}."""
+    landing up to rounding)}.
+
+    An input with a period (``periods``: name -> period in its units, e.g. 360 for a heading
+    in degrees) enters as its sine and cosine, ranked as ``name (sin)`` and ``name (cos)``:
+    0 and 360 deg are one heading, which a line through the angle would read as its two
+    extremes."""
+    periods = periods or {}
     cols, names = [], []
     for name, arr in inputs.items():
         arr = np.asarray(arr, dtype=float)
         arr = arr[:, None] if arr.ndim == 1 else arr
         for i in range(arr.shape[1]):
+            label = name if arr.shape[1] == 1 else f"{name}[leg{i}]"
             x = arr[ok, i]
-            if x.size > 1 and np.std(x) > 0:
-                cols.append((x - x.mean()) / x.std())
-                names.append(name if arr.shape[1] == 1 else f"{name}[leg{i}]")
+            if name in periods:
+                phase = 2.0 * np.pi * x / periods[name]
+                parts = [(f"{label} (sin)", np.sin(phase)), (f"{label} (cos)", np.cos(phase))]
+            else:
+                parts = [(label, x)]
+            for part, x in parts:
+                if x.size > 1 and np.std(x) > 0:
+                    cols.append((x - x.mean()) / x.std())
+                    names.append(part)
     y = np.asarray(target, dtype=float)[ok]
     if y.size <= 1:  # before "no input varies": over no landing nothing can
         return dict(ranking=[], not_estimated=(
@@ -201,3 +215,10 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray) -> dict:
     return dict(ranking=[dict(input=n, effect_per_std=float(c), std_error=float(e),
                               t=float(c / e) if e > 0 else None, r2_of_fit=float(r2))
                          for n, c, e in ranked], not_estimated=None)
+
+
+def ranked_inputs(ranking: list) -> list:
+    """The inputs of a sensitivity ``ranking`` in its order, each once: an azimuth's sine and
+    cosine rows are one input, and a per-leg row names its leg (``plateau_scale[leg2]``)."""
+    return list(dict.fromkeys(r["input"].removesuffix(" (sin)").removesuffix(" (cos)")
+                              for r in ranking))

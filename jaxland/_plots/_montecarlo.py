@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._montecarlo._stats import all_landings_text, probability_text
+from .._montecarlo._stats import all_landings_text, probability_text, ranked_inputs
 from .._solvers import FAILED_CODES, Result
 from ._landing import _save
 
@@ -27,7 +27,7 @@ def _outcomes(result):
 
 
 def _input_column(result, name):
-    """An input by its ranking name (``plateau_scale[leg2]`` selects a leg)."""
+    """An input by its name in ``ranked_inputs`` (``plateau_scale[leg2]`` selects a leg)."""
     base, _, leg = name.partition("[leg")
     arr = np.asarray(result.inputs[base], dtype=float)
     return arr[:, int(leg.rstrip("]"))] if leg else arr
@@ -103,9 +103,9 @@ def plot_montecarlo(result, out_dir) -> list[Path]:
                  "landings; lines at 5, 50, 95, 99 %")
     paths.append(_save(fig, out_dir / "mc_envelopes.png"))
 
-    ranking = s["sensitivity"]["ranking"]
-    if len(ranking) >= 2 and tippable:
-        a, b = ranking[0]["input"], ranking[1]["input"]
+    ranked = ranked_inputs(s["sensitivity"]["ranking"])
+    if len(ranked) >= 2 and tippable:
+        a, b = ranked[:2]
         xa, xb = _input_column(result, a), _input_column(result, b)
         fig = Figure(figsize=(6.5, 5), layout="constrained")
         ax = fig.subplots()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .. import use_batch_fusion
 from .._checks import named_as
-from .._montecarlo._stats import all_landings_text
+from .._montecarlo._stats import all_landings_text, ranked_inputs
 from ._common import out_dir, use_cpu_cores
 
 # envelopes whose low tail is the danger (the others: the high tail)
@@ -158,7 +158,7 @@ def cmd_montecarlo(args) -> int:
         print(f"  drivers of {s['sensitivity']['target']}: not estimated "
               f"({s['sensitivity']['not_estimated']})")
     if not args.no_plots and s["tip_over"].get("modelled", True) \
-            and len(s["sensitivity"]["ranking"]) < 2:
+            and len(ranked_inputs(s["sensitivity"]["ranking"])) < 2:
         print("  no tip-over map: it is drawn over the two most influential inputs, and the "
               "drivers rank fewer")
     print(f"wrote {out}/samples.csv, samples.npz, summary.json, spec.toml, vehicle.toml"
