@@ -246,16 +246,16 @@ class Scene(eqx.Module):
 
     def validate(self, n_legs: int | None = None) -> Scene:
         """Refuse scenes outside the documented envelope, naming field, value and rule."""
-        for name, (unit, _doc, lo, hi, key, to_si) in SCENE_FIELDS.items():
+        for name, f in SCENE_FIELDS.items():
             arr = concrete(getattr(self, name))
             if arr is None:
                 continue
-            bad = ~np.isfinite(arr) | (arr < lo) | (arr > hi)
+            bad = ~np.isfinite(arr) | (arr < f.lo) | (arr > f.hi)
             if np.any(bad):
-                shown = float(arr[bad].flat[0]) / to_si
-                raise ConfigError(f"scene.{key}", shown, f"must be finite and in "
-                                  f"[{lo / to_si:.4g}, {hi / to_si:.4g}] "
-                                  f"{_UNIT_OF_SUFFIX[key.rsplit('_', 1)[-1]]}")
+                shown = float(arr[bad].flat[0]) / f.to_si
+                raise ConfigError(f"scene.{f.toml}", shown, f"must be finite and in "
+                                  f"[{f.lo / f.to_si:.4g}, {f.hi / f.to_si:.4g}] "
+                                  f"{_UNIT_OF_SUFFIX[f.toml.rsplit('_', 1)[-1]]}")
         fr = concrete(self.friction)
         lo, hi = OPTIONAL_LIMITS["friction"]
         if fr is not None and np.any(~np.isfinite(fr) | (fr < lo) | (fr > hi)):
