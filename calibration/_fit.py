@@ -104,6 +104,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxland as jl
+from jaxland._checks import named_as
 from jaxland._files import json_text, run_environment
 from jaxland._solvers._base import _whole_steps
 
@@ -1798,6 +1799,10 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     start_vehicle = switch_on(given, names)
     if peak_form == "ripple" and given.honeycomb.peak_rise1 is None:
         start_vehicle = _rise_start(start_vehicle, names, "ripple", peak_site)  # a fold length
+    with named_as({"solver.smoothing_m": ("smoothing_m", smoothing_m),
+                      "solver.smoothing_N": ("smoothing_N", smoothing_N)}):
+        jl.Solver(method=integrator, smoothing_m=smoothing_m,
+                  smoothing_N=smoothing_N).check_smoothing(start_vehicle)
     limit = float(jl.stable_step(start_vehicle, method=integrator))
     if isinstance(dt, (int, float)) and 0 < dt and dt > limit and isinstance(start, dict):
         _check_start_step(base, names, start, dt, integrator, peak_form, peak_site)

@@ -187,3 +187,12 @@ def named_as(names: dict):
             if err.field == field or err.field.startswith(field + "."):
                 raise ConfigError(name, given, err.rule) from None
         raise
+
+
+def at_most(x: float, digits: int = 3) -> str:
+    """``x`` to ``digits`` significant digits, rounded down: a value to use below a limit (the
+    euler limit 1.33676e-4 s, rounded to 0.000134 s, refuses that step)."""
+    if not (math.isfinite(x) and x > 0.0):
+        return f"{x:.{digits}g}"
+    unit = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    return f"{math.floor(x / unit) * unit:.{digits}g}"

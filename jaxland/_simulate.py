@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import __version__
-from ._checks import as_number
+from ._checks import as_number, at_most
 from ._config import paper_vehicle, validate_vehicle, vehicle_fields
 from ._errors import ConfigError, SimulationError
 from ._files import atomic_write_csv, atomic_write_text, flat_columns, json_text
@@ -392,16 +392,7 @@ def check_step(solver: Solver, vehicle: Vehicle, model: AbstractModel) -> None:
         what = "its time-step cap" if isinstance(method, Impulse) else "dt"
         raise ConfigError("solver.dt", solver.dt, f"exceeds the stability limit {limit:.3g} s "
                           f"of {method.name} for this vehicle ({method.stability_reason}); use "
-                          f"{what} <= {_at_most(limit)} s")
-
-
-def _at_most(x: float, digits: int = 3) -> str:
-    """``x`` to ``digits`` significant digits, rounded down: a step to use below a limit (the
-    euler limit 1.33676e-4 s, rounded to 0.000134 s, refuses that step)."""
-    if not (math.isfinite(x) and x > 0.0):
-        return f"{x:.{digits}g}"
-    unit = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
-    return f"{math.floor(x / unit) * unit:.{digits}g}"
+                          f"{what} <= {at_most(limit)} s")
 
 
 def _check_save_interval(solver: Solver, given: float | None) -> None:
@@ -471,6 +462,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         dt = default_step(vehicle, method, mod)
     solver = Solver(dt=dt, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
     solver.validate_values()
+    solver.check_smoothing(vehicle)
     if isinstance(method, (Impulse, Tsit5)):
         # their steps follow the springs (tsit5's cap is 1/omega of the foot, the impulse's
         # cap is a spring limit): a vehicle whose springs leave no step is named, before an
@@ -490,7 +482,7 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         cap = float(step_cap(mod, vehicle))
         if solver.dt > cap:  # its first step, and the default output interval's unit
             raise ConfigError("solver.dt", solver.dt, f"is tsit5's first step and must be <= "
-                              f"its step cap {_at_most(cap)} s (1/omega of the foot on its "
+                              f"its step cap {at_most(cap)} s (1/omega of the foot on its "
                               "stiffest springs)")
     _check_save_interval(solver, save_dt)
     traj, summary = _landing_jit(vehicle, scene, solver, mod)

@@ -958,6 +958,11 @@ def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_v
     (["fit", "DATA/missing.toml"], "does not exist"),
     (["fit", "DATA/drop_h0.20m.toml", "--integrator", "rk4"], "--integrator = 'rk4'"),
     (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "-5"], "--smoothing-n = -5.0"),
+    # a width that rounds nothing: the fit's landing failed at its start point (exit 3)
+    (["fit", "DATA/drop_h0.20m.toml", "--smoothing-m", "10"], "--smoothing-m = 10.0: must be "
+                                                             "<= 4.7e-05 m, a tenth of"),
+    (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "1e4"], "--smoothing-n = 10000.0: must "
+                                                              "be <= 502 N"),
     (["predict", "--config", "DATA/missing.toml", "DATA/drop_h0.20m.toml"], "does not exist"),
 ])
 def test_cli_refuses_bad_input_and_writes_nothing(tmp_path, argv, needle):

@@ -157,6 +157,31 @@ def test_smoothing_bias_on_max_stroke_is_bounded():
     assert not bool(out["smooth"]["failed"])
 
 
+def test_the_widest_smoothing_allowed_keeps_the_landing_within_one_percent():
+    """The widths a solver accepts (Solver.check_smoothing: a tenth of the honeycomb's elastic
+    stroke, of F1) round the switches and leave the paper drop's max stroke and peak ground
+    force within 1 % of the hard switches'; a width of 10 m (no rounding: the feet sink
+    through a ground rounded over it) is refused by name, with the limit it must keep."""
+    veh = jl.paper_vehicle()
+    scene = jl.Scene(drop_height=0.2)
+    x_l1, f1 = float(veh.honeycomb.F1 / veh.honeycomb.k_b1), float(veh.honeycomb.F1)
+    widest = dict(smoothing_m=0.1 * x_l1, smoothing_N=0.1 * f1)
+    out = {}
+    for key, kw in (("hard", {}), ("widest", widest)):
+        solver = jl.Solver(dt=1e-5, t_end=0.3, save_dt=1e-3, method="verlet", **kw)
+        solver.check_smoothing(veh)
+        _, out[key] = jax.jit(lambda v, solver=solver: jl.landing(v, scene, solver,
+                                                                 "quarter"))(veh)
+    for k in ("max_stroke_m", "peak_normal_force_N"):
+        hard, wide = float(out["hard"][k]), float(out["widest"][k])
+        assert 1e-4 < abs(wide / hard - 1.0) < 1e-2, k  # rounded, and by little
+    assert not bool(out["widest"]["failed"])
+    for name, value, limit in (("smoothing_m", 10.0, "4.7e-05 m"),
+                               ("smoothing_N", 1.01 * widest["smoothing_N"], "502 N")):
+        with pytest.raises(jl.ConfigError, match=f"solver.{name} = .*must be <= {limit}"):
+            jl.Solver(**{name: value}).check_smoothing(veh)
+
+
 def test_ramp_is_c1_exact_outside_its_band_and_nan_free():
     w = 1e-6
     x = jnp.array([-1e-3, -w, 0.0, 1e-9, w / 3, w / 2, w, 1.5 * w, 1e-3])

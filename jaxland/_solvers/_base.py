@@ -15,9 +15,10 @@ import math
 from typing import ClassVar
 
 import equinox as eqx
+import numpy as np
 from jaxtyping import Array
 
-from .._checks import _is_number, as_number, check_int_size, named_as
+from .._checks import _is_number, as_number, at_most, check_int_size, named_as
 from .._errors import ConfigError
 from .._models import AbstractModel, Oscillator, Smoothing
 
@@ -26,6 +27,9 @@ T_END_MAX = 100.0  # s, longest simulated duration
 SAVES_MAX = 1_000_000  # most saved samples of one landing (a trajectory of ~40 columns)
 MAX_STEPS = 5e8  # steps a run may take (t_end / dt)
 N_EVENTS = 256  # default capacity of the contact on/off log (later changes are counted)
+# a switch width is a rounding only where it is small against what it rounds: at most this
+# share of the vehicle's shortest switched length and of its first plateau force
+SMOOTHING_SHARE = 0.1
 
 
 class Result(enum.IntEnum):
@@ -270,6 +274,31 @@ class Solver(eqx.Module):
             if self.n_saves != 1:
                 raise ConfigError("solver.early_stop", True, "needs a run without a trajectory"
                                   f" (save_dt = t_end = {self.t_end} s)")
+        return self
+
+    def check_smoothing(self, vehicle) -> Solver:
+        """Refuse switch widths too wide to round a switch of ``vehicle`` (a concrete one):
+        ``smoothing_m`` above ``SMOOTHING_SHARE`` of the shortest length it rounds (the
+        honeycomb's elastic stroke F1/k_b1, the ground's give under one leg's share of the
+        weight), ``smoothing_N`` above that share of the plateau force F1 (the strut's
+        no-pull floor switches between 0 and kilonewtons). Wider, the laws are others: a
+        ground rounded over 10 m lets the feet sink through it."""
+        hc, gr = vehicle.honeycomb, vehicle.ground
+        stroke = float(np.min(np.asarray(hc.F1) / np.asarray(hc.k_b1)))
+        give = float(np.min(np.asarray(vehicle.m_quarter + vehicle.m_foot)
+                            * np.asarray(vehicle.g) / np.asarray(gr.k)))
+        length, what = min((stroke, "the honeycomb's elastic stroke F1/k_b1"),
+                           (give, "the ground's give under one leg's share of the weight"))
+        if self.smoothing_m > SMOOTHING_SHARE * length:
+            raise ConfigError("solver.smoothing_m", self.smoothing_m, f"must be <= "
+                              f"{at_most(SMOOTHING_SHARE * length)} m, a tenth of the "
+                              f"shortest length it rounds on this vehicle ({what}, "
+                              f"{length * 1e3:.3g} mm); 0: hard switches")
+        f1 = float(np.min(np.asarray(hc.F1)))
+        if self.smoothing_N > SMOOTHING_SHARE * f1:
+            raise ConfigError("solver.smoothing_N", self.smoothing_N, f"must be <= "
+                              f"{at_most(SMOOTHING_SHARE * f1)} N, a tenth of the honeycomb's "
+                              f"plateau force F1 = {f1:.4g} N; 0: hard switches")
         return self
 
 
