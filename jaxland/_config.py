@@ -365,13 +365,18 @@ def validate_vehicle(veh: Vehicle, *, fields_only: bool = False) -> Vehicle:
         _check_peaks_and_unloading(hc, veh.ground, F1, F2, k1, k3, x2, x4)
     inertia = [concrete(x) for x in (veh.I_xx, veh.I_yy, veh.I_zz)]
     if all(x is not None for x in inertia):
-        for i, name in enumerate(("I_xx_kg_m2", "I_yy_kg_m2", "I_zz_kg_m2")):
-            others = inertia[(i + 1) % 3] + inertia[(i + 2) % 3]
-            if np.any(~(inertia[i] <= others)):
-                raise ConfigError(f"body.{name}", float(np.max(inertia[i])),
-                                  f"must be <= the sum of the other two principal moments "
-                                  f"({float(np.min(others)):.6g} kg m^2): no rigid body has "
-                                  "such an inertia")
+        names = ("I_xx_kg_m2", "I_yy_kg_m2", "I_zz_kg_m2")
+        moments = [np.ravel(x) for x in np.broadcast_arrays(*inertia)]  # one vehicle per entry
+        for i, name in enumerate(names):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            bad = np.flatnonzero(~(moments[i] <= moments[j] + moments[k]))
+            if bad.size:  # the other two by name: one of them may be the mistyped one
+                at = bad[0]
+                raise ConfigError(f"body.{name}", float(moments[i][at]),
+                                  f"must be <= the sum of the other two principal moments, "
+                                  f"{names[j]} + {names[k]} = {moments[j][at]:.6g} + "
+                                  f"{moments[k][at]:.6g} kg m^2: no rigid body has such an "
+                                  "inertia")
     leg = veh.leg
     L, th, H2 = concrete(leg.L_h0), concrete(leg.theta_b), concrete(leg.H2)
     if x4 is not None and L is not None and np.any(~(x4 < L)):

@@ -332,6 +332,11 @@ def test_an_impossible_inertia_is_refused():
     with pytest.raises(jl.ConfigError, match=r"body\.I_zz_kg_m2.*sum of the other two"):
         jl.validate_vehicle(veh)
     jl.validate_vehicle(eqx.tree_at(lambda v: v.I_zz, VEH, VEH.I_xx + VEH.I_yy))
+    # a tiny I_xx breaks I_yy's rule: the refusal shows I_xx's value too, so the mistyped
+    # moment is in the message whichever of the two it was
+    with pytest.raises(jl.ConfigError, match=r"body\.I_yy_kg_m2 = 1056.5.*I_zz_kg_m2 \+ "
+                                             r"I_xx_kg_m2 = 201.6 \+ 1e-06 kg m\^2"):
+        jl.validate_vehicle(eqx.tree_at(lambda v: v.I_xx, VEH, 1e-6))
 
 
 def test_drop_test_data_that_is_not_utf8_is_refused(tmp_path):
