@@ -3,6 +3,7 @@ energy balance, constraints at the returned design, infeasible specs reported, m
 refused by name, and the CLI writing its files."""
 
 import copy
+import csv
 import dataclasses
 import json
 import math
@@ -705,6 +706,23 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
     for name in ("design_history", "design_force_stroke", "design_outcomes"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 1000
     assert not list(out.glob(".staging-*"))
+    # every verification landing with its inputs and outcomes, as the report judged them
+    for tag, vehicle in (("before", jl.paper_vehicle()), ("after", veh)):
+        folder = out / "verification" / tag
+        with (folder / "samples.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        judged = report["verification"][tag]
+        assert len(rows) == judged["n"] == 20
+        strokes = [max(float(r[f"leg{i}_max_stroke_m"]) for i in range(4)) for r in rows
+                   if r["failure_code"] == "0"]
+        assert len(strokes) == judged["n_ok"]
+        assert max(strokes) == pytest.approx(judged["max_stroke_m"]["max"], rel=1e-9)  # 10 digits
+        assert {"sink_speed_mps", "t_end_s"} <= set(rows[0])
+        assert json.loads((folder / "summary.json").read_text())["n"] == 20
+        assert jl.vehicle_to_toml(jl.load_vehicle(folder / "vehicle.toml")) == \
+            jl.vehicle_to_toml(vehicle)
+        assert jl.load_montecarlo_spec(folder / "spec.toml").seed == \
+            report["verification"]["seed"]
     # malformed input: exit code 2 and the field named
     spec.write_text(TINY.replace("margin_mm = 20.0", "margin_mm = -1.0"))
     assert main(["design", str(spec), "--out", str(out)]) == 2

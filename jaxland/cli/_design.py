@@ -3,10 +3,12 @@
 ``add_subcommands(subparsers)`` registers it on an ``argparse`` subparsers object. The handler
 writes, through a staging folder moved into place only once every file exists:
 ``design_vehicle.toml`` (loadable by ``jaxland simulate --config``; only for a feasible design),
-``design_report.json`` and ``figures/design_*.png``. Exit codes: 0 feasible design that passed
-its verification, 4 no feasible design found (the report names the violated constraints), 5 a
-design feasible on its scenes that the verification Monte Carlo does not confirm after the
-re-optimisation rounds (the report and stderr say why), 2 invalid input, 3 numerical failure.
+``design_report.json``, ``figures/design_*.png`` and the verification's landings,
+``verification/before/`` and ``verification/after/`` (Monte Carlo folders). Exit codes: 0
+feasible design that passed its verification, 4 no feasible design found (the report names
+the violated constraints), 5 a design feasible on its scenes that the verification Monte
+Carlo does not confirm after the re-optimisation rounds (the report and stderr say why), 2
+invalid input, 3 numerical failure.
 """
 
 from __future__ import annotations
@@ -143,6 +145,11 @@ def _cmd_design(args) -> int:
             files=files))
         if not args.no_plots:
             result.plot(staging / "figures")
+        # every verification landing, the baseline's and the design's, as a Monte Carlo
+        # folder: inputs and outcomes per sample (t_end_s: where each one ended, continued)
+        for tag, res in (("before", result.mc_before), ("after", result.mc_after)):
+            if res is not None:
+                res.save(staging / "verification" / tag, plots=False)
     total = time.perf_counter() - t0
     print(f"jaxland design: total {total:.1f} s (last optimisation {result.wall_s:.1f} s)")
     print(f"design {result.status} after {result.iterations_run} iterations in "
@@ -214,10 +221,12 @@ def _cmd_design(args) -> int:
             print(f"jaxland design: INFEASIBLE: constraint {name} violated, g = {c['g']:+.4g} "
                   f"({units[name]}; {c['rule']})", file=sys.stderr)
         print(f"wrote {out}/design_report.json" + ("" if args.no_plots else ", figures/*.png")
+              + (", verification/{before,after}/" if result.mc_after is not None else "")
               + " (no design_vehicle.toml: no feasible design)")
         return EXIT_INFEASIBLE
     print(f"wrote {out}/design_vehicle.toml, design_report.json"
-          + ("" if args.no_plots else ", figures/*.png"))
+          + ("" if args.no_plots else ", figures/*.png")
+          + (", verification/{before,after}/" if result.mc_after is not None else ""))
     if result.verification and not result.verification["verified"]:
         print(f"jaxland design: NOT VERIFIED: {result.verification['reason']}",
               file=sys.stderr)
