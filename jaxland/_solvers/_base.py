@@ -284,9 +284,10 @@ class Solver(eqx.Module):
         no-pull floor switches between 0 and kilonewtons). Wider, the laws are others: a
         ground rounded over 10 m lets the feet sink through it."""
         hc, gr = vehicle.honeycomb, vehicle.ground
-        stroke = float(np.min(np.asarray(hc.F1) / np.asarray(hc.k_b1)))
-        give = float(np.min(np.asarray(vehicle.m_quarter + vehicle.m_foot)
-                            * np.asarray(vehicle.g) / np.asarray(gr.k)))
+        with np.errstate(all="ignore"):  # a vehicle of 1e308 kg is refused where it overflows
+            stroke = float(np.min(np.asarray(hc.F1) / np.asarray(hc.k_b1)))
+            give = float(np.min(np.asarray(vehicle.m_quarter + vehicle.m_foot)
+                                * np.asarray(vehicle.g) / np.asarray(gr.k)))
         length, what = min((stroke, "the honeycomb's elastic stroke F1/k_b1"),
                            (give, "the ground's give under one leg's share of the weight"))
         if self.smoothing_m > SMOOTHING_SHARE * length:
