@@ -491,7 +491,9 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         again = retry_step(vehicle, scene, method, mod)
         if save_dt is not None:  # a whole fraction of the output interval the user gave
             again = save_dt / math.ceil(save_dt / again - 1e-9)
-        if again < solver.dt:
+        # a retry no run can take (its force bound from a vehicle past float64's range) is
+        # not tried: the first run's failure is the answer, named
+        if again < solver.dt and solver.t_end / again <= MAX_STEPS:
             retried = solver.dt
             solver = Solver(dt=again, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
             solver.validate()

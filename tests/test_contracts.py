@@ -482,6 +482,16 @@ def test_a_retried_landing_keeps_the_output_interval_it_was_given():
     np.testing.assert_allclose(np.diff(out.trajectory["time_s"]), 5e-5, rtol=1e-6)
 
 
+def test_a_retry_that_no_run_could_take_is_not_tried():
+    """A body of 1e200 kg fails numerically at the default step; the retry step from its
+    force bound (4.9e-105 s) would take 1e104 steps. simulate refused that step as
+    ``solver.dt``, which the user never gave; it reports the first run's failure instead."""
+    veh = eqx.tree_at(lambda v: v.m_body, jl.paper_vehicle(), 1e200)
+    with pytest.raises(jl.SimulationError, match="numerical failure|too large for this "
+                                                 "landing"):
+        jl.simulate(vehicle=veh)
+
+
 def test_a_first_impact_between_two_saved_samples_has_no_first_impact_stroke():
     """The first-impact stroke and the foot's velocity at its end are read from the saved
     samples: with save_dt = 0.5 s no sample lies inside the paper drop's first impact (0.2 to
