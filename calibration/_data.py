@@ -126,6 +126,10 @@ META_KEYS = {
                   "misfit: 60, 180, 600 or 1000 for every channel, or a table {column = class}",
     "filter_data_prefiltered": "true when the record was already filtered with filter_cfc by "
                                "the lab: then only the model is filtered (default false)",
+    "gain_uncertainty_rel": "standard uncertainty of each channel's gain, relative (its "
+                            "calibration's: 0.005 for 0.5 %), one number for every channel or a "
+                            "table {column = value}, each in [0, 0.2]; the fit's intervals carry "
+                            "it (default: the gains are taken as exact)",
     "synthetic": "true for generated data (e.g. by calibration.virtual_rig)",
     "description": "free text",
 }
@@ -236,6 +240,8 @@ class DropTest:
     body_accel_kind: str | None = None
     filters: dict = field(default_factory=dict)
     filter_data_prefiltered: bool = False
+    # {column: standard uncertainty of its gain, relative}; a column left out is exact
+    gain_uncertainty_rel: dict = field(default_factory=dict)
 
     @classmethod
     def from_arrays(cls, time_s, channels: dict, *, sample_rate_Hz=None, drop_height_m=None,
@@ -243,7 +249,7 @@ class DropTest:
                     vehicle_config=None, name="drop", synthetic=False, description="",
                     source="<arrays>", touchdown_time_s=None, release_time_s=None,
                     body_accel_kind=None, filter_cfc=None,
-                    filter_data_prefiltered=False) -> DropTest:
+                    filter_data_prefiltered=False, gain_uncertainty_rel=None) -> DropTest:
         """Validate and preprocess traces given as arrays (what ``load_drop_test`` does after
         reading the files). Raises ``jaxland.ConfigError`` naming field, value and rule.
         The keywords are the metadata keys (``META_KEYS``) in SI units."""
@@ -301,6 +307,7 @@ class DropTest:
             raise _err("release_time_s", release_time_s, "needs drop_height_m (the free fall "
                        "from release is checked against the drop height)")
         filters = _filters(filter_cfc, chans, float(sample_rate_Hz))
+        gains = _gain_uncertainty(gain_uncertainty_rel, chans)
         if not isinstance(filter_data_prefiltered, bool):
             raise _err("filter_data_prefiltered", filter_data_prefiltered, "must be true or "
                        "false")
@@ -316,7 +323,8 @@ class DropTest:
                        touchdown_time_s),
                    release_time_s=None if release_time_s is None else float(release_time_s),
                    body_accel_kind=body_accel_kind, filters=filters,
-                   filter_data_prefiltered=bool(filter_data_prefiltered))
+                   filter_data_prefiltered=bool(filter_data_prefiltered),
+                   gain_uncertainty_rel=gains)
         drop._preprocess()
         return drop
 
@@ -683,6 +691,7 @@ class DropTest:
             unit_conversions=dict(self.unit_conversions),
             filter_cfc=dict(self.filters) or None,
             filter_data_prefiltered=self.filter_data_prefiltered,
+            gain_uncertainty_rel=dict(self.gain_uncertainty_rel) or None,
         )
 
 
@@ -710,6 +719,32 @@ def _filters(spec, chans: dict, rate: float) -> dict:
                        f"(2 x 2.0775 x CFC, the J211 filter design's limit); the record has "
                        f"{rate:g} Hz")
     return {c: int(v) for c, v in out.items()}
+
+
+# the largest gain uncertainty taken: beyond it a channel's calibration is no calibration
+GAIN_UNCERTAINTY_MAX = 0.2
+
+
+def _gain_uncertainty(spec, chans: dict) -> dict:
+    """{column: relative standard uncertainty of its gain} from the metadata's
+    ``gain_uncertainty_rel`` (one number for every column or a table); a zero is left out."""
+    if spec is None:
+        return {}
+    if isinstance(spec, dict):
+        for col in spec:
+            if col not in chans:
+                raise _err(f"gain_uncertainty_rel.{col}", spec[col], "names no column of the "
+                           "record (after unit conversion); columns: " + ", ".join(chans))
+        out = dict(spec)
+    else:
+        out = {c: spec for c in chans}
+    for col, rel in out.items():
+        if isinstance(rel, bool) or not isinstance(rel, (int, float)) or not (
+                0.0 <= rel <= GAIN_UNCERTAINTY_MAX):
+            raise _err("gain_uncertainty_rel" + (f".{col}" if isinstance(spec, dict) else ""),
+                       rel, f"must be a number in [0, {GAIN_UNCERTAINTY_MAX:g}] (relative: 0.005 "
+                       "for 0.5 %)")
+    return {c: float(v) for c, v in out.items() if v > 0.0}
 
 
 def _stroke_onset(y: np.ndarray, i_c: int, base: float, sig: float) -> tuple[int, float]:
@@ -1096,7 +1131,8 @@ def load_drop_test(path, *, vehicle: jl.Vehicle | None = None,
             touchdown_time_s=table.get("touchdown_time_s"),
             release_time_s=table.get("release_time_s"),
             body_accel_kind=table.get("body_accel_kind"), filter_cfc=table.get("filter_cfc"),
-            filter_data_prefiltered=table.get("filter_data_prefiltered", False))
+            filter_data_prefiltered=table.get("filter_data_prefiltered", False),
+            gain_uncertainty_rel=table.get("gain_uncertainty_rel"))
         drop.unit_conversions = {**time_conv, **drop.unit_conversions}
         drop.files = (meta_path, csv_path) + ((meta_path.parent / cfg,) if cfg else ())
         return drop

@@ -219,6 +219,21 @@ ASSUMED_EXACT = ("the vehicle's masses (body.m_body_kg, body.m_foot_kg)",
                  "the touchdown speed the metadata set (drop_height_m, sink_speed_mps or "
                  "touchdown_speed_mps)",
                  "the rest of the vehicle file (its geometry, x_L2_mm, x_L4_mm, g_mps2)")
+
+
+def assumed_exact(drops) -> list:
+    """``ASSUMED_EXACT`` for a fit of ``drops``: a channel whose gain uncertainty the
+    metadata states (``gain_uncertainty_rel``) is in the interval, and only the others'
+    gains (``ASSUMED_EXACT[1]``) are taken as exact."""
+    exact = [f"{d.name}: {c}" for d in drops for c in d.channels
+             if c not in d.gain_uncertainty_rel]
+    if not any(d.gain_uncertainty_rel for d in drops):
+        return list(ASSUMED_EXACT)
+    gains = ["the gains with no gain_uncertainty_rel (" + ", ".join(exact) + ")"] if exact \
+        else []
+    return [ASSUMED_EXACT[0], *gains, *ASSUMED_EXACT[2:]]
+
+
 # the parameters the fit held (active ones), which every interval is conditional on: predict
 # names a file that holds them differently as edited
 HEADER_HELD = "# held at the vehicle's values (every interval is conditional on them): "
@@ -377,7 +392,7 @@ class FitResult:
             interval_reported=self.diagnostics.get("interval"),
             # the parameters the fit held fixed: every interval is conditional on them
             interval_conditional_on=self.held_fixed(),
-            interval_assumes_exact=list(ASSUMED_EXACT),
+            interval_assumes_exact=assumed_exact(self.drops),
             # False: a bias term the misfit calls for failed (misfit.interval_not_bounded);
             # the interval is then no bound on the values' error
             interval_bounded=self.diagnostics.get("interval_bounded", True),
@@ -646,7 +661,9 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     (n - p). Huber (threshold c): s^2 = [sum psi(r)^2 / (n - p)] / mean(psi'(r))^2 (Huber 1981,
     psi(r) = clip(r, -c, c)), which reduces to the former when no residual exceeds c. Mapped to
     the physical values by the delta method. Parameters whose Jacobian column vanishes are left
-    out (their standard error is NaN)."""
+    out (their standard error is NaN). Each gain with a stated uncertainty
+    (``DropTest.gain_uncertainty_rel``) adds its least-squares response the same way, with
+    u_c the channel's data in noise units times that uncertainty."""
     r_all, jac_all, _ = problem.robust(None).residuals_and_jacobian(theta)
     n, p = problem.n_obs, problem.n_theta
     dof = max(n - p, 1)
@@ -667,6 +684,14 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
         if v > 0 and mask[i, j].any():
             u = np.zeros(mask.shape)
             u[i, j] = mask[i, j] * math.sqrt(v)
+            rows.append(js.T @ u.ravel()[active])
+    # the gains' error (``DropTest.gain_uncertainty_rel``): a gain off by its standard
+    # uncertainty scales that channel's data, and so shifts each residual by the datum times
+    # it, in noise units
+    for (i, j), v in np.ndenumerate(problem.gain_var):
+        if v > 0 and mask[i, j].any():
+            u = np.zeros(mask.shape)
+            u[i, j] = mask[i, j] * problem.data[i, j] * problem.inv_sigma[i, j] * math.sqrt(v)
             rows.append(js.T @ u.ravel()[active])
     if rows:
         a = np.array(rows)

@@ -379,6 +379,7 @@ class CalibrationProblem:
         mask = np.zeros((nd, nc, n))
         inv_sigma = np.ones((nd, nc))
         offset_var = np.zeros((nd, nc))  # variance of each offset, in residual units
+        gain_var = np.zeros((nd, nc))  # variance of each gain, relative (squared)
         coeffs = np.tile(IDENTITY, (nd, nc, 1))
         for i, d in enumerate(drops):
             sel = self._in_window(d)
@@ -397,11 +398,12 @@ class CalibrationProblem:
                     data[i, j, :m] = y[sel]
                     mask[i, j, :m] = inside
                     inv_sigma[i, j] = 1.0 / (d.noise_std[c] * gain)
+                    gain_var[i, j] = d.gain_uncertainty_rel.get(c, 0.0) ** 2
                     if d.offset_samples and c not in d.filters:
                         # the mean of n samples of white noise: sigma^2 / n (a filtered
                         # channel's noise is correlated: left out, its errors are HAC's)
                         offset_var[i, j] = 1.0 / d.offset_samples
-        self.offset_var = offset_var
+        self.offset_var, self.gain_var = offset_var, gain_var
         self.coeffs = coeffs
         # lag-1 autocorrelation that filtered white noise has (0 unfiltered): the misfit
         # test reads the residuals' autocorrelation against it

@@ -159,8 +159,8 @@ def peak_site_line(check: dict | None) -> str:
 def held_fixed_line(result) -> str:
     """fit's line naming the parameters it held at the vehicle's values
     (``FitResult.held_fixed``), on which every interval it prints is conditional, and what
-    else it takes as exact (``ASSUMED_EXACT``)."""
-    from ._fit import ASSUMED_EXACT
+    else it takes as exact (``assumed_exact``)."""
+    from ._fit import assumed_exact
 
     held = result.held_fixed()
     on = [f"{n} {p['value']:.4g}" + ("" if p["unit"] == "1" else f" {p['unit']}")
@@ -171,7 +171,7 @@ def held_fixed_line(result) -> str:
             + ". A truth that differs in them biases the values by more than the interval "
             "shows, with no misfit to warn of it (fit them with --params where the records "
             "determine them; fit_report.json, interval_conditional_on); so do errors in what "
-            "the fit takes as exact: " + ", ".join(ASSUMED_EXACT)
+            "the fit takes as exact: " + ", ".join(assumed_exact(result.drops))
             + " (fit_report.json, interval_assumes_exact)")
 
 

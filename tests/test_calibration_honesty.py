@@ -299,6 +299,69 @@ def test_a_small_sensor_gain_error_biases_the_fit_past_its_interval_without_a_mi
     assert rep["interval_assumes_exact"] == list(cal_fit.ASSUMED_EXACT)
 
 
+def _gain_record(seed=1, scale=1.0025, gain_uncertainty_rel=None):
+    """The rig's 0.2 m drop without a crush peak (seed ``seed``), both force channels read
+    ``scale`` times the truth, with the metadata's ``gain_uncertainty_rel``."""
+    from calibration._data import DropTest
+
+    t, ch, _ = vr.record(vr.truth_vehicle(), 0.2, crush_peak=0.0, duration_s=0.4, seed=seed)
+    for c in ("normal_force_N", "buffer_force_N"):
+        ch[c] = ch[c] * scale
+    return DropTest.from_arrays(t, ch, sample_rate_Hz=5000.0, drop_height_m=0.2,
+                                vehicle=jl.paper_vehicle(), name="gain", synthetic=True,
+                                gain_uncertainty_rel=gain_uncertainty_rel)
+
+
+def _quiet_fit(drop):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return cal.fit([drop])
+
+
+def test_a_stated_gain_uncertainty_is_the_least_squares_response_to_that_gain():
+    """A gain uncertainty the metadata states (gain_uncertainty_rel) widens each value's
+    variance by the square of the value's response to that gain: checked against refitting
+    the record with the channel's data scaled by 1 +/- the uncertainty (independent least
+    squares solves, not the linear formula; their central difference), to 25 % of the added
+    variance: the term is Gauss-Newton's linear response, and the refits, which follow the
+    residuals' curvature too, differ from it by 10-20 % on this record."""
+    from calibration._data import DropTest
+
+    sig = 0.005
+    base = _quiet_fit(_gain_record(scale=1.0))
+    stated = _quiet_fit(_gain_record(scale=1.0, gain_uncertainty_rel={"normal_force_N": sig}))
+    moved = []
+    for sign in (1.0, -1.0):
+        t, ch, _ = vr.record(vr.truth_vehicle(), 0.2, crush_peak=0.0, duration_s=0.4, seed=1)
+        ch["normal_force_N"] = ch["normal_force_N"] * (1.0 + sign * sig)
+        moved.append(_quiet_fit(DropTest.from_arrays(
+            t, ch, sample_rate_Hz=5000.0, drop_height_m=0.2, vehicle=jl.paper_vehicle(),
+            name="gain", synthetic=True)).values)
+    np.testing.assert_allclose(stated.values, base.values, rtol=1e-12)  # the values stay
+    added = stated.std_errors**2 - base.std_errors**2
+    shift2 = (0.5 * (moved[0] - moved[1])) ** 2
+    big = shift2 > 0.05 * base.std_errors**2  # responses that matter against the noise
+    assert big.sum() >= 3, dict(zip(base.names, shift2 / base.std_errors**2))
+    np.testing.assert_allclose(added[big], shift2[big], rtol=0.25)
+    assert stated.report()["interval_assumes_exact"][1] == (
+        "the gains with no gain_uncertainty_rel (gain: buffer_force_N, gain: stroke_m, gain: "
+        "body_accel_mps2)")
+
+
+def test_a_stated_gain_uncertainty_covers_a_gain_error_within_it():
+    """The 0.25 % gain error of the case above, on a record whose metadata states each force
+    channel's gain to 0.5 % (one standard uncertainty): the reported interval now holds the
+    truth of every value within 2 of its standard errors, and only the other channels' gains
+    are taken as exact."""
+    res = _quiet_fit(_gain_record(gain_uncertainty_rel={"normal_force_N": 0.005,
+                                                        "buffer_force_N": 0.005}))
+    truth = vr.truth_vehicle()
+    z = (res.values - get_values(truth, res.names)) / res.std_errors
+    assert np.all(np.abs(z) < 2.0), dict(zip(res.names, z))
+    assert res.report()["drops"][0]["gain_uncertainty_rel"] == {"normal_force_N": 0.005,
+                                                               "buffer_force_N": 0.005}
+
+
 @pytest.fixture(scope="module")
 def peak_fit_without_peak_programs():
     """The default fit with the primary crush peak (the parameters of --compare-models' peak

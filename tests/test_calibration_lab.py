@@ -10,6 +10,7 @@ the model is filtered alike). Fits here are short: 3 parameters on a 30 ms windo
 
 import math
 import warnings
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -149,6 +150,40 @@ def test_bad_filter_settings_are_refused_by_name(spec, needle):
     with pytest.raises(jl.ConfigError, match="needs filter_cfc"):
         cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2,
                                  filter_data_prefiltered=True)
+
+
+@pytest.mark.parametrize("spec,needle", [
+    (0.5, "gain_uncertainty_rel = 0.5: must be a number in \\[0, 0.2\\]"),
+    (-0.01, "must be a number in"),
+    (True, "must be a number in"),
+    ({"stroke_mm": 0.01}, "gain_uncertainty_rel.stroke_mm = 0.01: names no column"),
+    ({"stroke_m": "1 %"}, "gain_uncertainty_rel.stroke_m = '1 %': must be a number"),
+])
+def test_bad_gain_uncertainties_are_refused_by_name(spec, needle):
+    t, ch, _ = vr.record(TRUTH, 0.2, duration_s=0.12, **CLEAN)
+    with pytest.raises(jl.ConfigError, match=needle):
+        cal.DropTest.from_arrays(t, ch, sample_rate_Hz=RATE, drop_height_m=0.2,
+                                 gain_uncertainty_rel=spec)
+
+
+def test_a_gain_uncertainty_is_read_from_the_metadata(tmp_path):
+    """``gain_uncertainty_rel`` in [drop_test]: one number for every channel, or a table by
+    column (a zero is an exact gain); the drop's summary records it."""
+    import shutil
+
+    src = Path(cal.__file__).parents[1] / "data" / "synthetic"
+    for name in ("drop_h0.20m.csv", "nominal_vehicle.toml"):
+        shutil.copy(src / name, tmp_path / name)
+    meta = (src / "drop_h0.20m.toml").read_text()
+    for line, want in (("gain_uncertainty_rel = 0.004", dict.fromkeys(
+            ("normal_force_N", "buffer_force_N", "stroke_m", "body_accel_mps2"), 0.004)),
+            ("gain_uncertainty_rel = { stroke_m = 0.002, buffer_force_N = 0.0 }",
+             {"stroke_m": 0.002})):
+        (tmp_path / "drop_h0.20m.toml").write_text(
+            meta.replace("[drop_test]\n", f"[drop_test]\n{line}\n", 1))
+        d = cal.load_drop_test(tmp_path / "drop_h0.20m.toml")
+        assert d.gain_uncertainty_rel == want
+        assert d.summary()["gain_uncertainty_rel"] == want
 
 
 # -------------------------------------------------------------------------- several legs
