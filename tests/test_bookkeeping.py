@@ -115,3 +115,19 @@ def test_time_loop_carry_starts_as_batched_as_the_landing():
     assert g == (3.0, 0.0)
     gv = jax.vmap(jax.grad(lambda a, r: per_landing(a * a, r)))(refs, refs)
     np.testing.assert_array_equal(gv, 2.0 * refs)
+
+
+@pytest.mark.parametrize("method", ["euler", "leapfrog", "impulse", "tsit5"])
+def test_a_landing_without_a_trajectory_has_the_same_summary(method):
+    """``Solver(trajectory=False)`` (a Monte Carlo's) saves nothing and changes no bit of the
+    summary: the saved state's evaluation is dead code XLA removes either way."""
+    def run(**kw):
+        solver = jl.Solver(dt=DT, t_end=T_END, save_dt=T_END, method=method, **kw).validate()
+        return jax.device_get(jax.jit(lambda s: jl.landing(VEH, s, solver, "quarter"))(SCENE))
+    (traj, ref), (none, got) = run(), run(trajectory=False)
+    assert none == {} and traj
+    assert ref.keys() == got.keys()
+    for k in ref:
+        np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
+    with pytest.raises(jl.ConfigError, match=r"solver\.trajectory"):
+        jl.Solver(trajectory=1).validate()

@@ -60,7 +60,7 @@ def mc_solver(spec: MonteCarloSpec, model: str, dt: float, method: str, *,
     longer = t_end is not None
     return Solver(dt=dt, t_end=t_end if longer else spec.t_end, save_dt=spec.t_end,
                   method=method, early_stop=spec.early_stop and not longer,
-                  peaks=REPORTED_PEAKS[model], event_log=0,
+                  peaks=REPORTED_PEAKS[model], event_log=0, trajectory=longer,
                   ledger_every=max(1, round(ledger_check_s(spec, model) / dt))).validate()
 
 

@@ -180,6 +180,11 @@ class Solver(eqx.Module):
     # capacity of the summary's contact on/off log, event_times_s (0: only the changes are
     # counted, n_contact_changes; a Monte Carlo reports no event times)
     event_log: int = eqx.field(static=True, default=N_EVENTS)
+    # False: no state is saved (the trajectory is an empty dict; the summary is the same, bit
+    # for bit): a run that discards its trajectory (a Monte Carlo, a design) then does not
+    # trace and lower the saved states' evaluation that XLA would remove (a 3-D Monte Carlo
+    # chunk traces and lowers in about 0.8 of the time; the compiled program is the same)
+    trajectory: bool = eqx.field(static=True, default=True)
 
     def __post_init__(self):
         # a concrete 0-d array as the number it holds (the fields are static)
@@ -238,6 +243,8 @@ class Solver(eqx.Module):
         if (isinstance(self.event_log, bool) or not isinstance(self.event_log, int)
                 or self.event_log < 0):
             raise ConfigError("solver.event_log", self.event_log, "must be an integer >= 0")
+        if not isinstance(self.trajectory, bool):
+            raise ConfigError("solver.trajectory", self.trajectory, "must be true or false")
         if self.peaks is not None and not all(isinstance(p, str) for p in self.peaks):
             raise ConfigError("solver.peaks", self.peaks, "must be a list of peak names")
         return self

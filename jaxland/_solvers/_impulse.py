@@ -145,8 +145,8 @@ class Impulse(AbstractIntegrator):
         max_steps = int(math.ceil(t_save / dt_floor)) + 2
 
         def save_block(carry, i):
-            out = record(model, carry[0], model.evaluate(veh, carry[0], scene, derived),
-                         st.energy0)
+            out = (record(model, carry[0], model.evaluate(veh, carry[0], scene, derived),
+                          st.energy0) if solver.trajectory else {})
             target = (i + 1.0) * t_save
             # the last step lands on the save time exactly (up to round-off in t)
             cond = lambda c: c[0].t < target - 1e-9 * t_save  # noqa: E731

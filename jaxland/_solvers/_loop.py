@@ -287,7 +287,7 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
         return record(model, s, model.evaluate(veh, s, scene, derived, kick_save), st.energy0)
 
     def save_block(carry, _):
-        out = save_point(carry[0])
+        out = save_point(carry[0]) if solver.trajectory else {}
         return steps(carry, solver.save_every), out
 
     # what the step makes per-landing starts so (the time and the step count are the batch's)
@@ -297,7 +297,8 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
               eqx.tree_at(lambda t: t.n_steps, track, track0.n_steps),
               integrator.start(st.ev0))
     if solver.early_stop:
-        traj = jax.tree.map(lambda x: x[None], save_point(st.state0))
+        traj = (jax.tree.map(lambda x: x[None], save_point(st.state0)) if solver.trajectory
+                else {})
         return traj, _run_until_settled(model, st, scene, solver, steps, carry0)
     (s_end, track, _), traj = jax.lax.scan(save_block, carry0,
                                         jnp.arange(solver.n_saves, dtype=jnp.float64))

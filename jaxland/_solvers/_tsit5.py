@@ -109,7 +109,7 @@ class Tsit5(AbstractIntegrator):
         track = sol.solver_state[1]
         states = jax.vmap(model.from_ode)(sol.ts[:-1], jax.tree.map(lambda x: x[:-1], sol.ys))
         traj = jax.vmap(lambda s: record(model, s, model.evaluate(veh, s, scene, derived),
-                                         st.energy0))(states)
+                                         st.energy0))(states) if solver.trajectory else {}
         s_end = model.from_ode(sol.ts[-1], jax.tree.map(lambda x: x[-1], sol.ys))
         out = summary(model, s_end, track, st, scene)
         # a solver that stopped early leaves the save points it never reached at inf
