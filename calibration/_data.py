@@ -660,6 +660,18 @@ class DropTest:
         """Channels with the offsets removed."""
         return {c: v - self.offsets[c] for c, v in self.channels.items()}
 
+    def gain_reference(self, col: str) -> float:
+        """The value of the corrected column ``col`` that an error in its gain leaves as it
+        is [its unit]: a gain scales the reading's distance from it. The free-fall level (-g
+        for the body acceleration, 0 for the others) where the offset pins the free fall to
+        it or the column is a specific-force accelerometer's (0 in free fall); else 0, the
+        sensor's own zero."""
+        level = CHANNELS[base_channel(col)][2]
+        level = -float(self.vehicle.g) if level is None else level
+        pinned = self.offset_samples > 0 or (base_channel(col) == "body_accel_mps2"
+                                             and self.body_accel_kind == "specific_force")
+        return level if pinned else 0.0
+
     @property
     def duration_after_touchdown_s(self) -> float:
         return float(self.time_s[-1] - self.touchdown_time_s)

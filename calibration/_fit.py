@@ -221,12 +221,12 @@ ASSUMED_EXACT = ("the vehicle's masses (body.m_body_kg, body.m_foot_kg)",
                  "the rest of the vehicle file (its geometry, x_L2_mm, x_L4_mm, g_mps2)")
 
 
-def assumed_exact(drops) -> list:
-    """``ASSUMED_EXACT`` for a fit of ``drops``: a channel whose gain uncertainty the
-    metadata states (``gain_uncertainty_rel``) is in the interval, and only the others'
-    gains (``ASSUMED_EXACT[1]``) are taken as exact."""
+def assumed_exact(drops, channels=None) -> list:
+    """``ASSUMED_EXACT`` for a fit of ``drops`` on ``channels`` (None: every drop's own): a
+    channel whose gain uncertainty the metadata states (``gain_uncertainty_rel``) is in the
+    interval, and only the others' gains (``ASSUMED_EXACT[1]``) are taken as exact."""
     exact = [f"{d.name}: {c}" for d in drops for c in d.channels
-             if c not in d.gain_uncertainty_rel]
+             if c not in d.gain_uncertainty_rel and (channels is None or c in channels)]
     if not any(d.gain_uncertainty_rel for d in drops):
         return list(ASSUMED_EXACT)
     gains = ["the gains with no gain_uncertainty_rel (" + ", ".join(exact) + ")"] if exact \
@@ -392,12 +392,16 @@ class FitResult:
             interval_reported=self.diagnostics.get("interval"),
             # the parameters the fit held fixed: every interval is conditional on them
             interval_conditional_on=self.held_fixed(),
-            interval_assumes_exact=assumed_exact(self.drops),
+            interval_assumes_exact=self.assumes_exact(),
             # False: a bias term the misfit calls for failed (misfit.interval_not_bounded);
             # the interval is then no bound on the values' error
             interval_bounded=self.diagnostics.get("interval_bounded", True),
             interval_not_bounded=self.diagnostics.get("interval_not_bounded"),
         )
+
+    def assumes_exact(self) -> list:
+        """What every interval of this fit takes as exact (``assumed_exact``)."""
+        return assumed_exact(self.drops, None if self.problem is None else self.problem.channels)
 
     def held_fixed(self) -> dict:
         """The fittable parameters (``PARAMS``) this fit held at the vehicle's values: per
@@ -663,7 +667,8 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
     the physical values by the delta method. Parameters whose Jacobian column vanishes are left
     out (their standard error is NaN). Each gain with a stated uncertainty
     (``DropTest.gain_uncertainty_rel``) adds its least-squares response the same way, with
-    u_c the channel's data in noise units times that uncertainty."""
+    u_c the channel's data about its reference, in noise units, times that uncertainty (one
+    error per column over the drops)."""
     r_all, jac_all, _ = problem.robust(None).residuals_and_jacobian(theta)
     n, p = problem.n_obs, problem.n_theta
     dof = max(n - p, 1)
@@ -686,12 +691,16 @@ def _uncertainty(problem: CalibrationProblem, theta, huber_c=None):
             u[i, j] = mask[i, j] * math.sqrt(v)
             rows.append(js.T @ u.ravel()[active])
     # the gains' error (``DropTest.gain_uncertainty_rel``): a gain off by its standard
-    # uncertainty scales that channel's data, and so shifts each residual by the datum times
-    # it, in noise units
-    for (i, j), v in np.ndenumerate(problem.gain_var):
-        if v > 0 and mask[i, j].any():
-            u = np.zeros(mask.shape)
-            u[i, j] = mask[i, j] * problem.data[i, j] * problem.inv_sigma[i, j] * math.sqrt(v)
+    # uncertainty scales that channel's data about its reference (``gain_reference``), and so
+    # shifts each residual by the datum's distance from it times the uncertainty, in noise
+    # units. A column is one sensor with one calibration in every drop of the fit: its
+    # drops' shifts are one error, added before the square
+    for j in range(problem.gain_sd.shape[1]):
+        u = np.zeros(mask.shape)
+        for i in np.flatnonzero(problem.gain_sd[:, j] > 0):
+            u[i, j] = (mask[i, j] * (problem.data[i, j] - problem.gain_zero[i, j])
+                       * problem.inv_sigma[i, j] * problem.gain_sd[i, j])
+        if u.any():
             rows.append(js.T @ u.ravel()[active])
     if rows:
         a = np.array(rows)

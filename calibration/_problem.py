@@ -379,7 +379,8 @@ class CalibrationProblem:
         mask = np.zeros((nd, nc, n))
         inv_sigma = np.ones((nd, nc))
         offset_var = np.zeros((nd, nc))  # variance of each offset, in residual units
-        gain_var = np.zeros((nd, nc))  # variance of each gain, relative (squared)
+        gain_sd = np.zeros((nd, nc))  # standard uncertainty of each gain, relative
+        gain_zero = np.zeros((nd, nc))  # the datum a gain error leaves as it is
         coeffs = np.tile(IDENTITY, (nd, nc, 1))
         for i, d in enumerate(drops):
             sel = self._in_window(d)
@@ -398,12 +399,13 @@ class CalibrationProblem:
                     data[i, j, :m] = y[sel]
                     mask[i, j, :m] = inside
                     inv_sigma[i, j] = 1.0 / (d.noise_std[c] * gain)
-                    gain_var[i, j] = d.gain_uncertainty_rel.get(c, 0.0) ** 2
+                    gain_sd[i, j] = d.gain_uncertainty_rel.get(c, 0.0)
+                    gain_zero[i, j] = d.gain_reference(c)
                     if d.offset_samples and c not in d.filters:
                         # the mean of n samples of white noise: sigma^2 / n (a filtered
                         # channel's noise is correlated: left out, its errors are HAC's)
                         offset_var[i, j] = 1.0 / d.offset_samples
-        self.offset_var, self.gain_var = offset_var, gain_var
+        self.offset_var, self.gain_sd, self.gain_zero = offset_var, gain_sd, gain_zero
         self.coeffs = coeffs
         # lag-1 autocorrelation that filtered white noise has (0 unfiltered): the misfit
         # test reads the residuals' autocorrelation against it

@@ -159,9 +159,7 @@ def peak_site_line(check: dict | None) -> str:
 def held_fixed_line(result) -> str:
     """fit's line naming the parameters it held at the vehicle's values
     (``FitResult.held_fixed``), on which every interval it prints is conditional, and what
-    else it takes as exact (``assumed_exact``)."""
-    from ._fit import assumed_exact
-
+    else it takes as exact (``FitResult.assumes_exact``)."""
     held = result.held_fixed()
     on = [f"{n} {p['value']:.4g}" + ("" if p["unit"] == "1" else f" {p['unit']}")
           for n, p in held.items() if p["active"]]
@@ -171,7 +169,7 @@ def held_fixed_line(result) -> str:
             + ". A truth that differs in them biases the values by more than the interval "
             "shows, with no misfit to warn of it (fit them with --params where the records "
             "determine them; fit_report.json, interval_conditional_on); so do errors in what "
-            "the fit takes as exact: " + ", ".join(assumed_exact(result.drops))
+            "the fit takes as exact: " + ", ".join(result.assumes_exact())
             + " (fit_report.json, interval_assumes_exact)")
 
 
