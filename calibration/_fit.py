@@ -106,7 +106,7 @@ import numpy as np
 import jaxland as jl
 from jaxland._checks import named_as
 from jaxland._files import json_text, run_environment
-from jaxland._solvers._base import _whole_steps
+from jaxland._solvers._base import _whole_steps, smoothing_limits
 
 from ._data import CHANNELS, DropTest, _highpass_noise, article_fingerprint, base_channel
 from ._optim import lbfgs, levenberg_marquardt
@@ -1815,6 +1815,7 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
         raise jl.ConfigError("max_iter", max_iter, "must be an integer >= 1")
     if robust is not None and not (isinstance(robust, (int, float)) and 0 < robust < 1e6):
         raise jl.ConfigError("robust", robust, "must be a number > 0 (robust std units) or None")
+    defaults = (smoothing_m is None, smoothing_N is None)
     if isinstance(integrator, str) and integrator in INTEGRATORS:
         default_m, default_n = SMOOTHING[integrator]
         smoothing_m = default_m if smoothing_m is None else smoothing_m
@@ -1833,8 +1834,13 @@ def check_fit(drops, params=DEFAULT_PARAMS, *, vehicle: jl.Vehicle | None = None
     start_vehicle = switch_on(given, names)
     if peak_form == "ripple" and given.honeycomb.peak_rise1 is None:
         start_vehicle = _rise_start(start_vehicle, names, "ripple", peak_site)  # a fold length
+    # a default width no wider than the start vehicle's switches take (a stiff ground's give
+    # is shorter than verlet's 1e-6 m); a width given is checked as given
+    widest = smoothing_limits(start_vehicle)
+    smoothing_m = min(smoothing_m, widest.length_m) if defaults[0] else smoothing_m
+    smoothing_N = min(smoothing_N, widest.force_N) if defaults[1] else smoothing_N
     with named_as({"solver.smoothing_m": ("smoothing_m", smoothing_m),
-                      "solver.smoothing_N": ("smoothing_N", smoothing_N)}):
+                   "solver.smoothing_N": ("smoothing_N", smoothing_N)}):
         jl.Solver(method=integrator, smoothing_m=smoothing_m,
                   smoothing_N=smoothing_N).check_smoothing(start_vehicle)
     limit = float(jl.stable_step(start_vehicle, method=integrator))

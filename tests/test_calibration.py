@@ -958,9 +958,9 @@ def test_a_vehicle_file_that_sets_no_parameter_is_refused_not_run_as_the_paper_v
     (["fit", "DATA/missing.toml"], "does not exist"),
     (["fit", "DATA/drop_h0.20m.toml", "--integrator", "rk4"], "--integrator = 'rk4'"),
     (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "-5"], "--smoothing-n = -5.0"),
-    # a width that rounds nothing: the fit's landing failed at its start point (exit 3)
+    # a width that rounds no switch of the vehicle: the laws would be others
     (["fit", "DATA/drop_h0.20m.toml", "--smoothing-m", "10"], "--smoothing-m = 10.0: must be "
-                                                             "<= 4.7e-05 m, a tenth of"),
+                                                             "<= 2.75e-05 m, 0.1 of"),
     (["fit", "DATA/drop_h0.20m.toml", "--smoothing-n", "1e4"], "--smoothing-n = 10000.0: must "
                                                               "be <= 502 N"),
     (["predict", "--config", "DATA/missing.toml", "DATA/drop_h0.20m.toml"], "does not exist"),
@@ -1082,6 +1082,17 @@ def test_every_integrator_the_fit_accepts_has_its_defaults_and_is_documented(cle
         checked = _fit.check_fit([clean_drop], integrator=method, vehicle=TRUTH)
         assert (checked.smoothing_m, checked.smoothing_N) == _fit.SMOOTHING[method], method
         assert f"`{method}`" in section, method
+    # on a ground stiff enough that its give under a leg's weight is 2.8 um, verlet's default
+    # width is cut to a tenth of that; the same width given is refused by name
+    import equinox as eqx
+
+    stiff = eqx.tree_at(lambda v: v.ground.k, TRUTH, 1e9)
+    checked = _fit.check_fit([clean_drop], integrator="verlet", vehicle=stiff)
+    weight = float((stiff.m_quarter + stiff.m_foot) * stiff.g)
+    assert checked.smoothing_m == pytest.approx(0.1 * weight / 1e9, rel=1e-12)
+    assert checked.smoothing_m < 1e-6
+    with pytest.raises(jl.ConfigError, match="smoothing_m = 1e-06: must be <= 2.7"):
+        _fit.check_fit([clean_drop], integrator="verlet", vehicle=stiff, smoothing_m=1e-6)
 
 
 def test_the_integrator_option_reaches_the_solver_and_its_own_compiled_code(clean_drop,

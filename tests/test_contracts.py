@@ -484,8 +484,8 @@ def test_a_retried_landing_keeps_the_output_interval_it_was_given():
 
 def test_a_retry_that_no_run_could_take_is_not_tried():
     """A body of 1e200 kg fails numerically at the default step; the retry step from its
-    force bound (4.9e-105 s) would take 1e104 steps. simulate refused that step as
-    ``solver.dt``, which the user never gave; it reports the first run's failure instead."""
+    force bound (4.9e-105 s) would take 1e104 steps, a step the user never gave: simulate
+    reports the first run's named failure, not a refusal of that step."""
     veh = eqx.tree_at(lambda v: v.m_body, jl.paper_vehicle(), 1e200)
     with pytest.raises(jl.SimulationError, match="numerical failure|too large for this "
                                                  "landing"):

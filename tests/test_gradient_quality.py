@@ -158,14 +158,20 @@ def test_smoothing_bias_on_max_stroke_is_bounded():
 
 
 def test_the_widest_smoothing_allowed_keeps_the_landing_within_one_percent():
-    """The widths a solver accepts (Solver.check_smoothing: a tenth of the honeycomb's elastic
-    stroke, of F1) round the switches and leave the paper drop's max stroke and peak ground
-    force within 1 % of the hard switches'; a width of 10 m (no rounding: the feet sink
-    through a ground rounded over it) is refused by name, with the limit it must keep."""
+    """The widest widths a solver accepts (``smoothing_limits``: a tenth of the shortest
+    length the switches round, here the top-out stop's give under a leg's share of the
+    weight, and of F1) round the switches and leave the paper drop's max stroke and peak
+    ground force within 1 % of the hard switches'; a width of 10 m (no rounding: the feet
+    sink through a ground rounded over it) is refused by name, with the limit it must keep."""
+    from jaxland._solvers._base import smoothing_limits
+
     veh = jl.paper_vehicle()
     scene = jl.Scene(drop_height=0.2)
-    x_l1, f1 = float(veh.honeycomb.F1 / veh.honeycomb.k_b1), float(veh.honeycomb.F1)
-    widest = dict(smoothing_m=0.1 * x_l1, smoothing_N=0.1 * f1)
+    lim = smoothing_limits(veh)
+    weight = float((veh.m_quarter + veh.m_foot) * veh.g)
+    assert lim.length_m == pytest.approx(0.1 * weight / float(veh.leg.k_topout), rel=1e-12)
+    assert lim.force_N == pytest.approx(0.1 * float(veh.honeycomb.F1), rel=1e-12)
+    widest = dict(smoothing_m=lim.length_m, smoothing_N=lim.force_N)
     out = {}
     for key, kw in (("hard", {}), ("widest", widest)):
         solver = jl.Solver(dt=1e-5, t_end=0.3, save_dt=1e-3, method="verlet", **kw)
@@ -176,7 +182,7 @@ def test_the_widest_smoothing_allowed_keeps_the_landing_within_one_percent():
         hard, wide = float(out["hard"][k]), float(out["widest"][k])
         assert 1e-4 < abs(wide / hard - 1.0) < 1e-2, k  # rounded, and by little
     assert not bool(out["widest"]["failed"])
-    for name, value, limit in (("smoothing_m", 10.0, "4.7e-05 m"),
+    for name, value, limit in (("smoothing_m", 10.0, "2.75e-05 m"),
                                ("smoothing_N", 1.01 * widest["smoothing_N"], "502 N")):
         with pytest.raises(jl.ConfigError, match=f"solver.{name} = .*must be <= {limit}"):
             jl.Solver(**{name: value}).check_smoothing(veh)

@@ -798,6 +798,23 @@ def test_the_sensitivity_reads_an_azimuth_as_its_sine_and_cosine():
     assert top["effect_per_std"] == pytest.approx(beta[2], rel=1e-9)
     assert top["r2_of_fit"] > 0.99
     assert ranked_inputs(s["ranking"]) == ["heading_deg", "sink_speed_mps"]
+    # the heading's rank does not depend on where world x points: its effect at 45 deg splits
+    # into a sine and a cosine row each smaller than a third input's effect, and it still
+    # ranks first, by their root sum of squares; its two rows stay side by side
+    turned = 0.05 * np.cos(np.radians(heading - 45.0)) + rng.normal(0, 1e-3, 400)
+    third = {**inputs, "friction": rng.uniform(0.3, 0.8, 400)}
+    y3 = turned + 0.03 * (third["friction"] - 0.55) / third["friction"].std()
+    s = sensitivity(third, y3, ok, {"heading_deg": 360.0})
+    assert [r["input"] for r in s["ranking"]][:3] == ["heading_deg (sin)", "heading_deg (cos)",
+                                                      "friction"]
+    assert max(abs(r["effect_per_std"]) for r in s["ranking"][:2]) < s["ranking"][2][
+        "effect_per_std"]
+    # headings of 0 and 360 deg only: the sine varies by rounding (sin 360 deg = -2.4e-16)
+    # and is no input; the cosine does not vary
+    edge = {"heading_deg": np.where(np.arange(400) % 2 == 0, 0.0, 360.0),
+            "sink_speed_mps": inputs["sink_speed_mps"]}
+    s = sensitivity(edge, 0.1 * edge["sink_speed_mps"], ok, {"heading_deg": 360.0})
+    assert ranked_inputs(s["ranking"]) == ["sink_speed_mps"]
     # the run's summary regresses on them: a heading drawn over the circle in a vertical drop
     spec = MonteCarloSpec(**{**QUARTER_SPEC, "n": 8, "dispersion": {
         **QUARTER_SPEC["dispersion"], "heading_deg": Distribution("uniform", low=0.0,

@@ -154,6 +154,8 @@ def percentile_intervals(x) -> dict | None:
 # every landing up to rounding (a tip-over margin no dispersion moves: spread 1e-16 of 1.58 m);
 # a regression on it ranks rounding noise
 CONSTANT_REL = 1e-9
+# the spread of an azimuth's sine or cosine that rounding alone leaves (sin 360 deg = -2.4e-16)
+AZIMUTH_ROUNDING = 1e-12
 
 
 def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray,
@@ -183,7 +185,9 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray,
             else:
                 parts = [(label, x)]
             for part, x in parts:
-                if x.size > 1 and np.std(x) > 0:
+                # a sine or cosine that varies by rounding only (headings of 0 and 360 deg)
+                # is no input: its regression would rank the rounding
+                if x.size > 1 and np.std(x) > (AZIMUTH_ROUNDING if name in periods else 0.0):
                     cols.append((x - x.mean()) / x.std())
                     names.append(part)
     y = np.asarray(target, dtype=float)[ok]
@@ -196,8 +200,9 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray,
                     "landings")
     if y.size <= len(cols) + 1:
         return dict(ranking=[], not_estimated=(
-            f"{y.size} successful landings; the regression needs more than one per dispersed "
-            "input and leg"))
+            f"{y.size} successful landings; the regression on {len(cols)} columns (one per "
+            f"input, per leg for a per-leg input, two for an azimuth) needs at least "
+            f"{len(cols) + 2}"))
     spread = float(y.max() - y.min())
     if spread <= CONSTANT_REL * float(np.abs(y).max()):
         return dict(ranking=[], not_estimated=(
@@ -211,14 +216,25 @@ def sensitivity(inputs: dict, target: np.ndarray, ok: np.ndarray,
     # them is not told apart from none
     s2 = float(resid @ resid) / (y.size - X.shape[1])
     se = np.sqrt(s2 * np.diag(np.linalg.pinv(X.T @ X)))[1:]
-    ranked = sorted(zip(names, coef[1:], se), key=lambda t: -abs(t[1]))
+    # ranked by the size of each input's effect: an azimuth's by its sine's and cosine's
+    # together (sqrt of the sum of their squares), which no choice of the world's x axis
+    # changes; its two rows stay side by side
+    size = {}
+    for n, c in zip(names, coef[1:]):
+        size[_input_of(n)] = size.get(_input_of(n), 0.0) + c * c
+    ranked = sorted(zip(names, coef[1:], se), key=lambda t: (-size[_input_of(t[0])],
+                                                             _input_of(t[0]), -abs(t[1])))
     return dict(ranking=[dict(input=n, effect_per_std=float(c), std_error=float(e),
                               t=float(c / e) if e > 0 else None, r2_of_fit=float(r2))
                          for n, c, e in ranked], not_estimated=None)
 
 
+def _input_of(row_name: str) -> str:
+    """The input of a sensitivity row: an azimuth's sine and cosine rows are one input."""
+    return row_name.removesuffix(" (sin)").removesuffix(" (cos)")
+
+
 def ranked_inputs(ranking: list) -> list:
     """The inputs of a sensitivity ``ranking`` in its order, each once: an azimuth's sine and
     cosine rows are one input, and a per-leg row names its leg (``plateau_scale[leg2]``)."""
-    return list(dict.fromkeys(r["input"].removesuffix(" (sin)").removesuffix(" (cos)")
-                              for r in ranking))
+    return list(dict.fromkeys(_input_of(r["input"]) for r in ranking))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import abc
 import enum
 import math
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import numpy as np
@@ -279,35 +279,55 @@ class Solver(eqx.Module):
                                   + ", ".join(FIXED_STEP_METHODS) + ")")
         if self.early_stop:
             if self.n_saves != 1:
-                raise ConfigError("solver.early_stop", True, "needs a run without a trajectory"
-                                  f" (save_dt = t_end = {self.t_end} s)")
+                raise ConfigError("solver.early_stop", True, "needs one save interval, the "
+                                  f"whole run (save_dt = t_end = {self.t_end} s)")
         return self
 
     def check_smoothing(self, vehicle) -> Solver:
         """Refuse switch widths too wide to round a switch of ``vehicle`` (a concrete one):
-        ``smoothing_m`` above ``SMOOTHING_SHARE`` of the shortest length it rounds (the
-        honeycomb's elastic stroke F1/k_b1, the ground's give under one leg's share of the
-        weight), ``smoothing_N`` above that share of the plateau force F1 (the strut's
-        no-pull floor switches between 0 and kilonewtons). Wider, the laws are others: a
-        ground rounded over 10 m lets the feet sink through it."""
-        hc, gr = vehicle.honeycomb, vehicle.ground
-        with np.errstate(all="ignore"):  # a vehicle of 1e308 kg is refused where it overflows
-            stroke = float(np.min(np.asarray(hc.F1) / np.asarray(hc.k_b1)))
-            give = float(np.min(np.asarray(vehicle.m_quarter + vehicle.m_foot)
-                                * np.asarray(vehicle.g) / np.asarray(gr.k)))
-        length, what = min((stroke, "the honeycomb's elastic stroke F1/k_b1"),
-                           (give, "the ground's give under one leg's share of the weight"))
-        if self.smoothing_m > SMOOTHING_SHARE * length:
+        above ``smoothing_limits``. Wider, the laws are others: a ground rounded over 10 m
+        lets the feet sink through it."""
+        lim = smoothing_limits(vehicle)
+        share = f"{SMOOTHING_SHARE:g} of"
+        if self.smoothing_m > lim.length_m:
             raise ConfigError("solver.smoothing_m", self.smoothing_m, f"must be <= "
-                              f"{at_most(SMOOTHING_SHARE * length)} m, a tenth of the "
-                              f"shortest length it rounds on this vehicle ({what}, "
-                              f"{length * 1e3:.3g} mm); 0: hard switches")
-        f1 = float(np.min(np.asarray(hc.F1)))
-        if self.smoothing_N > SMOOTHING_SHARE * f1:
+                              f"{at_most(lim.length_m)} m, {share} the shortest length it "
+                              f"rounds on this vehicle ({lim.shortest}, "
+                              f"{lim.length_m / SMOOTHING_SHARE * 1e3:.3g} mm); 0: hard "
+                              "switches")
+        if self.smoothing_N > lim.force_N:
             raise ConfigError("solver.smoothing_N", self.smoothing_N, f"must be <= "
-                              f"{at_most(SMOOTHING_SHARE * f1)} N, a tenth of the honeycomb's "
-                              f"plateau force F1 = {f1:.4g} N; 0: hard switches")
+                              f"{at_most(lim.force_N)} N, {share} the honeycomb's plateau "
+                              f"force F1 = {lim.force_N / SMOOTHING_SHARE:.4g} N; 0: hard "
+                              "switches")
         return self
+
+
+class SmoothingLimits(NamedTuple):
+    length_m: float  # the widest smoothing_m [m]
+    force_N: float  # the widest smoothing_N [N]
+    shortest: str  # the length that sets length_m
+
+
+def smoothing_limits(vehicle) -> SmoothingLimits:
+    """The widest switch smoothing ``vehicle`` (a concrete one) takes: ``SMOOTHING_SHARE`` of
+    the shortest length ``smoothing_m`` rounds (the honeycomb's elastic stroke F1/k_b1; the
+    give of the ground and of the strut's top-out stop under one leg's share of the weight)
+    and of the plateau force F1 for ``smoothing_N`` (the strut's no-pull floor switches
+    between 0 and kilonewtons)."""
+    hc, gr, leg = vehicle.honeycomb, vehicle.ground, vehicle.leg
+    with np.errstate(all="ignore"):  # a vehicle of 1e308 kg is refused where it overflows
+        weight = np.asarray(vehicle.m_quarter + vehicle.m_foot) * np.asarray(vehicle.g)
+        lengths = (
+            (float(np.min(np.asarray(hc.F1) / np.asarray(hc.k_b1))),
+             "the honeycomb's elastic stroke F1/k_b1"),
+            (float(np.min(weight / np.asarray(gr.k))),
+             "the ground's give under one leg's share of the weight"),
+            (float(np.min(weight / np.asarray(leg.k_topout))),
+             "the top-out stop's give under one leg's share of the weight"))
+    length, shortest = min(lengths)
+    return SmoothingLimits(SMOOTHING_SHARE * length,
+                           SMOOTHING_SHARE * float(np.min(np.asarray(hc.F1))), shortest)
 
 
 def check_spec_steps(section: str, dt: float, t_end: float, method: str) -> None:
