@@ -104,6 +104,8 @@ CONVERSIONS = {
 LEG_COLUMN = re.compile(r"^leg(\d+)_(.+)$")  # leg2_stroke_m: the stroke on leg 2
 ACCEL_KINDS = ("kinematic", "specific_force")
 
+# the largest gain uncertainty taken: beyond it a channel's calibration is no calibration
+GAIN_UNCERTAINTY_MAX = 0.2
 META_KEYS = {
     "data_file": "CSV file with the traces, relative to this file (default: same name, .csv)",
     "drop_height_m": "lowest foot's clearance above the ground at release [m], in [0, 50]",
@@ -128,8 +130,8 @@ META_KEYS = {
                                "the lab: then only the model is filtered (default false)",
     "gain_uncertainty_rel": "standard uncertainty of each channel's gain, relative (its "
                             "calibration's: 0.005 for 0.5 %), one number for every channel or a "
-                            "table {column = value}, each in [0, 0.2]; the fit's intervals carry "
-                            "it (default: the gains are taken as exact)",
+                            f"table {{column = value}}, each in [0, {GAIN_UNCERTAINTY_MAX:g}]; the "
+                            "fit's intervals carry it (default: the gains are taken as exact)",
     "synthetic": "true for generated data (e.g. by calibration.virtual_rig)",
     "description": "free text",
 }
@@ -732,9 +734,6 @@ def _filters(spec, chans: dict, rate: float) -> dict:
                        f"{rate:g} Hz")
     return {c: int(v) for c, v in out.items()}
 
-
-# the largest gain uncertainty taken: beyond it a channel's calibration is no calibration
-GAIN_UNCERTAINTY_MAX = 0.2
 
 
 def _gain_uncertainty(spec, chans: dict) -> dict:

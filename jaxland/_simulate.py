@@ -491,13 +491,15 @@ def simulate(scene: Scene | None = None, vehicle: Vehicle | None = None, *,
         again = retry_step(vehicle, scene, method, mod)
         if save_dt is not None:  # a whole fraction of the output interval the user gave
             again = save_dt / math.ceil(save_dt / again - 1e-9)
-        # a retry no run can take (its force bound from a vehicle past float64's range) is
-        # not tried: the first run's failure is the answer, named
-        if again < solver.dt and solver.t_end / again <= MAX_STEPS:
-            retried = solver.dt
-            solver = Solver(dt=again, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
-            solver.validate()
-            traj, summary = _landing_jit(vehicle, scene, solver, mod)
+        if again < solver.dt:
+            retry = Solver(dt=again, t_end=t_end, save_dt=save_dt, method=method, **smoothing)
+            try:
+                retry.validate()
+            except ConfigError:  # no run can take that step (too many steps, from a force
+                retry = None  # bound past float64's range): the first failure is the answer
+            if retry is not None:
+                retried, solver = solver.dt, retry
+                traj, summary = _landing_jit(vehicle, scene, solver, mod)
     traj = {k: np.asarray(traj[k]) for k in mod.COLUMNS}
     _check_numerics(summary, vehicle, solver, mod, scene)
     outcomes = _outcomes(summary, traj, vehicle, scene, solver, mod.name)

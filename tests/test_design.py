@@ -723,6 +723,9 @@ def test_cli_writes_design_report_and_figures(tmp_path, capsys):
             jl.vehicle_to_toml(vehicle)
         assert jl.load_montecarlo_spec(folder / "spec.toml").seed == \
             report["verification"]["seed"]
+        # its rerun is the first t_end_s: the continued landings ran on beyond it
+        assert "runs these landings to t_end_s again; those the verification judged at a " \
+               "later end" in (folder / "spec.toml").read_text().splitlines()[0]
     # malformed input: exit code 2 and the field named
     spec.write_text(TINY.replace("margin_mm = 20.0", "margin_mm = -1.0"))
     assert main(["design", str(spec), "--out", str(out)]) == 2

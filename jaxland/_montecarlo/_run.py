@@ -166,11 +166,11 @@ class MonteCarloResult:
         return {"sample": np.arange(self.failure.size),
                 **flat_columns(self.inputs, outputs), "failure_code": self.failure}
 
-    def save(self, out_dir, plots: bool = True) -> list[Path]:
+    def save(self, out_dir, plots: bool = True, rerun: str | None = None) -> list[Path]:
         """Write samples.csv and samples.npz (every sample with its inputs), summary.json,
-        vehicle.toml (the vehicle run, where known), spec.toml (the spec run, where known)
-        and the figures (``plots``) into
-        ``out_dir``, all through a staging folder."""
+        vehicle.toml (the vehicle run, where known), spec.toml (the spec run, where known;
+        ``rerun``: what rerunning it gives, where that is not these landings) and the
+        figures (``plots``) into ``out_dir``, all through a staging folder."""
         out = Path(out_dir)
         with staged(out, "montecarlo") as staging:
             if self.vehicle is not None:
@@ -180,8 +180,9 @@ class MonteCarloResult:
             if self.spec is not None:
                 (staging / "spec.toml").write_text(
                     "# the spec as run (--n and --seed applied, defaults filled in): "
-                    "jaxland montecarlo spec.toml --config vehicle.toml runs these landings "
-                    "again\n" + montecarlo_spec_to_toml(self.spec))
+                    "jaxland montecarlo spec.toml --config vehicle.toml runs "
+                    + (rerun or "these landings again") + "\n"
+                    + montecarlo_spec_to_toml(self.spec))
             cols = self.columns()
             atomic_write_csv(staging / "samples.csv", cols)
             np.savez_compressed(staging / "samples.npz", **cols)

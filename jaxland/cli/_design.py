@@ -3,12 +3,12 @@
 ``add_subcommands(subparsers)`` registers it on an ``argparse`` subparsers object. The handler
 writes, through a staging folder moved into place only once every file exists:
 ``design_vehicle.toml`` (loadable by ``jaxland simulate --config``; only for a feasible design),
-``design_report.json``, ``figures/design_*.png`` and the verification's landings,
-``verification/before/`` and ``verification/after/`` (Monte Carlo folders). Exit codes: 0
-feasible design that passed its verification, 4 no feasible design found (the report names
-the violated constraints), 5 a design feasible on its scenes that the verification Monte
-Carlo does not confirm after the re-optimisation rounds (the report and stderr say why), 2
-invalid input, 3 numerical failure.
+``design_report.json``, ``figures/design_*.png`` and, where a verification ran, its
+landings, ``verification/before/`` and ``verification/after/`` (Monte Carlo folders). Exit
+codes: 0 feasible design that passed its verification, 4 no feasible design found (the
+report names the violated constraints), 5 a design feasible on its scenes that the
+verification Monte Carlo does not confirm after the re-optimisation rounds (the report and
+stderr say why), 2 invalid input, 3 numerical failure.
 """
 
 from __future__ import annotations
@@ -149,7 +149,9 @@ def _cmd_design(args) -> int:
         # folder: inputs and outcomes per sample (t_end_s: where each one ended, continued)
         for tag, res in (("before", result.mc_before), ("after", result.mc_after)):
             if res is not None:
-                res.save(staging / "verification" / tag, plots=False)
+                res.save(staging / "verification" / tag, plots=False, rerun=(
+                    "these landings to t_end_s again; those the verification judged at a "
+                    "later end (samples.csv, t_end_s) ran on from there"))
     total = time.perf_counter() - t0
     print(f"jaxland design: total {total:.1f} s (last optimisation {result.wall_s:.1f} s)")
     print(f"design {result.status} after {result.iterations_run} iterations in "
