@@ -229,6 +229,30 @@ def test_tip_over_on_both_sides_of_the_rigid_body_boundary():
     assert abs(o["peak_tilt_deg"] - np.degrees(np.arctan2(d, h))) < 4.0
 
 
+def test_a_tipped_landing_s_max_stroke_stops_at_its_tip():
+    """After a tip-over the run goes on unchecked (no body-to-ground contact: no landing any
+    more), and the stroke memory runs on with it: here from 34 mm at the tip (0.0565 s) to
+    70 mm at 0.14 s and 87 mm at 0.4 s, the legs of the tipped body on their bottoming stops
+    (derivatives of -4e6 m per unit of F1's scale at 0.4 s). The summary's max stroke stops
+    at the tip as every peak does: the same bits as a run that ends at the tip, and a finite,
+    sane derivative."""
+    sc = Scene(drop_height=0.0, sink_speed=2.0, horizontal_speed=30.0, heading=np.radians(45.0),
+               friction=2.0)
+
+    def run(t_end, f1_scale=1.0, save_dt=None):
+        solver = jl.Solver(dt=2e-5, t_end=t_end, save_dt=save_dt or t_end, method="euler")
+        veh = eqx.tree_at(lambda v: v.honeycomb.F1, VEH, VEH.honeycomb.F1 * f1_scale)
+        return jl.landing(veh, sc, solver, "full")
+
+    traj, s = jax.device_get(jax.jit(lambda: run(0.15, save_dt=0.01))())
+    assert bool(s["tipped"]) and 0.05 < float(s["tip_over_time_s"]) < 0.06
+    assert np.max(traj["stroke_max_m"][-1]) > 1.5 * np.max(s["max_stroke_m"])  # ran on
+    _, at_tip = jax.device_get(jax.jit(lambda: run(float(s["tip_over_time_s"])))())
+    np.testing.assert_array_equal(s["max_stroke_m"], at_tip["max_stroke_m"])
+    d = jax.jacfwd(lambda a: jnp.max(run(0.15, a)[1]["max_stroke_m"]))(1.0)
+    assert np.isfinite(d) and abs(float(d)) < 0.1, d
+
+
 def test_jit_vmap_grad_through_a_3d_landing_match_finite_differences():
     solver = jl.Solver(dt=1e-5, t_end=0.12, save_dt=1e-3)
 

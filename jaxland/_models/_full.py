@@ -465,6 +465,9 @@ class FullModel(AbstractModel):
             peak_foot_accel_mps2=_norm_rows(acc[2]),
             peak_tilt_deg=record["tilt_deg"],
             peak_margin_deficit_m=-record["stability_margin_m"],
+            # the max stroke as a peak: one that stops at a tip-over (the summary's
+            # max_stroke_m), where the memory runs on with the tipped body's motion
+            peak_stroke_max_m=record["stroke_max_m"],
         )
 
     def leg_max(self, x):

@@ -27,10 +27,13 @@ UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on 
 # UNFINISHED. At a strut deceleration of 1 g it would add 5 um of stroke, below 1e-3 of a max
 # stroke of 5 mm or more; a leg creeping under a settling vehicle stays below it.
 UNFINISHED_RATE_MPS = 0.01
+# a model that can tip over keeps its max stroke as this peak: the summary's max_stroke_m then
+# stops at the tip, as every peak does, where the stroke memory runs on to t_end
+STROKE_PEAK = "peak_stroke_max_m"
 # peaks that are always kept when ``Solver.peaks`` names a subset: the verdict judges the step
-# limit by the first two, the early-stop bound reads all four
+# limit by the first two, the early-stop bound reads the next two, the summary the last
 ALWAYS_KEPT = ("peak_normal_force_N", "peak_honeycomb_force_N", "peak_strut_force_N",
-               "peak_body_accel_mps2")
+               "peak_body_accel_mps2", STROKE_PEAK)
 
 
 class Setup(eqx.Module):
@@ -231,11 +234,15 @@ def summary(model: AbstractModel, s_end, track: Track, st: Setup, scene) -> dict
                        jnp.where(track.n_events > 0,
                                  jnp.where(cut, int(Result.UNFINISHED), int(Result.SUCCESSFUL)),
                                  int(Result.NO_TOUCHDOWN)))
+    peaks = track.peaks_with(model, ev_end)
+    final = model.final_summary(s_end, ev_end.record)
+    if STROKE_PEAK in peaks:  # up to a tip-over (the memory itself for an upright landing)
+        final["max_stroke_m"] = peaks.pop(STROKE_PEAK)
     return dict(
         # the end state is a step's state too: its values join the peaks (a landing cut off
         # while compressing peaks there), as its largest stroke does in ``final_summary``
-        **track.peaks_with(model, ev_end),
-        **model.final_summary(s_end, ev_end.record),
+        **peaks,
+        **final,
         event_times_s=track.events(),
         n_contact_changes=track.n_events,
         energy_initial_J=st.energy0,
