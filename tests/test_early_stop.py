@@ -82,3 +82,21 @@ def test_early_stop_needs_a_run_without_trajectory_and_a_fixed_step():
     with pytest.raises(jl.ConfigError, match="fixed-step"):
         jl.Solver(dt=1e-5, t_end=0.5, save_dt=0.5, method="tsit5", early_stop=True).validate()
     jl.Solver(dt=1e-5, t_end=0.5, save_dt=0.5, method="verlet", early_stop=True).validate()
+
+
+def test_early_stop_differentiates_forward_and_refuses_reverse_by_name():
+    """The early stop runs in a while loop, which JAX differentiates forward only: jacfwd
+    agrees with a central difference, and jax.grad is refused as solver.early_stop, where
+    JAX's own error named no setting."""
+    solver = jl.Solver(dt=1e-4, t_end=0.05, save_dt=0.05, early_stop=True)
+
+    def stroke(v):
+        scene = jl.Scene(drop_height=0.0, sink_speed=v)
+        return jl.landing(jl.paper_vehicle(), scene, solver, "quarter")[1]["max_stroke_m"]
+
+    d = float(jax.jacfwd(stroke)(2.0))
+    h, at = 1e-6, jax.jit(stroke)
+    assert d == pytest.approx(float(at(2.0 + h) - at(2.0 - h)) / (2 * h), rel=1e-4)
+    with pytest.raises(jl.ConfigError, match=r"solver\.early_stop = True: has no reverse-mode "
+                                             r"derivative .* run without early_stop"):
+        jax.grad(stroke)(2.0)

@@ -15,6 +15,11 @@ import math
 from typing import ClassVar, NamedTuple
 
 import equinox as eqx
+import jax
+import jax.extend.core
+import jax.interpreters.ad as ad
+import jax.interpreters.batching as batching
+import jax.interpreters.mlir as mlir
 import numpy as np
 from jaxtyping import Array
 
@@ -367,3 +372,32 @@ def _steps_fit(span: float, dt: float) -> bool:
 
 def _finite_positive(x) -> bool:
     return _is_number(x) and x > 0
+
+
+# The identity on the outputs of a landing run in a while loop: derivatives forward pass
+# through it, and a cotangent reaching it (jax.grad, jax.vjp) is refused by the setting that
+# chose the loop, before it reaches the loop, whose own refusal names no setting
+_forward_only_p = jax.extend.core.Primitive("jaxland_forward_only")
+_forward_only_p.def_impl(lambda x, **_: x)
+_forward_only_p.def_abstract_eval(lambda x, **_: x)
+ad.primitive_jvps[_forward_only_p] = lambda p, t, **why: (_forward_only_p.bind(p[0], **why),
+                                                          _forward_only_p.bind(t[0], **why))
+batching.primitive_batchers[_forward_only_p] = lambda x, axes, **why: (
+    _forward_only_p.bind(x[0], **why), axes[0])
+mlir.register_lowering(_forward_only_p, mlir.lower_fun(lambda x, **_: x,
+                                                       multiple_results=False))
+
+
+def _refuse_cotangent(ct, _, field, value, rule):
+    if isinstance(ct, ad.Zero):  # an output the derivative does not use
+        return [ct]
+    raise ConfigError(field, value, rule)
+
+
+ad.primitive_transposes[_forward_only_p] = _refuse_cotangent
+
+
+def forward_only(x, field: str, value, rule: str):
+    """``x`` as it is; its reverse-mode derivative is refused as ``ConfigError(field, value,
+    rule)`` (the setting that runs the landing in a while loop)."""
+    return _forward_only_p.bind(x, field=field, value=value, rule=rule)

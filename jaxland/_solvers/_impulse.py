@@ -37,14 +37,11 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.extend.core
-import jax.interpreters.ad as ad
-import jax.interpreters.batching as batching
-import jax.interpreters.mlir as mlir
 import jax.numpy as jnp
 
 from .._errors import ConfigError
 from .._models import AbstractImpulseModel
-from ._base import AbstractIntegrator, positive
+from ._base import AbstractIntegrator, forward_only, positive
 from ._loop import Track, advance, kick, record, setup, summary
 
 # shortest time step, as a fraction of its cap solver.dt: a grazing contact with a tiny force
@@ -59,30 +56,11 @@ def check_adjoint(owner: str, adjoint: str) -> None:
         raise ConfigError(f"{owner}.adjoint", adjoint, "must be 'forward' or 'reverse'")
 
 
-# The identity on a forward-mode landing's outputs: derivatives forward pass through it, and a
-# cotangent reaching it (jax.grad, jax.vjp) is refused by name before it reaches the while
-# loop, whose own refusal says nothing of the adjoint option
-_forward_only_p = jax.extend.core.Primitive("jaxland_forward_only")
-_forward_only_p.def_impl(lambda x: x)
-_forward_only_p.def_abstract_eval(lambda x: x)
-ad.primitive_jvps[_forward_only_p] = lambda p, t: (_forward_only(p[0]), _forward_only(t[0]))
-batching.primitive_batchers[_forward_only_p] = lambda x, axes: (_forward_only(x[0]), axes[0])
-mlir.register_lowering(_forward_only_p, mlir.lower_fun(lambda x: x, multiple_results=False))
-
-
-def _refuse_cotangent(ct, _):
-    if isinstance(ct, ad.Zero):  # an output the derivative does not use
-        return [ct]
-    raise ConfigError("solver.adjoint", "forward", "has no reverse-mode derivative (jax.grad, "
-                      "jax.vjp): its while loop differentiates forward only (jax.jacfwd, "
-                      "jax.jvp); for jax.grad use jaxland.Impulse(adjoint='reverse')")
-
-
-ad.primitive_transposes[_forward_only_p] = _refuse_cotangent
-
-
 def _forward_only(x):
-    return _forward_only_p.bind(x)
+    return forward_only(x, "solver.adjoint", "forward", "has no reverse-mode derivative "
+                        "(jax.grad, jax.vjp): its while loop differentiates forward only "
+                        "(jax.jacfwd, jax.jvp); for jax.grad use "
+                        "jaxland.Impulse(adjoint='reverse')")
 
 
 class Impulse(AbstractIntegrator):

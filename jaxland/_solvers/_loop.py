@@ -19,7 +19,7 @@ from jaxtyping import Array
 from .._errors import ConfigError
 from .._laws._minmax import fmax
 from .._models import AbstractModel, Evaluation
-from ._base import ENERGY_TOLERANCE, N_EVENTS, Result
+from ._base import ENERGY_TOLERANCE, N_EVENTS, Result, forward_only
 from ._settle import check_steps, mass_diagonal, settled
 
 UNROLL = 1  # inner-loop unroll factor (unrolling made the fused step slower on CPU)
@@ -306,7 +306,11 @@ def run_fixed(integrator, model: AbstractModel, vehicle, scene, solver):
     if solver.early_stop:
         traj = (jax.tree.map(lambda x: x[None], save_point(st.state0)) if solver.trajectory
                 else {})
-        return traj, _run_until_settled(model, st, scene, solver, steps, carry0)
+        return traj, jax.tree.map(lambda x: forward_only(
+            x, "solver.early_stop", True, "has no reverse-mode derivative (jax.grad, "
+            "jax.vjp): its while loop differentiates forward only (jax.jacfwd, jax.jvp); for "
+            "jax.grad run without early_stop"),
+            _run_until_settled(model, st, scene, solver, steps, carry0))
     (s_end, track, _), traj = jax.lax.scan(save_block, carry0,
                                         jnp.arange(solver.n_saves, dtype=jnp.float64))
     return traj, summary(model, s_end, track, st, scene)
