@@ -709,21 +709,25 @@ class DropTest:
         )
 
 
+def _per_column(key: str, spec, chans: dict) -> dict:
+    """{column: value} from a metadata key ``key`` given as one value for every column or as
+    a table by column (``spec``; None: {}), each table entry naming a column of ``chans``."""
+    if spec is None:
+        return {}
+    if not isinstance(spec, dict):
+        return {c: spec for c in chans}
+    for col, value in spec.items():
+        if col not in chans:
+            raise _err(f"{key}.{col}", value, "names no column of the record (after unit "
+                       "conversion); columns: " + ", ".join(chans))
+    return dict(spec)
+
+
 def _filters(spec, chans: dict, rate: float) -> dict:
     """{column: CFC class} from the metadata's ``filter_cfc`` (one class or a table)."""
     from ._filter import CFC_CLASSES, min_rate_Hz
 
-    if spec is None:
-        return {}
-    if isinstance(spec, dict):
-        out = {}
-        for col, cfc in spec.items():
-            if col not in chans:
-                raise _err(f"filter_cfc.{col}", cfc, "names no column of the record (after unit "
-                           "conversion); columns: " + ", ".join(chans))
-            out[col] = cfc
-    else:
-        out = {c: spec for c in chans}
+    out = _per_column("filter_cfc", spec, chans)
     for col, cfc in out.items():
         if isinstance(cfc, bool) or cfc not in CFC_CLASSES:
             raise _err("filter_cfc", cfc, "must be one of the SAE J211 channel frequency "
@@ -739,16 +743,7 @@ def _filters(spec, chans: dict, rate: float) -> dict:
 def _gain_uncertainty(spec, chans: dict) -> dict:
     """{column: relative standard uncertainty of its gain} from the metadata's
     ``gain_uncertainty_rel`` (one number for every column or a table); a zero is left out."""
-    if spec is None:
-        return {}
-    if isinstance(spec, dict):
-        for col in spec:
-            if col not in chans:
-                raise _err(f"gain_uncertainty_rel.{col}", spec[col], "names no column of the "
-                           "record (after unit conversion); columns: " + ", ".join(chans))
-        out = dict(spec)
-    else:
-        out = {c: spec for c in chans}
+    out = _per_column("gain_uncertainty_rel", spec, chans)
     for col, rel in out.items():
         if isinstance(rel, bool) or not isinstance(rel, (int, float)) or not (
                 0.0 <= rel <= GAIN_UNCERTAINTY_MAX):
