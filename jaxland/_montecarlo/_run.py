@@ -621,7 +621,7 @@ def _summarise(spec, model, inputs, outputs, failure, wall, n_dev, chunk) -> dic
             method="least squares on standardised inputs: change per standard deviation; "
                    "an azimuth enters as its sine and cosine",
             **sensitivity(inputs, target, ok,
-                          {k: period(k) for k in inputs if period(k) is not None})),
+                          {k: p for k in inputs if (p := period(k)) is not None})),
         dispersion={k: v.record() for k, v in spec.dispersion.items()},
         fixed=spec.fixed,
         environment=run_environment(),

@@ -36,7 +36,6 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax
-import jax.extend.core
 import jax.numpy as jnp
 
 from .._errors import ConfigError
