@@ -1,7 +1,7 @@
 # jaxland: two commands on a fresh machine with Python 3.11.
 #   make demo   simulate the paper's 0.2 m drop: out/paper-drop/{trajectory.csv, summary.json,
 #               scene.toml, vehicle.toml, effective_vehicle.toml, figures/}
-#   make test   run the test suite (16 to 17 minutes on 2 cores)
+#   make test   run the test suite (17 to 19 minutes on 2 cores)
 # Both create .venv and install jaxland from pyproject.toml on first use.
 
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
